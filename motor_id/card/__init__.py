@@ -1,0 +1,1 @@
+"""The simulated serial card: frame protocol and a virtual card on a pseudo-terminal."""

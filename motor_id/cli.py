@@ -1,0 +1,57 @@
+"""`motor-id` command line: parse, dispatch to the module that owns the subcommand, print.
+
+Each subcommand lives in the module that does the work; that module exposes
+``add_arguments(parser)`` and ``run(args) -> int``. Library errors (MotorIdError)
+become one line on stderr and exit code 2, never a traceback.
+"""
+
+import argparse
+import importlib
+import sys
+
+from motor_id.errors import MotorIdError
+
+COMMANDS = {
+    'fit': ('motor_id.commands.fit', 'identify motor parameters from a CSV or MCAP recording'),
+    'simulate': ('motor_id.commands.simulate', 'write simulated motor data to CSV'),
+    'analyze': ('motor_id.discrepancy', 'find what the linear model misses and extend it'),
+    'card-sim': ('motor_id.card.simulator', 'run a simulated serial card on a pseudo-terminal'),
+    'import': ('motor_id.importers', 'convert measured data (emps, dunker, csv) to MCAP'),
+    'replay': ('motor_id.commands.replay', 'identify from a bag offline or republish it'),
+    'bag': ('motor_id.commands.bag', 'inspect or recover an MCAP recording'),
+    'demo': ('motor_id.commands.demo', 'simulated card + driver + identifier, end to end'),
+}
+
+
+def main(argv=None):
+    """Console-script entry point."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in COMMANDS:
+        module_name, help_text = COMMANDS[argv[0]]
+        parser = argparse.ArgumentParser(prog=f'motor-id {argv[0]}', description=help_text)
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            print(f'motor-id {argv[0]}: not available ({exc})', file=sys.stderr)
+            return 2
+        module.add_arguments(parser)
+        args = parser.parse_args(argv[1:])
+        try:
+            return int(module.run(args) or 0)
+        except MotorIdError as exc:
+            print(f'motor-id {argv[0]}: error: {exc}', file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f'motor-id {argv[0]}: interrupted', file=sys.stderr)
+            return 130
+    parser = argparse.ArgumentParser(
+        prog='motor-id', description='DC motor parameter identification (motor_id).',
+        epilog='commands:\n' + '\n'.join(f'  {k:<10} {v[1]}' for k, v in COMMANDS.items()),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('command', choices=list(COMMANDS), help='see below')
+    parser.parse_args(argv[:1])
+    return 2
+
+
+if __name__ == '__main__':
+    sys.exit(main())

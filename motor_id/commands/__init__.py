@@ -1,0 +1,1 @@
+"""Subcommands of the `motor-id` CLI: thin wrappers around the core."""

@@ -1,0 +1,323 @@
+"""The DC motor model: parameters, named effect terms, continuous dynamics, discretisation.
+
+Units are SI throughout: J [kg m^2], K_T [N m/A], K_b [V s/rad], B [N m s/rad],
+L_m [H], R_m [Ohm], speed [rad/s], current [A], voltage [V], torque [N m].
+
+Two plant kinds share this module:
+
+* ``'voltage'``: the armature-voltage-driven motor, x = [speed, current],
+  ``J dw/dt = K_T i - B w + tau_extra``, ``L_m di/dt = V - R_m i - K_b w``.
+* ``'torque'``: a current- or torque-controlled drive seen from its mechanical side,
+  x = [speed], ``J dw/dt = u - B w + tau_extra`` with u the applied torque (or force:
+  then J is a mass and B a viscous coefficient in N s/m).
+
+Every non-linear or extra physical term is a named *effect* in :data:`EFFECTS`; the
+simulator (card), the fitter and the discrepancy analysis all use this one catalogue.
+"""
+
+from dataclasses import asdict, dataclass, field
+import math
+
+import numpy as np
+from scipy.linalg import expm
+
+from motor_id.errors import ConfigError
+
+PARAM_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
+PARAM_UNITS = {
+    'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad',
+    'L_m': 'H', 'R_m': 'Ohm',
+}
+MECHANICAL_PARAMS = ('J', 'B')
+INPUT_KINDS = ('voltage', 'torque')
+METHODS = ('zoh', 'euler')
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """Physical parameters of a permanent-magnet DC motor (SI units)."""
+
+    J: float = 0.052
+    K_T: float = 0.66
+    K_b: float = 0.64
+    B: float = 0.002
+    L_m: float = 0.0345
+    R_m: float = 2.3
+
+    def __post_init__(self):
+        for name in PARAM_NAMES:
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)):
+                raise ConfigError(f'parameter {name} must be a finite number, got {value!r}')
+            if value <= 0:
+                raise ConfigError(f'parameter {name} must be > 0, got {value}')
+
+    def to_dict(self):
+        """Return the parameters as a plain ``{name: float}`` dict."""
+        return {k: float(v) for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, values):
+        """Build from a dict; unknown keys raise :class:`ConfigError`."""
+        unknown = set(values) - set(PARAM_NAMES)
+        if unknown:
+            raise ConfigError(
+                f'unknown motor parameter(s) {sorted(unknown)}; expected {list(PARAM_NAMES)}')
+        return cls(**{k: float(v) for k, v in values.items()})
+
+
+PAPER_MOTOR = MotorParams()
+"""The motor of the paper: R_m 2.3, L_m 34.5 mH, J 0.052, K_T 0.66, K_b 0.64, B 0.002."""
+
+
+@dataclass(frozen=True)
+class EffectParam:
+    """One parameter of an effect: name, unit, default magnitude and plausible range."""
+
+    name: str
+    unit: str
+    default: float
+    low: float
+    high: float
+
+
+@dataclass(frozen=True)
+class EffectSpec:
+    """A named physical term that extends the linear model."""
+
+    name: str
+    equation: str
+    params: tuple
+    kinds: tuple = INPUT_KINDS
+    description: str = ''
+
+    def defaults(self):
+        """Return ``{param: default}``."""
+        return {p.name: p.default for p in self.params}
+
+
+EFFECTS = {e.name: e for e in (
+    EffectSpec('coulomb_friction', 'tau -= T_c sgn(w); stuck (w = 0) while |drive| <= T_c',
+               (EffectParam('T_c', 'N m', 0.05, 0.0, 1e3),),
+               description='dry friction with stiction at zero speed'),
+    EffectSpec('load_torque', 'tau -= T_L',
+               (EffectParam('T_L', 'N m', 0.05, -1e3, 1e3),),
+               description='constant load torque (or force offset)'),
+    EffectSpec('quadratic_load', 'tau -= k_q w |w|',
+               (EffectParam('k_q', 'N m s^2/rad^2', 2e-4, 0.0, 1e3),),
+               description='fan or pump load growing with the square of speed'),
+    EffectSpec('brush_drop', 'V -= V_b sgn(i)',
+               (EffectParam('V_b', 'V', 0.6, 0.0, 100.0),), kinds=('voltage',),
+               description='constant voltage drop across the brushes'),
+    EffectSpec('dead_zone', 'V_eff = 0 if |V| <= V_dz else V - V_dz sgn(V)',
+               (EffectParam('V_dz', 'V (input unit)', 0.8, 0.0, 1e3),),
+               description='the driver passes nothing below V_dz'),
+    EffectSpec('input_delay', 'V_eff(k) = V(k - d)',
+               (EffectParam('d', 'samples', 3, 0, 500),),
+               description='transport delay of whole samples'),
+    EffectSpec('voltage_saturation', 'V_eff = clip(V, -V_max, V_max)',
+               (EffectParam('V_max', 'V (input unit)', 6.0, 0.0, 1e4),),
+               description='the amplifier clips the input'),
+    EffectSpec('sensor_lag', 'tau_s dy/dt = w - y (speed sensor first-order filter)',
+               (EffectParam('tau_s', 's', 0.05, 0.0, 10.0),),
+               description='first-order lag of the speed measurement'),
+    EffectSpec('speed_quantization', 'y = q round(w / q)',
+               (EffectParam('q', 'rad/s per count', 0.3, 0.0, 1e3),),
+               description='encoder counts per sample period'),
+    EffectSpec('resistance_drift', 'R = R_m + dR, d(dR)/dt = k_h i^2 - dR / tau_th',
+               (EffectParam('k_h', 'Ohm/(A^2 s)', 0.02, 0.0, 1e3),
+                EffectParam('tau_th', 's', 20.0, 0.1, 1e5)), kinds=('voltage',),
+               description='armature heating raises the resistance'),
+    EffectSpec('resonance', 'two-mass shaft: J_m = J/(1+r), J_l = J r/(1+r), '
+               'k_s = J_l (2 pi f_r)^2, c_s = 2 zeta sqrt(k_s J_l)',
+               (EffectParam('r', '-', 1.0, 0.01, 100.0),
+                EffectParam('f_r', 'Hz', 4.0, 0.01, 1e3),
+                EffectParam('zeta', '-', 0.05, 0.0, 5.0)),
+               description='a compliant shaft between motor and load'),
+)}
+"""The catalogue of named effects; parameter ranges are the allowed ranges."""
+
+
+def validate_effects(effects, input_kind='voltage'):
+    """Check an ``{effect: {param: value}}`` mapping against :data:`EFFECTS`.
+
+    Missing parameters take their defaults. Returns a new, complete dict.
+    """
+    out = {}
+    for name, values in (effects or {}).items():
+        if name not in EFFECTS:
+            raise ConfigError(f'unknown effect {name!r}; known effects: {sorted(EFFECTS)}')
+        spec = EFFECTS[name]
+        if input_kind not in spec.kinds:
+            raise ConfigError(f'effect {name!r} does not apply to a {input_kind}-input plant')
+        values = dict(values or {})
+        unknown = set(values) - {p.name for p in spec.params}
+        if unknown:
+            raise ConfigError(f'effect {name!r} has no parameter(s) {sorted(unknown)}; '
+                              f'it takes {[p.name for p in spec.params]}')
+        full = {}
+        for p in spec.params:
+            v = float(values.get(p.name, p.default))
+            if not (math.isfinite(v) and p.low <= v <= p.high):
+                raise ConfigError(f'effect {name}.{p.name} = {v} is outside '
+                                  f'[{p.low}, {p.high}] {p.unit}')
+            full[p.name] = v
+        out[name] = full
+    return out
+
+
+def parse_effect_args(items):
+    """Parse CLI items ``NAME`` or ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` into effects.
+
+    ``NAME=VALUE`` sets the effect's first parameter.
+    """
+    effects = {}
+    for item in items or ():
+        key, _, value = item.partition('=')
+        name, _, pname = key.partition('.')
+        if name not in EFFECTS:
+            raise ConfigError(f'unknown effect {name!r}; known effects: {sorted(EFFECTS)}')
+        entry = effects.setdefault(name, {})
+        if value:
+            pname = pname or EFFECTS[name].params[0].name
+            try:
+                entry[pname] = float(value)
+            except ValueError:
+                raise ConfigError(f'effect value {item!r} is not a number') from None
+    return effects
+
+
+@dataclass
+class Plant:
+    """A complete model: physical parameters, plant kind and the named effects it has."""
+
+    params: MotorParams = field(default_factory=MotorParams)
+    input_kind: str = 'voltage'
+    effects: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.input_kind not in INPUT_KINDS:
+            raise ConfigError(f'input_kind must be one of {INPUT_KINDS}, got {self.input_kind!r}')
+        self.effects = validate_effects(self.effects, self.input_kind)
+
+    def to_dict(self):
+        """JSON-ready description."""
+        return {'params': self.params.to_dict(), 'input_kind': self.input_kind,
+                'effects': self.effects}
+
+
+def n_states(input_kind, resonance=False):
+    """Number of states of the continuous model."""
+    base = 2 if input_kind == 'voltage' else 1
+    return base + (2 if resonance else 0)
+
+
+def continuous_matrices(theta, input_kind='voltage', resonance=None):
+    """Continuous state-space matrices for a batch of parameter sets.
+
+    Parameters
+    ----------
+    theta : dict of array_like
+        ``J, B`` (and ``K_T, K_b, L_m, R_m`` for a voltage plant), each shape (P,).
+    input_kind : {'voltage', 'torque'}
+    resonance : dict of array_like, optional
+        ``r, f_r, zeta`` of the two-mass shaft, each shape (P,).
+
+    Returns
+    -------
+    F : ndarray, shape (P, n, n)
+        State matrix; state 0 is the motor speed, state 1 the current (voltage plant).
+    G : ndarray, shape (P, n, 2)
+        Input matrix; column 0 the input (voltage or torque), column 1 an extra torque
+        acting on the motor shaft (friction, load).
+    """
+    J = np.atleast_1d(np.asarray(theta['J'], dtype=float))
+    B = np.atleast_1d(np.asarray(theta['B'], dtype=float))
+    P = J.shape[0]
+    n = n_states(input_kind, resonance is not None)
+    F = np.zeros((P, n, n))
+    G = np.zeros((P, n, 2))
+    Jm = J
+    if resonance is not None:
+        r = np.asarray(resonance['r'], dtype=float) * np.ones(P)
+        Jm = J / (1 + r)
+        Jl = J * r / (1 + r)
+        ks = Jl * (2 * np.pi * np.asarray(resonance['f_r'], dtype=float)) ** 2
+        cs = 2 * np.asarray(resonance['zeta'], dtype=float) * np.sqrt(ks * Jl)
+    F[:, 0, 0] = -B / Jm
+    G[:, 0, 1] = 1 / Jm
+    if input_kind == 'voltage':
+        K_T = np.asarray(theta['K_T'], dtype=float)
+        K_b = np.asarray(theta['K_b'], dtype=float)
+        L = np.asarray(theta['L_m'], dtype=float)
+        R = np.asarray(theta['R_m'], dtype=float)
+        F[:, 0, 1] = K_T / Jm
+        F[:, 1, 0] = -K_b / L
+        F[:, 1, 1] = -R / L
+        G[:, 1, 0] = 1 / L
+        k = 2
+    else:
+        G[:, 0, 0] = 1 / Jm
+        k = 1
+    if resonance is not None:
+        # states k: load speed, k+1: shaft twist (motor angle - load angle)
+        F[:, 0, 0] -= cs / Jm
+        F[:, 0, k] = cs / Jm
+        F[:, 0, k + 1] = -ks / Jm
+        F[:, k, 0] = cs / Jl
+        F[:, k, k] = -cs / Jl
+        F[:, k, k + 1] = ks / Jl
+        F[:, k + 1, 0] = 1.0
+        F[:, k + 1, k] = -1.0
+    return F, G
+
+
+def discretize(F, G, dt, method='zoh'):
+    """Discretise ``dx/dt = F x + G u`` with the input held over each interval.
+
+    Parameters
+    ----------
+    F : ndarray, shape (P, n, n)
+    G : ndarray, shape (P, n, m)
+    dt : array_like, shape (K,)
+        Interval lengths [s]; one discretisation per interval length.
+    method : {'zoh', 'euler'}
+        ``'zoh'`` is exact (matrix exponential of the augmented matrix);
+        ``'euler'`` is the paper's first-order truncation A = I + F T, b = G T.
+
+    Returns
+    -------
+    A : ndarray, shape (P, K, n, n)
+    Bd : ndarray, shape (P, K, n, m)
+    """
+    if method not in METHODS:
+        raise ConfigError(f'discretisation must be one of {METHODS}, got {method!r}')
+    dt = np.atleast_1d(np.asarray(dt, dtype=float))
+    P, n, _ = F.shape
+    m = G.shape[2]
+    K = dt.shape[0]
+    if method == 'euler':
+        eye = np.eye(n)
+        A = eye + F[:, None] * dt[None, :, None, None]
+        Bd = G[:, None] * dt[None, :, None, None]
+        return A, Bd
+    M = np.zeros((P, K, n + m, n + m))
+    M[:, :, :n, :n] = F[:, None]
+    M[:, :, :n, n:] = G[:, None]
+    M *= dt[None, :, None, None]
+    E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
+    return E[:, :, :n, :n], E[:, :, :n, n:]
+
+
+def speed_transfer_coefficients(p):
+    """Coefficients of w/V = b0 / (s^2 + a1 s + a0) for a voltage plant.
+
+    These three are all that voltage and speed data determine:
+    ``b0 = K_T/(J L_m)``, ``a1 = R_m/L_m + B/J``, ``a0 = (R_m B + K_T K_b)/(J L_m)``.
+    """
+    J, K_T, K_b, B, L, R = (p[k] for k in PARAM_NAMES)
+    return {
+        'K_T/(J*L_m)': K_T / (J * L),
+        'R_m/L_m + B/J': R / L + B / J,
+        '(R_m*B + K_T*K_b)/(J*L_m)': (R * B + K_T * K_b) / (J * L),
+    }
