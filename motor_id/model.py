@@ -309,15 +309,38 @@ def discretize(F, G, dt, method='zoh'):
     return E[:, :, :n, :n], E[:, :, :n, n:]
 
 
-def speed_transfer_coefficients(p):
-    """Coefficients of w/V = b0 / (s^2 + a1 s + a0) for a voltage plant.
+def transfer_coefficients(p, input_kind='voltage', channels=('speed',)):
+    """The coefficients of the continuous transfer functions the data can determine.
 
-    These three are all that voltage and speed data determine:
-    ``b0 = K_T/(J L_m)``, ``a1 = R_m/L_m + B/J``, ``a0 = (R_m B + K_T K_b)/(J L_m)``.
+    For a voltage plant, w/V = b0 / (s^2 + a1 s + a0) and
+    i/V = (c1 s + c0) / (s^2 + a1 s + a0) with
+    ``b0 = K_T/(J L_m)``, ``a1 = R_m/L_m + B/J``, ``a0 = (R_m B + K_T K_b)/(J L_m)``,
+    ``c1 = 1/L_m``, ``c0 = B/(J L_m)``. For a torque plant, w/u = (1/J) / (s + B/J).
+    Input-output data of the linear model determine exactly these numbers; a
+    parameter is identifiable iff it is a locally unique function of them.
+
+    Parameters
+    ----------
+    p : dict
+        Parameter values by name.
+    input_kind : {'voltage', 'torque'}
+    channels : tuple of str
+        Measured outputs: 'speed' and optionally 'current'.
+
+    Returns
+    -------
+    dict
+        ``{expression: value}`` in a fixed order.
     """
+    if input_kind == 'torque':
+        return {'1/J': 1.0 / p['J'], 'B/J': p['B'] / p['J']}
     J, K_T, K_b, B, L, R = (p[k] for k in PARAM_NAMES)
-    return {
+    out = {
         'K_T/(J*L_m)': K_T / (J * L),
         'R_m/L_m + B/J': R / L + B / J,
         '(R_m*B + K_T*K_b)/(J*L_m)': (R * B + K_T * K_b) / (J * L),
     }
+    if 'current' in channels:
+        out['1/L_m'] = 1.0 / L
+        out['B/(J*L_m)'] = B / (J * L)
+    return out

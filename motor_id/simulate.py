@@ -78,6 +78,33 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
     return X, Y
 
 
+@numba.njit(cache=True, nogil=True)
+def _linear_kernel(A, Bd, idx, u, x0):
+    """Fast path without effects: returns the first two states (P, N, 2)."""
+    P, N = u.shape
+    n = A.shape[2]
+    out = np.zeros((P, N, 2))
+    for p in range(P):
+        x = x0[p].copy()
+        xn = np.zeros(n)
+        for k in range(N):
+            out[p, k, 0] = x[0]
+            if n > 1:
+                out[p, k, 1] = x[1]
+            if k == N - 1:
+                break
+            c = idx[k]
+            v = u[p, k]
+            for j in range(n):
+                acc = Bd[p, c, j, 0] * v
+                for m in range(n):
+                    acc += A[p, c, j, m] * x[m]
+                xn[j] = acc
+            for j in range(n):
+                x[j] = xn[j]
+    return out
+
+
 def interval_table(t):
     """Split time stamps into unique interval lengths and an index per interval.
 
@@ -192,15 +219,28 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
             return _as_batch(effects[name][key], P)
         return np.full(P, default)
 
+    kernel_effects = {'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
+                      'resistance_drift', 'sensor_lag'}
+    if not kernel_effects & set(effects):
+        X = _linear_kernel(A, Bd, idx, ueff, x0b)
+        Y = X[:, :, 0]
+        out = {'speed': _quantize(Y, effects, P), 'states': X}
+        if input_kind == 'voltage':
+            out['current'] = X[:, :, 1]
+        return out
     X, Y = _kernel(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
                    eff('coulomb_friction', 'T_c'), eff('load_torque', 'T_L'),
                    eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
                    eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
                    eff('sensor_lag', 'tau_s'))
-    if 'speed_quantization' in effects:
-        q = _as_batch(effects['speed_quantization']['q'], P)[:, None]
-        Y = np.where(q > 0, np.round(Y / np.where(q > 0, q, 1.0)) * q, Y)
-    out = {'speed': Y, 'states': X}
+    out = {'speed': _quantize(Y, effects, P), 'states': X}
     if input_kind == 'voltage':
         out['current'] = X[:, :, 1]
     return out
+
+
+def _quantize(Y, effects, P):
+    if 'speed_quantization' not in effects:
+        return Y
+    q = _as_batch(effects['speed_quantization']['q'], P)[:, None]
+    return np.where(q > 0, np.round(Y / np.where(q > 0, q, 1.0)) * q, Y)

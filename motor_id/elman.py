@@ -1,0 +1,246 @@
+"""The linear Elman network: physical parameters <-> weights, and the free n-order net.
+
+The paper's network is ``X(k) = W_xc X(k-1) + W_xu U(k-1)``, ``Y(k) = W_yx X(k)`` with
+the context weights tied to the discrete motor model: ``W_xc = A``, ``W_xu = b``,
+``W_yx = [1 0]``. Under the paper's Euler discretisation ``b = [0, T/L_m]``, which is
+where its fixed ``w11_xu = 0`` comes from; under exact zero-order hold ``b[0]`` is small
+but not zero, and it too is a function of the physical parameters, not a free weight.
+
+The *free* net has n hidden units and unconstrained weights. Any minimal linear Elman
+net is, up to a change of basis of its hidden state, equal to its observable canonical
+form, so the free net is trained in that form (2n numbers; the other n^2 weights are
+exactly the basis freedom the data cannot see) and exported as full weight matrices.
+"""
+
+from dataclasses import dataclass, field
+import time
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.signal import lfilter
+
+from motor_id.errors import ConfigError, DataError
+from motor_id.ga import Bounds, GeneticAlgorithm
+from motor_id.model import continuous_matrices, discretize
+
+
+@dataclass
+class ElmanWeights:
+    """The weights of a linear Elman net (one hidden layer of n context units)."""
+
+    W_xc: np.ndarray
+    W_xu: np.ndarray
+    W_yx: np.ndarray
+
+    def forward(self, u, x0=None):
+        """Run the net on an input sequence; returns the output sequence Y."""
+        u = np.asarray(u, dtype=float)
+        n = self.W_xc.shape[0]
+        x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).copy()
+        y = np.empty(u.size)
+        for k in range(u.size):
+            y[k] = self.W_yx @ x
+            x = self.W_xc @ x + self.W_xu * u[k]
+        return y
+
+    def to_dict(self):
+        """JSON-ready."""
+        return {'W_xc': self.W_xc.tolist(), 'W_xu': self.W_xu.tolist(),
+                'W_yx': self.W_yx.tolist()}
+
+
+def physical_weights(params, T, method='zoh'):
+    """Weights of the paper's constrained net for one parameter set and period T.
+
+    Parameters
+    ----------
+    params : dict
+        ``J, K_T, K_b, B, L_m, R_m``.
+    T : float
+        Sample period [s].
+    method : {'zoh', 'euler'}
+
+    Returns
+    -------
+    ElmanWeights
+        ``W_xc = A`` (2x2), ``W_xu = b`` (voltage column), ``W_yx = [1, 0]``.
+    """
+    F, G = continuous_matrices({k: np.atleast_1d(v) for k, v in params.items()})
+    A, Bd = discretize(F, G, [T], method)
+    return ElmanWeights(A[0, 0], Bd[0, 0, :, 0], np.array([1.0, 0.0]))
+
+
+def weights_to_physical(weights, T, R_m, K_b=None):
+    """Invert the paper's Euler weights to physical parameters.
+
+    Under Euler, ``A = I + F T``: ``a12 = K_T T/J``, ``a11 = 1 - B T/J``,
+    ``a21 = -K_b T/L``, ``a22 = 1 - R T/L`` and ``b2 = T/L``. With R_m known this gives
+    L_m and K_b; J, K_T and B only as ratios unless one of them is known.
+    """
+    A = weights.W_xc
+    L = T / weights.W_xu[1]
+    K_b_est = -A[1, 0] * L / T
+    out = {'L_m': L, 'K_b': K_b_est, 'R_m_implied': (1 - A[1, 1]) * L / T,
+           'K_T/J': A[0, 1] / T, 'B/J': (1 - A[0, 0]) / T}
+    if K_b is not None:
+        J = K_b / out['K_T/J']
+        out.update({'J_if_K_T_eq_K_b': J, 'B_if_K_T_eq_K_b': out['B/J'] * J})
+    return out
+
+
+def canonical_weights(a, b):
+    """Observable canonical weights for ``y(k) = sum a_i y(k-i) + sum b_i u(k-i)``."""
+    n = len(a)
+    W_xc = np.zeros((n, n))
+    W_xc[:, 0] = a
+    W_xc[:-1, 1:] = np.eye(n - 1)
+    return ElmanWeights(W_xc, np.asarray(b, dtype=float), np.eye(n)[0])
+
+
+def _simulate_free(theta, u, n, y0):
+    """Outputs of free nets; theta (P, 2n) = [a_1..a_n, b_1..b_n]."""
+    theta = np.atleast_2d(theta)
+    out = np.empty((theta.shape[0], u.size))
+    for p, th in enumerate(theta):
+        a, b = th[:n], th[n:]
+        den = np.concatenate([[1.0], -a])
+        num = np.concatenate([[0.0], b])
+        with np.errstate(all='ignore'):
+            out[p] = lfilter(num, den, u) + y0
+    return out
+
+
+def _arx(u, y, n):
+    """Equation-error (ARX) start for the output-error fit."""
+    N = y.size
+    rows = [y[n - i - 1:N - i - 1] for i in range(n)] + [u[n - i - 1:N - i - 1]
+                                                         for i in range(n)]
+    Phi = np.column_stack(rows)
+    theta, *_ = np.linalg.lstsq(Phi, y[n:], rcond=None)
+    return theta
+
+
+@dataclass
+class OrderEvidence:
+    """Evidence for one net order."""
+
+    order: int
+    n_params: int
+    train_rmse: float
+    validation_rmse: float
+    aic: float
+    bic: float
+    weights: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        """JSON-ready."""
+        return {'order': self.order, 'n_params': self.n_params,
+                'train_rmse': self.train_rmse, 'validation_rmse': self.validation_rmse,
+                'aic': self.aic, 'bic': self.bic, 'weights': self.weights}
+
+
+class FreeElmanOrderSelection:
+    """Find the smallest free linear Elman net that explains the data.
+
+    Each order n = 1..``max_order`` is trained by the same GA (bounds around the
+    equation-error estimate) and refined by least squares on the first
+    ``1 - validation`` share of the record; its output error is then scored on the
+    held-out rest. The chosen order is the one with the lowest BIC on the training part,
+    unless a smaller order's validation error is within ``tolerance`` of the best.
+
+    Parameters
+    ----------
+    max_order : int
+    validation : float
+        Share of samples held out at the end.
+    tolerance : float
+        Relative validation-error slack that favours the smaller order.
+    population, generations, random_state
+        GA settings.
+    """
+
+    def __init__(self, max_order=4, validation=0.3, tolerance=0.05, population=20,
+                 generations=160, random_state=None):
+        if not 1 <= max_order <= 8:
+            raise ConfigError(f'max_order must be in 1..8, got {max_order}')
+        if not 0.05 <= validation <= 0.8:
+            raise ConfigError(f'validation share must be in [0.05, 0.8], got {validation}')
+        self.max_order = max_order
+        self.validation = validation
+        self.tolerance = tolerance
+        self.population = population
+        self.generations = generations
+        self.random_state = random_state
+
+    def fit(self, u, y):
+        """Train every order on (u, y) and choose one; returns self.
+
+        Sets ``order_`` (int), ``evidence_`` (list of OrderEvidence), ``weights_``
+        (ElmanWeights of the chosen order) and ``seconds_``.
+        """
+        u = np.asarray(u, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if u.shape != y.shape or u.ndim != 1:
+            raise DataError('u and y must be 1-D arrays of the same length')
+        if u.size < 50:
+            raise DataError(f'too few samples for order selection: {u.size} (need 50)')
+        t0 = time.perf_counter()
+        rng = np.random.default_rng(self.random_state)
+        n_tr = int(round(u.size * (1 - self.validation)))
+        y0 = y[0]
+        scale = np.std(y[:n_tr]) or 1.0
+        evidence = []
+        fitted = {}
+        for n in range(1, self.max_order + 1):
+            start = _arx(u[:n_tr], y[:n_tr] - y0, n)
+            half = np.maximum(np.abs(start), 1e-3)
+            bounds = Bounds(tuple(f'a{i + 1}' for i in range(n)) +
+                            tuple(f'b{i + 1}' for i in range(n)),
+                            tuple(start - 2 * half), tuple(start + 2 * half),
+                            (False,) * (2 * n))
+
+            def cost(X, n=n):
+                e = _simulate_free(X, u[:n_tr], n, y0) - y[:n_tr]
+                c = np.mean(e * e, axis=1) / scale ** 2
+                return np.where(np.isfinite(c), c, np.inf)
+
+            ga = GeneticAlgorithm(bounds, self.population, self.generations, x0=start,
+                                  random_state=rng).run(cost)
+
+            def resid(th, n=n):
+                r = (_simulate_free(th, u[:n_tr], n, y0)[0] - y[:n_tr]) / scale
+                return np.where(np.isfinite(r), r, 1e6)
+
+            sol = least_squares(resid, ga.best_, method='lm', max_nfev=200 * 2 * n)
+            th = sol.x
+            y_hat = _simulate_free(th, u, n, y0)[0]
+            e_tr = y_hat[:n_tr] - y[:n_tr]
+            e_va = y_hat[n_tr:] - y[n_tr:]
+            k = 2 * n
+            mse = float(np.mean(e_tr ** 2))
+            aic = n_tr * np.log(mse) + 2 * k
+            bic = n_tr * np.log(mse) + k * np.log(n_tr)
+            w = canonical_weights(th[:n], th[n:])
+            fitted[n] = w
+            evidence.append(OrderEvidence(n, k, float(np.sqrt(mse)),
+                                          float(np.sqrt(np.mean(e_va ** 2))),
+                                          float(aic), float(bic), w.to_dict()))
+        best_bic = min(evidence, key=lambda e: e.bic)
+        best_val = min(e.validation_rmse for e in evidence)
+        order = best_bic.order
+        for e in evidence:  # smallest order that validates as well as the best
+            if e.order < order and e.validation_rmse <= best_val * (1 + self.tolerance):
+                order = e.order
+                break
+        self.order_ = order
+        self.evidence_ = evidence
+        self.weights_ = fitted[order]
+        self.seconds_ = time.perf_counter() - t0
+        return self
+
+    def to_dict(self):
+        """JSON-ready summary of the selection."""
+        return {'order': self.order_, 'evidence': [e.to_dict() for e in self.evidence_],
+                'rule': 'lowest training BIC; a smaller order wins if its held-out RMS '
+                        f'error is within {self.tolerance:.0%} of the best',
+                'seconds': self.seconds_}

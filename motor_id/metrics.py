@@ -1,0 +1,67 @@
+"""Fit quality and residual diagnostics: fit %, RMS, autocorrelation, input cross-correlation."""
+
+import numpy as np
+
+Z99 = 2.576
+
+
+def normalised_fit(y, y_hat):
+    """Normalised fit in percent: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``."""
+    y = np.asarray(y, dtype=float)
+    den = np.linalg.norm(y - y.mean())
+    if den == 0:
+        return float('nan')
+    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))
+
+
+def correlation(a, b, max_lag):
+    """Normalised cross-correlation ``r_ab(tau)`` for tau = 0..max_lag (b lags a)."""
+    a = np.asarray(a, dtype=float) - np.mean(a)
+    b = np.asarray(b, dtype=float) - np.mean(b)
+    n = a.size
+    den = np.sqrt(np.dot(a, a) * np.dot(b, b))
+    if den == 0:
+        return np.zeros(max_lag + 1)
+    return np.array([np.dot(a[:n - k], b[k:]) / den for k in range(max_lag + 1)])
+
+
+def residual_diagnostics(residual, u, max_lag=25):
+    """Whiteness and independence tests of a residual sequence.
+
+    Parameters
+    ----------
+    residual : array_like
+        Measured minus simulated output.
+    u : array_like
+        The input.
+    max_lag : int
+
+    Returns
+    -------
+    dict
+        ``autocorrelation`` (lags 1..max_lag), ``cross_correlation`` with the input
+        (lags 0..max_lag), the 99 % confidence ``band`` (2.58/sqrt(N)), and the share
+        of lags outside the band for each (``*_outside``); ``white`` / ``independent``
+        are True when at most 5 % of lags fall outside.
+    """
+    e = np.asarray(residual, dtype=float)
+    n = e.size
+    band = Z99 / np.sqrt(n)
+    ac = correlation(e, e, max_lag)[1:]
+    cc = correlation(u, e, max_lag)
+    ac_out = float(np.mean(np.abs(ac) > band))
+    cc_out = float(np.mean(np.abs(cc) > band))
+    return {'max_lag': max_lag, 'band': float(band),
+            'autocorrelation': ac.tolist(), 'cross_correlation': cc.tolist(),
+            'autocorrelation_outside': ac_out, 'cross_correlation_outside': cc_out,
+            'white': ac_out <= 0.05, 'independent': cc_out <= 0.05}
+
+
+def channel_metrics(y, y_hat, u, max_lag=25):
+    """Fit %, RMS error and residual diagnostics of one output channel."""
+    y = np.asarray(y, dtype=float)
+    e = y - np.asarray(y_hat, dtype=float)
+    out = {'fit_percent': normalised_fit(y, y_hat), 'rms': float(np.sqrt(np.mean(e * e))),
+           'n_samples': int(y.size)}
+    out.update(residual_diagnostics(e, u, max_lag))
+    return out
