@@ -145,8 +145,8 @@ class FreeElmanOrderSelection:
     Each order n = 1..``max_order`` is trained by the same GA (bounds around the
     equation-error estimate) and refined by least squares on the first
     ``1 - validation`` share of the record; its output error is then scored on the
-    held-out rest. The chosen order is the one with the lowest BIC on the training part,
-    unless a smaller order's validation error is within ``tolerance`` of the best.
+    held-out rest. The chosen order is the smallest whose training BIC is within 10 of
+    the lowest and whose held-out error is within ``tolerance`` of the best.
 
     Parameters
     ----------
@@ -200,8 +200,9 @@ class FreeElmanOrderSelection:
                             (False,) * (2 * n))
 
             def cost(X, n=n):
-                e = _simulate_free(X, u[:n_tr], n, y0) - y[:n_tr]
-                c = np.mean(e * e, axis=1) / scale ** 2
+                with np.errstate(all='ignore'):
+                    e = _simulate_free(X, u[:n_tr], n, y0) - y[:n_tr]
+                    c = np.mean(e * e, axis=1) / scale ** 2
                 return np.where(np.isfinite(c), c, np.inf)
 
             ga = GeneticAlgorithm(bounds, self.population, self.generations, x0=start,
@@ -225,13 +226,14 @@ class FreeElmanOrderSelection:
             evidence.append(OrderEvidence(n, k, float(np.sqrt(mse)),
                                           float(np.sqrt(np.mean(e_va ** 2))),
                                           float(aic), float(bic), w.to_dict()))
-        best_bic = min(evidence, key=lambda e: e.bic)
+        best_bic = min(e.bic for e in evidence)
         best_val = min(e.validation_rmse for e in evidence)
-        order = best_bic.order
-        for e in evidence:  # smallest order that validates as well as the best
-            if e.order < order and e.validation_rmse <= best_val * (1 + self.tolerance):
-                order = e.order
-                break
+        # the smallest order that both the information criterion (within 10, "strong
+        # evidence" on Kass-Raftery's scale) and the held-out error accept
+        order = next(e.order for e in evidence
+                     if (e.bic <= best_bic + 10.0
+                         and e.validation_rmse <= best_val * (1 + self.tolerance))
+                     or e.bic == best_bic)
         self.order_ = order
         self.evidence_ = evidence
         self.weights_ = fitted[order]
@@ -241,6 +243,6 @@ class FreeElmanOrderSelection:
     def to_dict(self):
         """JSON-ready summary of the selection."""
         return {'order': self.order_, 'evidence': [e.to_dict() for e in self.evidence_],
-                'rule': 'lowest training BIC; a smaller order wins if its held-out RMS '
-                        f'error is within {self.tolerance:.0%} of the best',
+                'rule': 'smallest order with training BIC within 10 of the lowest and '
+                        f'held-out RMS error within {self.tolerance:.0%} of the best',
                 'seconds': self.seconds_}

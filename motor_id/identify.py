@@ -297,10 +297,14 @@ class Identifier:
         return theta, effects
 
     def _simulate(self, X):
-        theta, effects = self._expand(X)
+        """Outputs for parameter rows X; extra trailing columns are the initial state."""
+        X = np.atleast_2d(X)
+        d = self._bounds.dim
+        x0 = X[:, d:] if X.shape[1] > d else self._x0
+        theta, effects = self._expand(X[:, :d])
         with np.errstate(all='ignore'):
             out = simulate_batch(theta, self._t, self._u, self._kind, self._disc, effects,
-                                 self._x0)
+                                 x0)
         return np.concatenate([out[c] for c in self._channels], axis=1)
 
     def _cost(self, X):
@@ -310,23 +314,33 @@ class Identifier:
         return np.where(np.isfinite(c), c, np.inf)
 
     # ------------------------------------------------------------- transforms
+    def _log_mask(self, size):
+        """Which of ``size`` coordinates are on a log scale (initial states never are)."""
+        lg = np.zeros(size, dtype=bool)
+        lg[:self._bounds.dim] = self._bounds.log
+        return lg
+
     def _to_z(self, x):
-        lg = np.array(self._bounds.log)
+        lg = self._log_mask(np.shape(x)[-1])
         return np.where(lg, np.log(np.where(lg, np.maximum(x, 1e-300), 1.0)), x)
 
     def _from_z(self, z):
-        lg = np.array(self._bounds.log)
+        lg = self._log_mask(np.shape(z)[-1])
         return np.where(lg, np.exp(z), z)
 
-    def _z_bounds(self):
-        return self._to_z(np.array(self._bounds.low)), self._to_z(np.array(self._bounds.high))
+    def _z_bounds(self, size=None):
+        lo = self._to_z(np.array(self._bounds.low))
+        hi = self._to_z(np.array(self._bounds.high))
+        if size is not None and size > lo.size:
+            lo = np.concatenate([lo, self._x0_bounds[0]])
+            hi = np.concatenate([hi, self._x0_bounds[1]])
+        return lo, hi
 
     def _jacobian_z(self, z, weights):
         """Central-difference Jacobian of weighted residuals w.r.t. z, one batch."""
         d = z.size
         h = 1e-5 * np.maximum(1.0, np.abs(z))
-        lg = np.array(self._bounds.log)
-        h = np.where(lg, 1e-5, h)
+        h = np.where(self._log_mask(d), 1e-5, h)
         Z = np.repeat(z[None, :], 2 * d, axis=0)
         Z[np.arange(d), np.arange(d)] += h
         Z[d + np.arange(d), np.arange(d)] -= h
@@ -335,7 +349,7 @@ class Identifier:
         return Jt.T
 
     def _refine(self, z0, weights, max_nfev=60):
-        lo, hi = self._z_bounds()
+        lo, hi = self._z_bounds(z0.size)
         z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
         def fun(z):
@@ -377,6 +391,10 @@ class Identifier:
         if self._kind == 'voltage':
             x0.append(rec.current[0] if rec.has_current else 0.0)
         self._x0 = np.array(x0)
+        ys0 = [rec.speed] + ([rec.current] if self._kind == 'voltage' and rec.has_current
+                             else [np.zeros(1)] if self._kind == 'voltage' else [])
+        span = np.array([np.max(np.abs(y)) * 2 + 1.0 for y in ys0])
+        self._x0_bounds = (self._x0 - span, self._x0 + span)
         ys = [getattr(rec, c) for c in self._channels]
         self._y = np.concatenate(ys)
         scales = [np.std(y) if np.std(y) > 0 else 1.0 for y in ys]
@@ -411,6 +429,9 @@ class Identifier:
         refine_info = {'used': False}
         z_best = self._to_z(best)
         if self.method != 'paper':
+            # the refinement also estimates the initial state (nuisance parameters):
+            # starting from a noisy first sample would bias the fit
+            z_best = np.concatenate([z_best, self._x0])
             starts = [z_best]
             if ga is not None and self.refine_starts > 1:
                 order = np.argsort(ga.costs_)
@@ -418,7 +439,7 @@ class Identifier:
                 for k in order:
                     if len(starts) >= self.refine_starts:
                         break
-                    zk = pop[k]
+                    zk = np.concatenate([pop[k], self._x0])
                     if all(np.max(np.abs(zk - s)) > 0.05 for s in starts):
                         starts.append(zk)
             sols = [self._refine(s, self._w) for s in starts]
@@ -483,13 +504,15 @@ class Identifier:
     def _build_result(self, rec, x_best, z_best, J, sigma, n_per, ga, ga_seconds,
                       refine_info):
         names = list(self._bounds.names)
+        state_names = ['x0:speed', 'x0:current'][:z_best.size - len(names)]
+        names = names + state_names
         rank, Vr, Vn, determined = self._structural(z_best)
         Jr = J @ Vr  # output sensitivities along the identifiable directions
         fisher_r = Jr.T @ Jr
         sr = np.linalg.svd(fisher_r, compute_uv=False) if rank else np.zeros(0)
         cov = Vr @ np.linalg.pinv(fisher_r, rcond=1e-15) @ Vr.T
         cond = float(sr[0] / sr[-1]) if rank and sr[-1] > 0 else float('inf')
-        lg = np.array(self._bounds.log)
+        lg = self._log_mask(len(names))
         params = {}
         values = dict(self._fixed)
         for j, n in enumerate(names):
@@ -545,13 +568,16 @@ class Identifier:
             fit['noise_std'][ch] = sg
             i += n
         fit['cost'] = float(np.mean(((pred_full - self._y) * self._w) ** 2))
+        fit['initial_state'] = {n: float(x_best[names.index(n)]) for n in state_names}
         prediction = {'time': rec.time, 'input': rec.voltage}
         i = 0
         for ch, n in zip(self._channels, n_per):
             prediction[ch] = pred_full[i:i + n]
             prediction[ch + '_measured'] = self._y[i:i + n]
             i += n
-        idf = {'rank': rank, 'n_free': len(names), 'free': names,
+        n_model = len(names) - len(state_names)
+        idf = {'rank': rank - len(state_names), 'n_free': n_model, 'free': names[:n_model],
+               'nuisance': state_names,
                'condition': cond,
                'basis': 'transfer-function coefficients (structural); covariance from '
                         'output sensitivities on the identifiable subspace',
@@ -614,7 +640,7 @@ class Identifier:
         say) does not make a parameter look determined.
         """
         rng = np.random.default_rng(20261122)
-        lo, hi = self._z_bounds()
+        lo, hi = self._z_bounds(z.size)
         points = [z] + [lo + rng.uniform(0.2, 0.8, z.size) * (hi - lo) for _ in range(3)]
         best = None
         determined = np.ones(z.size, dtype=bool)

@@ -244,3 +244,44 @@ def _quantize(Y, effects, P):
         return Y
     q = _as_batch(effects['speed_quantization']['q'], P)[:, None]
     return np.where(q > 0, np.round(Y / np.where(q > 0, q, 1.0)) * q, Y)
+
+
+def simulate_recording(plant, t, u, speed_noise=0.0, current_noise=0.0, with_current=True,
+                       method='zoh', random_state=None, meta=None):
+    """Simulate one plant and return a :class:`motor_id.recording.Recording`.
+
+    Parameters
+    ----------
+    plant : motor_id.model.Plant
+    t, u : array_like
+        Times [s] and input.
+    speed_noise, current_noise : float
+        Standard deviation of additive white Gaussian noise as a fraction of the
+        channel's own standard deviation (0.005 = 0.5 %).
+    with_current : bool
+        Include the current channel (voltage plants only).
+    method : {'zoh', 'euler'}
+    random_state : int, Generator or None
+    meta : dict, optional
+
+    Returns
+    -------
+    Recording
+    """
+    from motor_id.recording import Recording
+
+    rng = (random_state if isinstance(random_state, np.random.Generator)
+           else np.random.default_rng(random_state))
+    out = simulate_batch(plant.params.to_dict(), t, u, plant.input_kind, method,
+                         plant.effects)
+    speed = out['speed'][0]
+    speed = speed + speed_noise * np.std(speed) * rng.standard_normal(speed.size)
+    current = None
+    if with_current and plant.input_kind == 'voltage':
+        current = out['current'][0]
+        current = current + current_noise * np.std(current) * rng.standard_normal(current.size)
+    info = {'simulated': True, 'truth': plant.to_dict(), 'speed_noise': speed_noise,
+            'current_noise': current_noise}
+    info.update(meta or {})
+    return Recording(np.asarray(t, dtype=float), np.asarray(u, dtype=float), speed, current,
+                     plant.input_kind, info)
