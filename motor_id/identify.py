@@ -365,7 +365,7 @@ class Identifier:
                              x_scale='jac', max_nfev=max_nfev, xtol=1e-10, ftol=1e-12)
 
     # -------------------------------------------------------------------- fit
-    def fit(self, rec, progress=None):
+    def fit(self, rec, progress=None, sample_weight=None):
         """Fit the model to a recording.
 
         Parameters
@@ -374,6 +374,10 @@ class Identifier:
         progress : callable, optional
             ``progress(generation, generations, best_cost)``; returning True cancels
             the GA (the best so far is then refined and reported).
+        sample_weight : array_like, shape (N,), optional
+            Non-negative weight of each sample in the cost (every channel); 0 leaves a
+            sample out of the fit while the simulation still runs through it (held-out
+            blocks for validation).
 
         Returns
         -------
@@ -400,6 +404,15 @@ class Identifier:
         scales = [np.std(y) if np.std(y) > 0 else 1.0 for y in ys]
         self._w = np.concatenate([np.full(y.size, 1.0 / s) for y, s in zip(ys, scales)])
         n_per = [y.size for y in ys]
+        self._sw = np.ones(self._y.size)
+        if sample_weight is not None:
+            sw = np.asarray(sample_weight, dtype=float)
+            if sw.shape != rec.time.shape or not np.all(np.isfinite(sw) & (sw >= 0)) \
+                    or not np.any(sw > 0):
+                raise ConfigError(f'sample_weight must hold {len(rec)} finite values >= 0, '
+                                  'not all zero')
+            self._sw = np.tile(sw, len(ys))
+            self._w = self._w * self._sw
 
         # ---- GA (the paper's network training)
         t_ga = time.perf_counter()
@@ -490,11 +503,12 @@ class Identifier:
         d = z.size
         for n in n_per:
             rc = r[i:i + n]
-            dof = max(n - d / len(n_per), 1.0)
-            s = float(np.sqrt(np.sum(rc * rc) / dof))
+            swc = self._sw[i:i + n]
+            dof = max(np.sum(swc) - d / len(n_per), 1.0)
+            s = float(np.sqrt(np.sum(swc * rc * rc) / dof))
             s = s if s > 0 else 1e-12 * (np.std(self._y[i:i + n]) or 1.0)
             sig.append(s)
-            w.append(np.full(n, 1.0 / s))
+            w.append(swc / s)
             i += n
         return sig, np.concatenate(w)
 

@@ -301,6 +301,13 @@ def discretize(F, G, dt, method='zoh'):
         A = eye + F[:, None] * dt[None, :, None, None]
         Bd = G[:, None] * dt[None, :, None, None]
         return A, Bd
+    if n == 1:  # scalar plant: closed form, exact and immune to extreme F dt
+        fdt = F[:, None, 0, 0] * dt[None, :]
+        a = np.exp(fdt)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            phi = np.where(fdt != 0.0, np.expm1(fdt) / np.where(fdt != 0.0, fdt, 1.0), 1.0)
+        Bd = G[:, None] * (phi * dt[None, :])[:, :, None, None]
+        return a[:, :, None, None], Bd
     M = np.zeros((P, K, n + m, n + m))
     M[:, :, :n, :n] = F[:, None]
     M[:, :, :n, n:] = G[:, None]
