@@ -1,0 +1,195 @@
+"""The identifier node: buffers `samples`, fits on request, publishes latched estimates."""
+
+import sys
+import threading
+import time
+
+from diagnostic_msgs.msg import DiagnosticArray
+import numpy as np
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import Trigger
+
+from motor_id.buffer import SampleBuffer
+from motor_id.errors import ConfigError, DataError, MotorIdError
+from motor_id.identify import Identifier, METHODS
+from motor_id.nodes import messages
+from motor_id.nodes.common import declare_parameters, ParamSpec, run_node
+
+PARAMETERS = (
+    ParamSpec('method', 'zoh', 'identification method: zoh (exact, recommended), euler, '
+              'paper (as published)', choices=METHODS),
+    ParamSpec('R_m', 2.3, 'known armature resistance [Ohm]', low=1e-6, high=1e6),
+    ParamSpec('tie_kt_kb', 'auto', 'impose K_T = K_b (auto: when current is measured)',
+              choices=('auto', True, False), dynamic=True),
+    ParamSpec('input_kind', 'voltage', 'plant input on the voltage column',
+              choices=('voltage', 'torque')),
+    ParamSpec('window_s', 60.0, 'card time fitted, the most recent [s]', low=0.05,
+              high=86400.0),
+    ParamSpec('max_samples', 200000, 'rows kept in the buffer', low=100, high=10000000),
+    ParamSpec('min_samples', 200, 'fewest rows a fit accepts', low=20, high=10000000),
+    ParamSpec('allow_gaps', False, 'fit the latest gap-free segment instead of refusing a '
+              'window with gaps'),
+    ParamSpec('population', 20, 'GA population', low=4, high=10000),
+    ParamSpec('generations', 160, 'GA generations', low=1, high=1000000),
+    ParamSpec('seed', 0, 'GA random seed', low=0, high=2 ** 31 - 1),
+    ParamSpec('period_s', 0.0, 're-identify every this many seconds (0: only on request)',
+              low=0.0, high=86400.0),
+)
+
+
+class IdentifierNode(Node):
+    """Subscribes `samples`, serves `~/identify`, publishes `~/estimate` and `~/report`.
+
+    The samples subscription and the fit run in different callback groups under a
+    MultiThreadedExecutor, so reception continues during a fit; the fit works on a
+    snapshot copied under the buffer's lock. Only one fit runs at a time: a second
+    request while one runs is answered at once with ``success=False``.
+    """
+
+    def __init__(self):
+        super().__init__('identifier')
+        self.settings = declare_parameters(self, PARAMETERS)
+        if self.settings['min_samples'] > self.settings['max_samples']:
+            raise ConfigError(f'parameter min_samples: {self.settings["min_samples"]} is '
+                              f'more than max_samples ({self.settings["max_samples"]})')
+        self.buffer = SampleBuffer(self.settings['max_samples'], self.settings['window_s'])
+        self._fit_lock = threading.Lock()
+        self._stopping = threading.Event()
+        self._bad_messages = 0
+        self._fits = {'ok': 0, 'failed': 0}
+        self._last = 'no fit yet'
+        rx_group = MutuallyExclusiveCallbackGroup()
+        fit_group = ReentrantCallbackGroup()
+        self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC, self._on_samples,
+                                 messages.SAMPLES_QOS, callback_group=rx_group)
+        self.estimate_pub = self.create_publisher(DiagnosticArray, '~/estimate',
+                                                  messages.LATCHED_QOS)
+        self.report_pub = self.create_publisher(String, '~/report', messages.LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
+                                              messages.DIAGNOSTICS_QOS)
+        self.create_service(Trigger, '~/identify', self._on_identify, callback_group=fit_group)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=rx_group)
+        if self.settings['period_s'] > 0:
+            self.create_timer(self.settings['period_s'], self._on_period,
+                              callback_group=fit_group)
+        self.add_on_set_parameters_callback(self._on_set)
+        self.get_logger().info(
+            f'identifier ready: method {self.settings["method"]}, window '
+            f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm')
+
+    # ------------------------------------------------------------- callbacks
+    def _on_set(self, params):
+        for p in params:
+            if p.name == 'window_s':
+                self.buffer.window_s = float(p.value)
+        return SetParametersResult(successful=True)
+
+    def _on_samples(self, msg):
+        try:
+            self.buffer.extend(messages.msg_to_rows(msg))
+        except DataError as exc:
+            self._bad_messages += 1
+            if self._bad_messages == 1:
+                self.get_logger().warning(f'ignoring malformed samples message(s): {exc}')
+
+    def _on_identify(self, request, response):
+        response.success, response.message = self.identify()
+        return response
+
+    def _on_period(self):
+        ok, text = self.identify()
+        if not ok and 'already running' not in text:
+            self.get_logger().warning(f'periodic identification: {text}')
+
+    def _publish_diagnostics(self):
+        snap_rows = len(self.buffer)
+        values = {'rows': snap_rows, 'received': self.buffer.received,
+                  'duplicates': self.buffer.duplicates, 'gaps': self.buffer.gaps,
+                  'malformed_messages': self._bad_messages, 'fits_ok': self._fits['ok'],
+                  'fits_failed': self._fits['failed'],
+                  'fit_running': self._fit_lock.locked()}
+        level = messages.OK if snap_rows else messages.WARN
+        st = messages.status('motor_id: identifier', level, self._last, values)
+        self._publish(self.diag_pub,
+                      messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
+
+    def _publish(self, pub, msg):
+        if self.context.ok():
+            pub.publish(msg)
+
+    # ------------------------------------------------------------------ work
+    def identify(self):
+        """Fit the buffered window; return ``(success, message)``. Never raises."""
+        if not self._fit_lock.acquire(blocking=False):
+            return False, 'a fit is already running; try again when it finishes'
+        try:
+            return self._identify()
+        finally:
+            self._fit_lock.release()
+
+    def _identify(self):
+        p = {s.name: self.get_parameter(s.name).value for s in PARAMETERS}
+        started = time.perf_counter()
+        try:
+            snap = self.buffer.snapshot()
+            rec = snap.recording(p['min_samples'], p['allow_gaps'], p['input_kind'],
+                                 {'source': 'identifier node'})
+            tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])
+            est = Identifier(method=p['method'], R_m=p['R_m'], tie=tie,
+                             population=p['population'], generations=p['generations'],
+                             random_state=p['seed'])
+            self.get_logger().info(
+                f'fitting {len(rec)} samples ({rec.time[-1] - rec.time[0]:.2f} s of card '
+                f'time, seq {rec.meta["seq_first"]}..{rec.meta["seq_last"]})')
+            est.fit(rec, progress=self._progress)
+        except MotorIdError as exc:
+            return self._failed(str(exc))
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            self.get_logger().error(f'identification failed: {type(exc).__name__}: {exc}')
+            return self._failed(f'identification failed: {type(exc).__name__}: {exc}')
+        if self._stopping.is_set():
+            return self._failed('cancelled: the node is shutting down')
+        res = est.result_
+        report = res.to_dict()
+        report['data'] = {'source': 'samples topic', 'samples': len(rec),
+                          'sample_period': rec.sample_period, 'regular': rec.is_regular,
+                          'channels': list(rec.channels()), 'input_kind': rec.input_kind,
+                          'seq_first': rec.meta['seq_first'],
+                          'seq_last': rec.meta['seq_last'],
+                          't_first': float(rec.time[0]), 't_last': float(rec.time[-1]),
+                          'gaps_skipped': len(snap.gaps)}
+        summary = res.summary()
+        stamp = self.get_clock().now().to_msg()
+        self._publish(self.estimate_pub, messages.estimate_to_msg(stamp, report, summary))
+        self._publish(self.report_pub, messages.report_msg(report))
+        self._fits['ok'] += 1
+        head = (f'identified from {len(rec)} samples in '
+                f'{time.perf_counter() - started:.2f} s')
+        self._last = head
+        self.get_logger().info(head + '\n' + summary)
+        return True, head + '\n' + summary
+
+    def _failed(self, reason):
+        self._fits['failed'] += 1
+        self._last = f'last fit refused: {reason}'
+        self.get_logger().warning(f'identify: {reason}')
+        return False, reason
+
+    def _progress(self, generation, generations, best_cost):
+        return self._stopping.is_set() or not self.context.ok()
+
+    def stop(self):
+        """Ask a running fit to stop at its next generation (called on shutdown)."""
+        self._stopping.set()
+
+
+def main(args=None):
+    """Console script `identifier`: spin the node until Ctrl-C / SIGTERM."""
+    return run_node(IdentifierNode, 'identifier', num_threads=4, args=args)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

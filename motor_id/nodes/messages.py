@@ -1,0 +1,161 @@
+"""The only place that knows ROS message types: conversions and the QoS profiles."""
+
+import json
+import math
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+import numpy as np
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
+
+from motor_id.buffer import COLUMNS
+from motor_id.errors import DataError
+
+SAMPLES_TOPIC = 'samples'
+CHANNEL_TOPICS = ('voltage', 'speed', 'current')
+VOLTAGE_COMMAND_TOPIC = 'voltage_command'
+DIAGNOSTICS_TOPIC = '/diagnostics'
+ROW_LABEL = ','.join(COLUMNS)
+
+SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+"""Sample batches: reliable with a real depth, so a slow subscriber loses nothing."""
+
+CHANNEL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.VOLATILE)
+"""Per-channel Float64 topics (for plotting tools) and the voltage command."""
+
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""Results (estimate, report): a late subscriber still gets the last one."""
+
+DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                             reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.VOLATILE)
+
+OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR,
+                          DiagnosticStatus.STALE)
+
+
+def rows_to_msg(rows):
+    """A batch of sample rows -> ``std_msgs/Float64MultiArray`` (CONTRACTS.md layout).
+
+    Parameters
+    ----------
+    rows : array_like, shape (n, 6)
+        Columns seq, t [s], voltage [V], speed [rad/s], current [A], flags.
+    """
+    rows = np.asarray(rows, dtype=float).reshape(-1, len(COLUMNS))
+    n = rows.shape[0]
+    msg = Float64MultiArray()
+    msg.layout.dim = [
+        MultiArrayDimension(label='samples', size=n, stride=len(COLUMNS) * n),
+        MultiArrayDimension(label=ROW_LABEL, size=len(COLUMNS), stride=len(COLUMNS)),
+    ]
+    msg.layout.data_offset = 0
+    msg.data = rows.ravel().tolist()
+    return msg
+
+
+def msg_to_rows(msg):
+    """``Float64MultiArray`` -> ndarray (n, 6); :class:`DataError` if the layout is wrong."""
+    dims = msg.layout.dim
+    width = len(COLUMNS)
+    if len(dims) != 2 or dims[1].size != width:
+        found = [(d.label, d.size) for d in dims]
+        raise DataError(f'samples message layout must be (samples, {width}) with columns '
+                        f'{ROW_LABEL}; got dims {found}')
+    n = dims[0].size
+    data = np.asarray(msg.data, dtype=float)
+    offset = msg.layout.data_offset
+    if data.size < offset + n * width:
+        raise DataError(f'samples message declares {n} rows but carries '
+                        f'{data.size - offset} values (need {n * width})')
+    return data[offset:offset + n * width].reshape(n, width)
+
+
+def float_msg(value):
+    """A ``std_msgs/Float64``."""
+    return Float64(data=float(value))
+
+
+def string_msg(text):
+    """A ``std_msgs/String``."""
+    return String(data=str(text))
+
+
+def _fmt(value):
+    if value is None:
+        return ''
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, float):
+        return repr(value) if math.isfinite(value) else str(value)
+    return str(value)
+
+
+def status(name, level, message, values=None, hardware_id=''):
+    """One ``diagnostic_msgs/DiagnosticStatus`` with string key/values."""
+    st = DiagnosticStatus(level=level, name=name, message=str(message),
+                          hardware_id=str(hardware_id))
+    st.values = [KeyValue(key=str(k), value=_fmt(v)) for k, v in (values or {}).items()]
+    return st
+
+
+def diagnostic_array(stamp, statuses):
+    """``diagnostic_msgs/DiagnosticArray`` of the given statuses stamped ``stamp``."""
+    msg = DiagnosticArray()
+    msg.header.stamp = stamp
+    msg.status = list(statuses)
+    return msg
+
+
+def estimate_values(report):
+    """Flatten a fit report dict into ordered key/values.
+
+    Keys are ``NAME``, ``NAME_std``, ``NAME_determined`` for each parameter, then
+    ``fit_percent_<channel>``, ``method`` and ``samples`` when present.
+    """
+    values = {}
+    for name, p in report.get('parameters', {}).items():
+        values[name] = p.get('value')
+        values[f'{name}_std'] = p.get('std')
+        values[f'{name}_determined'] = bool(p.get('determined'))
+    for ch, m in report.get('fit', {}).get('channels', {}).items():
+        if 'fit_percent' in m:
+            values[f'fit_percent_{ch}'] = m['fit_percent']
+    if 'method' in report:
+        values['method'] = report['method']
+    data = report.get('data', {})
+    if 'samples' in data:
+        values['samples'] = data['samples']
+    return values
+
+
+def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate'):
+    """The latched estimate: a DiagnosticArray with one status holding the parameters."""
+    values = estimate_values(report)
+    undetermined = [k for k, p in report.get('parameters', {}).items()
+                    if not p.get('determined')]
+    level = WARN if undetermined else OK
+    message = ('parameters estimated' if not undetermined
+               else f'not determined by the data: {", ".join(undetermined)}')
+    if summary:
+        values['summary'] = summary
+    return diagnostic_array(stamp, [status(name, level, message, values)])
+
+
+def msg_to_estimate(msg):
+    """Read an estimate DiagnosticArray back into ``{key: str}`` (first status)."""
+    if not msg.status:
+        return {}
+    return {kv.key: kv.value for kv in msg.status[0].values}
+
+
+def report_msg(report):
+    """The full fit report as JSON in a ``std_msgs/String`` (NaN/inf become null)."""
+    from motor_id.report import _clean
+    return String(data=json.dumps(_clean(report)))
