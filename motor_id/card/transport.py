@@ -1,0 +1,81 @@
+"""Opening the byte stream to a card: a serial device, a pseudo-terminal or ``loop://``."""
+
+import serial
+
+from motor_id.errors import ConfigError, MotorIdError
+
+
+class TransportError(MotorIdError):
+    """The card's device cannot be opened, read or written (absent, vanished, busy)."""
+
+
+def open_transport(url, baudrate=115200, timeout=0.1):
+    """Open a card connection with :func:`serial.serial_for_url`.
+
+    Parameters
+    ----------
+    url : str
+        A device path (``/dev/ttyACM0``, a pty such as ``/dev/pts/5`` or a symlink to
+        one) or a pyserial URL (``loop://`` for tests, ``socket://host:port``, ...).
+    baudrate : int
+        Line rate [bit/s]; ignored by ptys and ``loop://``.
+    timeout : float or None
+        Read timeout [s]; ``read`` returns what arrived within it (None blocks).
+
+    Returns
+    -------
+    serial.SerialBase
+        An open port; ``read``/``write`` raise :class:`serial.SerialException` when the
+        device goes away (use :func:`read_available` to get a :class:`TransportError`).
+
+    Raises
+    ------
+    ConfigError
+        Bad ``baudrate`` or ``timeout``.
+    TransportError
+        The device does not exist or cannot be opened.
+    """
+    if not isinstance(url, str) or not url:
+        raise ConfigError(f'the card URL must be a non-empty string, got {url!r}')
+    if not isinstance(baudrate, int) or baudrate <= 0:
+        raise ConfigError(f'baudrate must be a positive integer, got {baudrate!r}')
+    if timeout is not None and not timeout >= 0:
+        raise ConfigError(f'timeout must be >= 0 seconds or None, got {timeout!r}')
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise TransportError(f'cannot open {url}: {exc}') from None
+
+
+def read_available(port, max_bytes=4096):
+    """Read what the port has (waiting at most its timeout for the first byte).
+
+    Parameters
+    ----------
+    port : serial.SerialBase
+    max_bytes : int
+
+    Returns
+    -------
+    bytes
+        Possibly empty when nothing arrived within the timeout.
+
+    Raises
+    ------
+    TransportError
+        The device vanished or failed; close the port and open it again.
+    """
+    try:
+        waiting = port.in_waiting
+        return port.read(max(1, min(max_bytes, waiting)))
+    except (serial.SerialException, OSError) as exc:
+        raise TransportError(f'read from {port.name or port.port} failed: {exc}') from None
+
+
+def write_all(port, data):
+    """Write ``data`` and wait until it is sent; :class:`TransportError` on failure."""
+    try:
+        port.write(data)
+        port.flush()
+    except (serial.SerialException, OSError) as exc:
+        raise TransportError(f'write to {port.name or port.port} failed: {exc}') from None
