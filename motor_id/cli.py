@@ -7,6 +7,7 @@ become one line on stderr and exit code 2, never a traceback.
 
 import argparse
 import importlib
+import os
 import sys
 
 from motor_id.errors import MotorIdError
@@ -44,6 +45,9 @@ def main(argv=None):
         except KeyboardInterrupt:
             print(f'motor-id {argv[0]}: interrupted', file=sys.stderr)
             return 130
+        except BrokenPipeError:  # output piped into head & co.
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 0
     parser = argparse.ArgumentParser(
         prog='motor-id', description='DC motor parameter identification (motor_id).',
         epilog='commands:\n' + '\n'.join(f'  {k:<10} {v[1]}' for k, v in COMMANDS.items()),

@@ -353,9 +353,7 @@ class Identifier:
         z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
         def fun(z):
-            with np.errstate(all='ignore'):
-                r = (self._simulate(self._from_z(z[None, :]))[0] - self._y) * weights
-            return np.where(np.isfinite(r), r, 1e6)
+            return self._weighted_residuals(z, weights)
 
         def jac(z):
             J = self._jacobian_z(z, weights)
@@ -458,10 +456,15 @@ class Identifier:
             sols = [self._refine(s, self._w) for s in starts]
             sol = min(sols, key=lambda s: s.cost)
             z_best = sol.x
-            w = self._noise_weights(z_best, n_per)
-            if len(self._channels) > 1:  # re-weight by the estimated noise levels
+            # re-weight by the estimated noise levels and restart until the cost settles
+            # (a trust-region run can stall on a tiny step far from the optimum)
+            for _ in range(4):
+                w = self._noise_weights(z_best, n_per)
+                prev = np.sum(self._weighted_residuals(z_best, w) ** 2)
                 sol = self._refine(z_best, w)
                 z_best = sol.x
+                if prev - 2 * sol.cost <= 1e-9 * prev:
+                    break
             refine_info = {'used': True, 'starts': len(starts), 'nfev': int(sol.nfev),
                            'status': int(sol.status), 'message': str(sol.message)}
         x_best = self._from_z(z_best)
@@ -492,6 +495,11 @@ class Identifier:
         lo = np.array(self._bounds.low)
         hi = np.array(self._bounds.high)
         return np.clip(np.array(vals, dtype=float), lo, hi)
+
+    def _weighted_residuals(self, z, w):
+        with np.errstate(all='ignore'):
+            r = (self._simulate(self._from_z(z[None, :]))[0] - self._y) * w
+        return np.where(np.isfinite(r), r, 1e6)
 
     def _residuals(self, z):
         return self._simulate(self._from_z(z[None, :]))[0] - self._y
@@ -566,7 +574,7 @@ class Identifier:
                 comp = {names[j]: round(float(c), 4) for j, c in enumerate(v)
                         if abs(c) > 1e-6}
                 desc = ' '.join(f'{n}^{c:+.3g}' if lg[names.index(n)] else f'{n}{c:+.3g}'
-                                for n, c in comp.items())
+                                for n, c in comp.items() if abs(c) >= 1e-3)
                 undetermined.append({'free': pivots[k], 'exponents': comp,
                                      'description': f'multiply {desc} by any common factor'})
             self._free_choice = (pivots, others)

@@ -1,0 +1,26 @@
+"""Shared fixtures: the paper's experiment, simulated."""
+
+import numpy as np
+import pytest
+
+from motor_id.excitation import paper_steps
+from motor_id.model import MotorParams, PAPER_MOTOR, Plant
+from motor_id.simulate import simulate_recording
+
+PAPER_T = np.arange(4000) * 0.01
+SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
+"""The paper's motor with K_T = K_b, as SI units require."""
+
+
+def paper_recording(params=PAPER_MOTOR, speed_noise=0.0, current_noise=0.0, seed=0,
+                    with_current=True, effects=None, method='zoh'):
+    """The paper's Eq. 14 experiment: 4000 samples at 10 ms."""
+    return simulate_recording(Plant(params, 'voltage', effects or {}), PAPER_T,
+                              paper_steps(PAPER_T), speed_noise, current_noise,
+                              with_current, method, seed)
+
+
+@pytest.fixture(scope='session')
+def clean_paper():
+    """Noise-free speed and current of the paper's motor."""
+    return paper_recording()

@@ -1,0 +1,60 @@
+"""Model: parameters, effects catalogue, discretisation."""
+
+import numpy as np
+import pytest
+from scipy.signal import cont2discrete
+
+from motor_id.errors import ConfigError
+from motor_id.model import (continuous_matrices, discretize, EFFECTS, MotorParams,
+                            PAPER_MOTOR, parse_effect_args, Plant, transfer_coefficients,
+                            validate_effects)
+
+
+def test_params_reject_nonpositive_and_unknown():
+    with pytest.raises(ConfigError, match='J must be > 0'):
+        MotorParams(J=-1.0)
+    with pytest.raises(ConfigError, match='unknown motor parameter'):
+        MotorParams.from_dict({'Jm': 1.0})
+
+
+def test_zoh_matches_scipy_cont2discrete():
+    F, G = continuous_matrices({k: np.array([v]) for k, v in PAPER_MOTOR.to_dict().items()})
+    A, Bd = discretize(F, G, [0.01], 'zoh')
+    Ad, Bref, *_ = cont2discrete((F[0], G[0], np.eye(2), np.zeros((2, 2))), 0.01)
+    np.testing.assert_allclose(A[0, 0], Ad, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(Bd[0, 0], Bref, rtol=1e-12, atol=1e-14)
+
+
+def test_euler_is_the_papers_first_order_truncation():
+    p = PAPER_MOTOR.to_dict()
+    F, G = continuous_matrices({k: np.array([v]) for k, v in p.items()})
+    A, Bd = discretize(F, G, [0.01], 'euler')
+    T = 0.01
+    expected = np.array([[1 - p['B'] * T / p['J'], p['K_T'] * T / p['J']],
+                         [-p['K_b'] * T / p['L_m'], 1 - p['R_m'] * T / p['L_m']]])
+    np.testing.assert_allclose(A[0, 0], expected, rtol=1e-14)
+    np.testing.assert_allclose(Bd[0, 0, :, 0], [0.0, T / p['L_m']], rtol=1e-14)
+
+
+def test_effects_validate_ranges_and_names():
+    assert validate_effects({'coulomb_friction': {}})['coulomb_friction']['T_c'] == 0.05
+    with pytest.raises(ConfigError, match='unknown effect'):
+        validate_effects({'magic': {}})
+    with pytest.raises(ConfigError, match='outside'):
+        validate_effects({'sensor_lag': {'tau_s': -1.0}})
+    with pytest.raises(ConfigError, match='does not apply'):
+        Plant(input_kind='torque', effects={'brush_drop': {}})
+    assert parse_effect_args(['coulomb_friction=0.2', 'resonance.f_r=3']) == {
+        'coulomb_friction': {'T_c': 0.2}, 'resonance': {'f_r': 3.0}}
+    assert len(EFFECTS) >= 11
+
+
+def test_transfer_coefficients_are_the_speed_tf():
+    p = PAPER_MOTOR.to_dict()
+    c = transfer_coefficients(p, 'voltage', ('speed',))
+    J, K_T, K_b, B, L, R = (p[k] for k in ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m'))
+    # DC gain of w/V equals b0 / a0 = K_T / (R B + K_T K_b)
+    assert c['K_T/(J*L_m)'] / c['(R_m*B + K_T*K_b)/(J*L_m)'] == pytest.approx(
+        K_T / (R * B + K_T * K_b), rel=1e-12)
+    assert len(c) == 3
+    assert len(transfer_coefficients(p, 'voltage', ('speed', 'current'))) == 5
