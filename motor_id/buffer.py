@@ -84,6 +84,41 @@ class Snapshot:
         start = self.gaps[-1].index if self.gaps else 0
         return Snapshot(self.rows[start:], (), self.received, self.duplicates)
 
+    def flagged_segment(self, flag, end_flag):
+        """The latest complete run of rows marked by a flag bit (an excitation profile).
+
+        Parameters
+        ----------
+        flag : int
+            Bit set on every row of the run (the card's "profile running" flag).
+        end_flag : int
+            Bit set on the run's last row.
+
+        Returns
+        -------
+        Snapshot
+            The run's rows, with the gaps that fall inside it.
+
+        Raises
+        ------
+        DataError
+            No run has ended in the window, or the latest one started before it.
+        """
+        flags = self.rows[:, FLAGS].astype(np.int64)
+        ends = np.flatnonzero(flags & int(end_flag))
+        if ends.size == 0:
+            raise DataError('no complete excitation profile in the window (none has ended '
+                            'yet, or the window is too short)')
+        end = int(ends[-1])
+        off = np.flatnonzero((flags[:end] & int(flag)) == 0)
+        start = int(off[-1]) + 1 if off.size else 0
+        if start == 0:
+            raise DataError(f'the latest excitation profile started before the window '
+                            f'({len(self)} rows, {self.span:.3g} s); make the window longer')
+        gaps = tuple(Gap(g.index - start, g.kind, g.seq_before, g.seq_after, g.t_before,
+                         g.t_after) for g in self.gaps if start < g.index <= end)
+        return Snapshot(self.rows[start:end + 1], gaps, self.received, self.duplicates)
+
     def to_recording(self, input_kind='voltage', meta=None):
         """The rows as a :class:`motor_id.recording.Recording` (no validation).
 

@@ -188,3 +188,40 @@ def test_concurrent_writes_and_snapshots():
         th.join()
     assert not errors
     np.testing.assert_array_equal(buf.snapshot().rows, rows[-5000:])
+
+
+def test_flagged_segment_is_the_latest_complete_profile():
+    buf = SampleBuffer()
+    rows = make_rows(300)
+    rows[50:150, 5] = 2
+    rows[149, 5] = 6          # end of the first run
+    rows[200:280, 5] = 2
+    rows[279, 5] = 6          # end of the second run
+    buf.extend(rows[:290])
+    seg = buf.snapshot().flagged_segment(2, 4)
+    np.testing.assert_array_equal(seg.rows, rows[200:280])
+    buf.extend(rows[290:])
+    buf.clear()
+    buf.extend(rows[:260])
+    seg = buf.snapshot().flagged_segment(2, 4)
+    np.testing.assert_array_equal(seg.rows, rows[50:150])
+
+
+def test_flagged_segment_reasons_and_gaps():
+    buf = SampleBuffer()
+    rows = make_rows(200)
+    rows[20:120, 5] = 2
+    buf.extend(rows[:100])
+    with pytest.raises(DataError, match='no complete excitation profile'):
+        buf.snapshot().flagged_segment(2, 4)
+    rows[119, 5] = 6
+    buf.clear()
+    buf.extend(np.delete(rows, [60], axis=0))
+    seg = buf.snapshot().flagged_segment(2, 4)
+    assert len(seg) == 99 and [g.index for g in seg.gaps] == [40]
+    with pytest.raises(DataError, match='gap'):
+        seg.recording()
+    small = SampleBuffer(capacity=50)
+    small.extend(rows[:150])
+    with pytest.raises(DataError, match='started before the window'):
+        small.snapshot().flagged_segment(2, 4)

@@ -141,7 +141,11 @@ def run_node(factory, name, num_threads=4, args=None):
     int
         Exit code.
     """
-    rclpy.init(args=sys.argv if args is None else args)
+    try:
+        rclpy.init(args=sys.argv if args is None else args)
+    except RCLError as exc:
+        print(f'{name}: bad command line: {exc}', file=sys.stderr)
+        return 2
     node = None
     try:
         try:

@@ -31,6 +31,8 @@ PARAMETERS = (
               high=10.0),
     ParamSpec('excitation', 'paper_steps', 'profile the card runs at start; external: '
               'forward the voltage_command topic', choices=PROFILES + (EXTERNAL,)),
+    ParamSpec('autostart', True, 'send the excitation when the device first opens (false: '
+              'wait for ~/start)'),
     ParamSpec('amplitude', 9.0, 'profile amplitude [V]', low=0.0, high=1000.0),
     ParamSpec('duration', 40.0, 'profile length [s]; the card holds 0 V afterwards',
               low=0.001, high=1e6),
@@ -164,7 +166,7 @@ class DriverNode(Node):
         """Send the sample period and, the first time, the excitation."""
         s = self.settings
         commands = [SetPeriod(s['sample_period'])]
-        if s['excitation'] != EXTERNAL and not self._started_profile:
+        if s['excitation'] != EXTERNAL and s['autostart'] and not self._started_profile:
             commands.append(self._profile_command())
             self._started_profile = True
         for cmd in commands:
@@ -313,8 +315,11 @@ class DriverNode(Node):
         except MotorIdError as exc:
             response.success, response.message = False, f'not started: {exc}'
         else:
+            self._started_profile = True
             response.success = True
-            response.message = f'started {self.settings["excitation"]}'
+            response.message = (f'started {self.settings["excitation"]} '
+                                f'({self.samples_pub.get_subscription_count()} subscriber(s) '
+                                'on samples)')
         return response
 
     def _on_stop(self, request, response):

@@ -13,6 +13,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from motor_id.buffer import SampleBuffer
+from motor_id.card.protocol import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.identify import Identifier, METHODS
 from motor_id.nodes import messages
@@ -26,6 +27,9 @@ PARAMETERS = (
               choices=('auto', True, False), dynamic=True),
     ParamSpec('input_kind', 'voltage', 'plant input on the voltage column',
               choices=('voltage', 'torque')),
+    ParamSpec('select', 'window', 'what to fit: window (the last window_s seconds) or '
+              'profile (the latest complete excitation profile run in the window)',
+              choices=('window', 'profile')),
     ParamSpec('window_s', 60.0, 'card time fitted, the most recent [s]', low=0.05,
               high=86400.0),
     ParamSpec('max_samples', 200000, 'rows kept in the buffer', low=100, high=10000000),
@@ -135,6 +139,8 @@ class IdentifierNode(Node):
         started = time.perf_counter()
         try:
             snap = self.buffer.snapshot()
+            if p['select'] == 'profile' and len(snap):
+                snap = snap.flagged_segment(FLAG_PROFILE, FLAG_PROFILE_END)
             rec = snap.recording(p['min_samples'], p['allow_gaps'], p['input_kind'],
                                  {'source': 'identifier node'})
             tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])
