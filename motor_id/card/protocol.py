@@ -97,7 +97,7 @@ _U64 = 2 ** 64
 _F32_MAX = 3.4028234663852886e38
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Sample:
     """One measurement from the card.
 
@@ -128,6 +128,19 @@ class Sample:
     def has_current(self):
         """True when the sample carries a current value."""
         return not math.isnan(self.current)
+
+    def _key(self):
+        return (self.seq, self.t_card, self.voltage, self.speed,
+                self.current if self.has_current else None, self.flags)
+
+    def __eq__(self, other):
+        """Field-wise equality; two absent (nan) currents are equal."""
+        if not isinstance(other, Sample):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self):
+        return hash(self._key())
 
 
 @dataclass(frozen=True)
