@@ -1,0 +1,444 @@
+"""Tests of motor_id.bag: round trips, a second reader, errors, truncation and recovery."""
+
+import io
+import json
+import os
+from pathlib import Path
+import signal
+import subprocess
+import sys
+import textwrap
+
+from mcap.reader import make_reader
+from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
+import numpy as np
+import pytest
+
+from motor_id import bag
+from motor_id.bag import (BagError, BagWriter, bag_info, message_definition, read_recording,
+                          read_samples, recover, write_recording)
+from motor_id.cli import main
+from motor_id.errors import ConfigError
+from motor_id.recording import Recording
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def make_recording(n=600, seed=0, current=True, kind='voltage'):
+    """Irregularly sampled random data: nothing about it is round by accident."""
+    rng = np.random.default_rng(seed)
+    time = np.cumsum(rng.uniform(0.005, 0.015, n)) + 1.2345
+    cur = rng.normal(0.0, 2.0, n) if current else None
+    return Recording(time, rng.normal(0.0, 10.0, n), rng.normal(0.0, 50.0, n), cur, kind,
+                     {'provenance': 'test_bag', 'truth': {'J': 0.052}, 'seed': seed})
+
+
+def chunk_layout(path):
+    """(end offset, message end time) of every chunk, from the mcap library's summary."""
+    with open(path, 'rb') as fh:
+        summary = make_reader(fh).get_summary()
+    return [(c.chunk_start_offset + c.chunk_length, c.message_end_time)
+            for c in summary.chunk_indexes], summary
+
+
+def test_message_definitions_are_the_installed_msg_files():
+    share = Path(sys.prefix) / 'share'
+    for name, text in bag.MSG_TEXT.items():
+        pkg, _, typ = name.split('/')
+        path = share / pkg / 'msg' / f'{typ}.msg'
+        assert path.is_file(), f'{path} not installed'
+        assert path.read_text() == text, name
+
+
+def test_full_definition_follows_rosbag2_order():
+    full = message_definition('diagnostic_msgs/msg/DiagnosticArray')
+    parts = full.split('\n' + '=' * 80 + '\n')
+    assert parts[0] == bag.MSG_TEXT['diagnostic_msgs/msg/DiagnosticArray']
+    heads = [p.split('\n', 1)[0] for p in parts[1:]]
+    assert heads == ['MSG: diagnostic_msgs/DiagnosticStatus', 'MSG: diagnostic_msgs/KeyValue',
+                     'MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time']
+    assert parts[-1] == 'MSG: builtin_interfaces/Time\n' + bag.MSG_TEXT[
+        'builtin_interfaces/msg/Time']
+    heads = [p.split('\n', 1)[0] for p in
+             message_definition(bag.FLOAT64_MULTI_ARRAY).split('=' * 80 + '\n')[1:]]
+    assert heads == ['MSG: std_msgs/MultiArrayLayout', 'MSG: std_msgs/MultiArrayDimension']
+    assert message_definition(bag.STRING) == bag.MSG_TEXT[bag.STRING]
+    with pytest.raises(ConfigError, match='no message definition'):
+        message_definition('geometry_msgs/msg/Twist')
+
+
+def test_type_hashes_match_the_jazzy_typestore():
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+    for msgtype, digest in bag.TYPE_HASHES.items():
+        assert store.hash_rihs01(msgtype) == digest
+
+
+def test_round_trip_is_exact(tmp_path):
+    rec = make_recording(seed=1)
+    path = tmp_path / 'rec.mcap'
+    res = write_recording(rec, path, batch=37)
+    assert res['samples'] == len(rec)
+    back = read_recording(path)
+    for name in ('time', 'voltage', 'speed', 'current'):
+        np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
+    assert back.input_kind == 'voltage'
+    assert back.meta['truth'] == {'J': 0.052}
+    assert back.meta['provenance'] == 'test_bag'
+    assert back.meta['units']['voltage'] == 'V'
+    assert back.meta['gaps'] == []
+    samples = read_samples(path)
+    np.testing.assert_array_equal(samples['seq'], np.arange(len(rec)))
+    assert np.all(samples['flags'] == 0)
+    assert np.all(np.diff(samples['log_time_ns']) >= 0)
+
+
+def test_round_trip_torque_without_current(tmp_path):
+    rec = make_recording(n=120, seed=2, current=False, kind='torque')
+    path = tmp_path / 'torque.mcap'
+    write_recording(rec, path, compression='lz4', channels=True)
+    back = read_recording(path)
+    assert back.current is None
+    assert back.input_kind == 'torque'
+    assert back.meta['units']['voltage'] == 'N m'
+    np.testing.assert_array_equal(back.voltage, rec.voltage)
+    counts = {t['topic']: t['count'] for t in bag_info(path)['topics']}
+    assert counts == {'/motor_id/meta': 1, '/samples': 3, '/voltage': 120, '/speed': 120}
+
+
+def test_second_reader_rosbags_decodes_the_same_values(tmp_path):
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import get_typestore, Stores
+    store = get_typestore(Stores.ROS2_JAZZY)
+    rec = make_recording(n=250, seed=3)
+    path = tmp_path / 'two.mcap'
+    with BagWriter(path, chunk_size=2048) as writer:
+        writer.write_meta({'input_kind': 'voltage', 'provenance': 'second reader'})
+        rows = np.column_stack([np.arange(250), rec.time, rec.voltage, rec.speed,
+                                rec.current, np.zeros(250)])
+        for k in range(0, 250, 10):
+            writer.write_samples(rows[k:k + 10], 1_000_000 * (k + 10))
+        writer.write_estimate({'J': 0.0521, 'J_std': 1e-4, 'J_determined': True},
+                              300_000_000, level=1, message='ok')
+    got, estimate, meta, qos = [], None, None, {}
+    with Reader(path) as reader:
+        assert reader.message_count == 27
+        for conn in reader.connections:
+            qos[conn.topic] = conn.ext.offered_qos_profiles[0]
+            assert conn.msgdef.data == message_definition(conn.msgtype)
+        for conn, stamp, raw in reader.messages():
+            msg = store.deserialize_cdr(raw, conn.msgtype)
+            if conn.topic == '/samples':
+                assert msg.layout.dim[1].label == 'seq,t,voltage,speed,current,flags'
+                assert msg.layout.dim[0].stride == 6 * msg.layout.dim[0].size
+                got.append(np.asarray(msg.data).reshape(-1, 6))
+            elif conn.topic == '/identifier/estimate':
+                estimate = msg
+            else:
+                meta = json.loads(msg.data)
+    np.testing.assert_array_equal(np.concatenate(got), rows)
+    assert meta['provenance'] == 'second reader'
+    values = {kv.key: kv.value for kv in estimate.status[0].values}
+    assert values == {'J': '0.0521', 'J_std': '0.0001', 'J_determined': 'true'}
+    assert estimate.status[0].level == 1
+    assert (estimate.header.stamp.sec, estimate.header.stamp.nanosec) == (0, 300_000_000)
+    assert qos['/samples'].depth == 100
+    assert qos['/motor_id/meta'].durability.name == 'TRANSIENT_LOCAL'
+    assert qos['/identifier/estimate'].durability.name == 'TRANSIENT_LOCAL'
+
+
+def test_file_has_ros2_profile_statistics_and_rosbag2_metadata(tmp_path):
+    from ruamel.yaml import YAML
+    path = tmp_path / 'meta.mcap'
+    write_recording(make_recording(n=300, seed=4), path, batch=25)
+    with open(path, 'rb') as fh:
+        reader = make_reader(fh, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == 'ros2'
+        assert reader.get_header().library.startswith('motor_id ')
+        summary = reader.get_summary()
+        assert summary.statistics.message_count == 13
+        assert summary.statistics.chunk_count >= 1
+        assert {s.encoding for s in summary.schemas.values()} == {'ros2msg'}
+        for ch in summary.channels.values():
+            assert ch.message_encoding == 'cdr'
+            assert ch.metadata['topic_type_hash'].startswith('RIHS01_')
+            profile = YAML(typ='safe').load(ch.metadata['offered_qos_profiles'])[0]
+            assert profile['reliability'] == 'reliable'
+        decoded = [m for _, _, _, m in reader.iter_decoded_messages(topics=['/samples'])]
+        assert sum(m.layout.dim[0].size for m in decoded) == 300
+        records = {m.name: m.metadata for m in reader.iter_metadata()}
+    info = YAML(typ='safe').load(records['rosbag2']['serialized_metadata'])
+    assert info['version'] == 9
+    assert info['ros_distro'] == 'jazzy'
+    assert info['message_count'] == 13
+    counts = {t['topic_metadata']['name']: t['message_count']
+              for t in info['topics_with_message_count']}
+    assert counts == {'/motor_id/meta': 1, '/samples': 12}
+    qos = info['topics_with_message_count'][1]['topic_metadata']['offered_qos_profiles']
+    assert qos[0]['durability'] == 'volatile'
+
+
+def test_chunks_are_bounded_by_chunk_size(tmp_path):
+    path = tmp_path / 'chunks.mcap'
+    rows = np.random.default_rng(5).normal(size=(10, 6))
+    with BagWriter(path, chunk_size=4096, flush_interval=None) as writer:
+        for k in range(100):
+            writer.write_samples(rows + k, 1000 * k)
+    _, summary = chunk_layout(path)
+    sizes = [c.uncompressed_size for c in summary.chunk_indexes]
+    message_bytes = 6 * 10 * 8 + 200
+    assert len(sizes) >= 10
+    assert max(sizes) <= 4096 + message_bytes
+
+
+def test_flush_interval_closes_chunks_on_time(tmp_path):
+    ticks = iter(np.arange(0.0, 100.0, 0.25))
+    path = tmp_path / 'timed.mcap'
+    with BagWriter(path, chunk_size=10**9, flush_interval=1.0,
+                   clock=lambda: float(next(ticks))) as writer:
+        for k in range(20):
+            writer.write_samples(np.ones(6) * k, 10 * k)
+    _, summary = chunk_layout(path)
+    assert len(summary.chunk_indexes) == 5
+
+
+def test_writer_rejects_bad_arguments(tmp_path):
+    with pytest.raises(ConfigError, match='compression'):
+        BagWriter(tmp_path / 'a.mcap', compression='gzip')
+    with BagWriter(tmp_path / 'b.mcap') as writer:
+        with pytest.raises(ConfigError, match='6 columns'):
+            writer.write_samples(np.ones((2, 5)), 0)
+        with pytest.raises(ConfigError, match='>= 0'):
+            writer.write_samples(np.ones(6), -1)
+        with pytest.raises(ConfigError, match='declared as'):
+            writer.write('/samples', bag.STRING, {'data': 'x'}, 0)
+        writer.write_samples(np.ones(6), 0)
+    with pytest.raises(BagError, match='closed'):
+        writer.write_samples(np.ones(6), 1)
+
+
+def test_gaps_are_kept_not_filled_and_reported(tmp_path):
+    path = tmp_path / 'gaps.mcap'
+    seq = np.r_[0:10, 15:20].astype(float)
+    rows = np.column_stack([seq, seq * 0.01, seq, -seq, np.full(15, np.nan), np.zeros(15)])
+    with BagWriter(path) as writer:
+        writer.write_meta({'input_kind': 'torque'})
+        writer.write_samples(rows[10:], 200)
+        writer.write_samples(rows[:10], 100)
+        writer.write_samples(rows[3:5], 300)
+    rec = read_recording(path)
+    assert len(rec) == 15
+    np.testing.assert_array_equal(rec.time, seq * 0.01)
+    np.testing.assert_array_equal(rec.voltage, seq)
+    assert rec.current is None
+    assert rec.input_kind == 'torque'
+    assert rec.meta['gaps'] == [{'after_seq': 9, 'missing': 5, 't_before': 0.09,
+                                 't_after': 0.15}]
+    assert rec.meta['duplicate_rows'] == 2
+
+
+def test_missing_file_and_not_an_mcap(tmp_path):
+    with pytest.raises(BagError, match='no such file'):
+        read_recording(tmp_path / 'nope.mcap')
+    fake = tmp_path / 'fake.mcap'
+    fake.write_text('time,voltage,speed\n0,1,2\n')
+    with pytest.raises(BagError, match='not an MCAP file') as err:
+        read_recording(fake)
+    assert '\n' not in str(err.value)
+    empty = tmp_path / 'empty.mcap'
+    empty.write_bytes(b'')
+    with pytest.raises(BagError, match='empty file'):
+        bag_info(empty)
+
+
+def test_missing_samples_topic_lists_the_topics_present(tmp_path):
+    path = tmp_path / 'nosamples.mcap'
+    with BagWriter(path) as writer:
+        writer.write_meta({'input_kind': 'voltage'})
+        writer.write_estimate({'J': 1.0}, 5)
+    with pytest.raises(BagError, match='no /samples topic') as err:
+        read_recording(path)
+    text = str(err.value)
+    assert '/motor_id/meta (std_msgs/msg/String, 1 msgs)' in text
+    assert '/identifier/estimate' in text
+
+
+def test_wrong_or_undecodable_samples_type(tmp_path):
+    path = tmp_path / 'wrongtype.mcap'
+    with BagWriter(path) as writer:
+        writer.write('/samples', bag.STRING, {'data': 'hello'}, 0)
+    with pytest.raises(BagError, match="has type 'std_msgs/msg/String'"):
+        read_recording(path)
+    path = tmp_path / 'json.mcap'
+    schema = Schema(id=1, name='Samples', encoding='jsonschema', data=b'{}')
+    with BagWriter(path) as writer:
+        writer.write_raw('/samples', schema, 'json', b'{"t": 1}', 0)
+    with pytest.raises(BagError, match="cannot decode /samples: schema encoding 'jsonschema'"):
+        read_recording(path)
+    path = tmp_path / 'layout.mcap'
+    with BagWriter(path) as writer:
+        writer.write('/samples', bag.FLOAT64_MULTI_ARRAY,
+                     {'layout': {'dim': [{'label': 'x', 'size': 2, 'stride': 10},
+                                         {'label': 'a,b,c,d,e', 'size': 5, 'stride': 5}]},
+                      'data': [0.0] * 10}, 0)
+    with pytest.raises(BagError, match='expected rows of seq,t,voltage'):
+        read_recording(path)
+
+
+def write_chunked(path, batches=60, seed=6):
+    """A bag of many small chunks with distinct log times; returns all rows."""
+    rng = np.random.default_rng(seed)
+    rows = np.column_stack([np.arange(batches * 8), np.arange(batches * 8) * 0.01,
+                            rng.normal(size=(batches * 8, 4))])
+    with BagWriter(path, chunk_size=1500, flush_interval=None) as writer:
+        writer.write_meta({'input_kind': 'voltage'}, 0)
+        for k in range(batches):
+            writer.write_samples(rows[8 * k:8 * k + 8], 1000 * (k + 1))
+    return rows
+
+
+def test_truncated_file_gives_a_one_line_error_with_the_recoverable_count(tmp_path):
+    full = tmp_path / 'full.mcap'
+    write_chunked(full)
+    layout, _ = chunk_layout(full)
+    cut = tmp_path / 'cut.mcap'
+    end, end_time = layout[len(layout) // 2]
+    cut.write_bytes(full.read_bytes()[:end + 40])
+    expected = end_time // 1000
+    with pytest.raises(BagError) as err:
+        read_recording(cut)
+    text = str(err.value)
+    assert '\n' not in text
+    assert 'truncated or corrupt MCAP' in text
+    assert f'{expected + 1} message(s) ({expected} on /samples) can be recovered' in text
+    assert f'motor-id bag recover {cut} OUT.mcap' in text
+    info = bag_info(cut)
+    assert not info['complete']
+    assert info['messages'] == expected + 1
+
+
+@pytest.mark.parametrize('seed', [11, 12, 13])
+def test_recover_salvages_every_complete_chunk(tmp_path, seed):
+    full = tmp_path / 'full.mcap'
+    rows = write_chunked(full, seed=seed)
+    layout, _ = chunk_layout(full)
+    data = full.read_bytes()
+    rng = np.random.default_rng(seed)
+    cut_at = int(rng.integers(layout[0][0] + 1, layout[-1][0]))
+    complete = [t for end, t in layout if end <= cut_at]
+    expected = complete[-1] // 1000
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:cut_at])
+    out = tmp_path / 'fixed.mcap'
+    res = recover(cut, out)
+    assert res['messages'] == expected + 1
+    assert res['topics'] == {'/motor_id/meta': 1, '/samples': expected}
+    assert not res['was_complete']
+    assert bag_info(out)['complete']
+    rec = read_recording(out)
+    np.testing.assert_array_equal(rec.time, rows[:8 * expected, 1])
+    np.testing.assert_array_equal(rec.speed, rows[:8 * expected, 3])
+
+
+def test_recover_skips_a_corrupt_chunk_and_keeps_the_rest(tmp_path):
+    full = tmp_path / 'full.mcap'
+    write_chunked(full, batches=30)
+    layout, summary = chunk_layout(full)
+    data = bytearray(full.read_bytes())
+    bad = summary.chunk_indexes[2]
+    data[bad.chunk_start_offset + bad.chunk_length - 5] ^= 0xFF
+    broken = tmp_path / 'broken.mcap'
+    broken.write_bytes(bytes(data))
+    with pytest.raises(BagError, match='1 corrupt chunk'):
+        read_recording(broken)
+    res = recover(broken, tmp_path / 'fixed.mcap')
+    lost = (bad.message_end_time - bad.message_start_time) // 1000 + 1
+    assert res['chunks_lost'] == 1
+    assert res['topics']['/samples'] == 30 - lost
+
+
+KILLED_WRITER = textwrap.dedent('''
+    import sys, time
+    import numpy as np
+    from motor_id.bag import BagWriter
+    writer = BagWriter(sys.argv[1], chunk_size=1 << 20, flush_interval=None)
+    writer.write_meta({'input_kind': 'voltage', 'provenance': 'killed'})
+    row = 0
+    for batch in range(40):
+        rows = np.column_stack([np.arange(row, row + 5), np.arange(row, row + 5) * 0.01,
+                                np.ones((5, 4))])
+        writer.write_samples(rows, 1000 * (batch + 1))
+        row += 5
+        if batch % 10 == 9:
+            writer.flush()
+    for batch in range(40, 47):
+        rows = np.column_stack([np.arange(row, row + 5), np.arange(row, row + 5) * 0.01,
+                                np.ones((5, 4))])
+        writer.write_samples(rows, 1000 * (batch + 1))
+        row += 5
+    print('ready', flush=True)
+    time.sleep(60)
+''')
+
+
+def test_recover_after_the_writer_is_killed(tmp_path):
+    script = tmp_path / 'writer.py'
+    script.write_text(KILLED_WRITER)
+    path = tmp_path / 'killed.mcap'
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, str(script), str(path)], stdout=subprocess.PIPE,
+                            env=env, text=True)
+    try:
+        assert proc.stdout.readline().strip() == 'ready'
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    with pytest.raises(BagError, match=r'41 message\(s\) \(40 on /samples\) can be recovered'):
+        read_recording(path)
+    out = tmp_path / 'recovered.mcap'
+    res = recover(path, out)
+    assert res['topics'] == {'/motor_id/meta': 1, '/samples': 40}
+    rec = read_recording(out)
+    np.testing.assert_array_equal(rec.time, np.arange(200) * 0.01)
+    assert rec.meta['provenance'] == 'killed'
+    assert rec.meta['gaps'] == []
+
+
+def test_cli_bag_info_and_recover(tmp_path, capsys):
+    full = tmp_path / 'full.mcap'
+    write_chunked(full, batches=20)
+    layout, _ = chunk_layout(full)
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(full.read_bytes()[:layout[-2][0] + 3])
+    assert main(['bag', 'info', str(full)]) == 0
+    text = capsys.readouterr().out
+    assert 'integrity:   complete' in text
+    assert '/samples' in text and 'std_msgs/msg/Float64MultiArray' in text
+    assert main(['bag', 'info', str(cut), '--json']) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info['complete'] is False
+    out = tmp_path / 'out.mcap'
+    assert main(['bag', 'recover', str(cut), str(out)]) == 0
+    assert 'recovered' in capsys.readouterr().out
+    assert main(['bag', 'recover', str(cut), str(out)]) == 2
+    assert 'exists; pass --force' in capsys.readouterr().err
+    assert main(['bag', 'info', str(tmp_path / 'missing.mcap')]) == 2
+    assert 'no such file' in capsys.readouterr().err
+
+
+def test_committed_bags_are_complete():
+    for path in sorted((ROOT / 'bags').glob('*.mcap')):
+        info = bag_info(path)
+        assert info['complete'], path
+        assert info['profile'] == 'ros2'
+        assert path.stat().st_size < 2_000_000, path
+
+
+def test_yaml_emitter_quotes_what_needs_quoting():
+    from ruamel.yaml import YAML
+    value = {'a': 'plain_text', 'b': 'yes', 'c': 'x: y', 'd': '', 'e': None, 'f': [],
+             'g': [{'h': 1, 'i': [True, 'z']}], 'j': {}}
+    assert YAML(typ='safe').load(io.StringIO(bag._yaml(value))) == value
