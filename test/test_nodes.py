@@ -8,11 +8,13 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
-from std_msgs.msg import Float64MultiArray, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from motor_id.bag import read_recording
+from motor_id.card.protocol import FLAG_PROFILE_END
 from motor_id.excitation import paper_steps
-from motor_id.model import Plant
+from motor_id.model import MotorParams, Plant, transfer_coefficients
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
 from rosutil import Client, domain_id, Process, REPO, ros_env, wait_until
@@ -79,6 +81,187 @@ def stop_cleanly(proc, sig=signal.SIGINT):
     err = proc.stderr()
     assert 'Traceback' not in err, err
     assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
+
+
+def driver_args(*params):
+    args = ['-m', 'motor_id.nodes.driver', '--ros-args']
+    for p in params:
+        args += ['-p', p]
+    return args
+
+
+def card_args(link, *extra):
+    return ['-m', 'motor_id.cli', 'card-sim', '--link', str(link)] + list(extra)
+
+
+def rows_of(msgs):
+    """All rows of the collected samples messages."""
+    if not msgs:
+        return np.zeros((0, 6))
+    return np.vstack([messages.msg_to_rows(m) for m in list(msgs)])
+
+
+def latest_status(diags, name):
+    """Key/values of the latest /diagnostics status named ``name`` (or {})."""
+    for d in reversed(list(diags)):
+        for st in d.status:
+            if st.name == name:
+                return {kv.key: kv.value for kv in st.values}
+    return {}
+
+
+def test_driver_streams_contiguous_samples_and_records(client, launch, tmp_path):
+    link = tmp_path / 'card'
+    bag = tmp_path / 'run.mcap'
+    launch('card', card_args(link, '--speedup', '5'))
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    speeds = client.collect(Float64, 'speed', messages.CHANNEL_QOS)
+    diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
+    drv = launch('driver', driver_args(f'device:={link}', 'excitation:=prbs',
+                                       'duration:=3.0', f'record_path:={bag}'))
+    drv.wait_for('device .* open')
+    assert wait_until(lambda: np.any(rows_of(samples)[:, 5].astype(int) & FLAG_PROFILE_END),
+                      30.0), drv.output()
+    rows = rows_of(samples)
+    assert rows.shape[0] > 300
+    np.testing.assert_array_equal(np.diff(rows[:, 0]), 1.0)
+    assert np.all(np.diff(rows[:, 1]) > 0)
+    assert np.ptp(rows[:, 2]) > 10.0        # the prbs profile reached the card: +-9 V
+    assert np.all(np.isfinite(rows[:, 4]))  # the card measures current
+    assert len(speeds) > 100
+    assert wait_until(lambda: latest_status(diags, 'motor_id: driver').get('link')
+                      == 'connected', 5.0)
+    st = latest_status(diags, 'motor_id: driver')
+    assert int(st['frames_ok']) > 0 and st['frames_bad'] == '0' and st['lost'] == '0'
+    stop_cleanly(drv)
+    rec = read_recording(str(bag))
+    assert len(rec) >= rows.shape[0]
+    assert rec.meta['provenance']['excitation'] == 'prbs'
+    assert not rec.meta['gaps']
+
+
+def test_driver_survives_missing_device_and_disconnects(client, launch, tmp_path):
+    link = tmp_path / 'card'
+    diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    drv = launch('driver', driver_args(f'device:={link}', 'reopen_backoff_max:=0.3',
+                                       'excitation:=bipolar_steps', 'duration:=100.0'))
+    drv.wait_for('cannot open')
+    launch('card', card_args(link, '--speedup', '2', '--fault', 'disconnect=1.5:0.5'))
+    drv.wait_for('device .* open')
+    drv.wait_for('device lost', timeout=10.0)
+    drv.wait_for('reopened', timeout=10.0)
+
+    def recovered():
+        st = latest_status(diags, 'motor_id: driver')
+        return (st.get('link') == 'connected' and int(st.get('device_lost', 0)) >= 1 and
+                int(st.get('opens', 0)) >= 2)
+    assert wait_until(recovered, 15.0), latest_status(diags, 'motor_id: driver')
+    n = rows_of(samples).shape[0]
+    assert wait_until(lambda: rows_of(samples).shape[0] > n + 50, 10.0)
+    rows = rows_of(samples)
+    assert np.all(np.diff(rows[:, 1]) > 0)  # one card, time keeps going across reopens
+    assert np.any(np.diff(rows[:, 0]) > 1)  # the frames sent while away are missing
+    assert drv.output().count('device lost') == 1    # logged once per outage kind...
+    stop_cleanly(drv, signal.SIGTERM)
+
+
+def test_driver_counts_bad_frames_and_drops_duplicates(client, launch, tmp_path):
+    link = tmp_path / 'card'
+    diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    launch('card', card_args(link, '--speedup', '5', '--seed', '3', '--fault', 'garbage=0.05',
+                             '--fault', 'bad_crc=0.03', '--fault', 'drop=0.03',
+                             '--fault', 'duplicate=0.03', '--fault', 'reorder=0.03'))
+    drv = launch('driver', driver_args(f'device:={link}', 'duration:=100.0'))
+
+    def counted():
+        st = latest_status(diags, 'motor_id: driver')
+        return all(int(st.get(k, 0)) > 0 for k in ('frames_bad', 'lost', 'duplicates',
+                                                    'garbage_bytes', 'late'))
+    assert wait_until(counted, 20.0), latest_status(diags, 'motor_id: driver')
+    rows = rows_of(samples)
+    assert np.all(np.diff(rows[:, 0]) >= 1)     # published seq strictly increasing
+    st = latest_status(diags, 'motor_id: driver')
+    assert st['link'] == 'connected'
+    stop_cleanly(drv)
+
+
+def test_driver_forwards_external_voltage_commands(client, launch, tmp_path):
+    link = tmp_path / 'card'
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    launch('card', card_args(link, '--speedup', '2'))
+    drv = launch('driver', driver_args(f'device:={link}', 'excitation:=external'))
+    drv.wait_for('device .* open')
+    pub = client.node.create_publisher(Float64, 'voltage_command', messages.CHANNEL_QOS)
+    assert wait_until(lambda: pub.get_subscription_count() > 0, 20.0)
+
+    def follows():
+        pub.publish(Float64(data=4.5))
+        rows = rows_of(samples[-5:])
+        return rows.shape[0] and rows[-1, 2] == 4.5
+    assert wait_until(follows, 10.0, interval=0.2)
+    stop_cleanly(drv)
+
+
+@pytest.mark.parametrize('param, name', [
+    ('excitation:=sine', 'excitation'), ('baud:=0', 'baud'), ('device:=', 'device'),
+    ('sample_period:=-0.01', 'sample_period'),
+])
+def test_driver_bad_parameter_stops_with_message(launch, param, name):
+    args = driver_args(param) if param != 'device:=' else \
+        ['-m', 'motor_id.nodes.driver', '--ros-args', '-p', "device:=''"]
+    proc = launch('driver', args)
+    code = proc.wait(20.0)
+    err = proc.stderr()
+    assert code != 0
+    assert f'parameter {name}' in err, err
+    assert 'Traceback' not in err, err
+
+
+def test_driver_params_file_loads(launch, tmp_path):
+    path = os.path.join(REPO, 'config', 'driver.yaml')
+    proc = launch('driver', ['-m', 'motor_id.nodes.driver', '--ros-args', '--params-file',
+                             path, '-p', f'device:={tmp_path / "none"}'])
+    proc.wait_for('driver started: device .*none, excitation paper_steps, period 0.01 s')
+    stop_cleanly(proc)
+
+
+def test_card_driver_identifier_recover_the_motor(client, launch, tmp_path):
+    """End to end: noise-free card, the paper's excitation, the ZOH fit."""
+    truth = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
+    params = tmp_path / 'motor.json'
+    params.write_text(json.dumps(truth.to_dict()))
+    link = tmp_path / 'card'
+    diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    launch('card', card_args(link, '--speedup', '10', '--params', str(params)))
+    ident = launch('identifier', identifier_args('select:=profile', 'window_s:=120.0'))
+    drv = launch('driver', driver_args(f'device:={link}', 'autostart:=false'))
+    assert wait_until(lambda: int(latest_status(diags, 'motor_id: identifier')
+                                  .get('received', 0)) > 0, 30.0), ident.output()
+    resp = client.call(Trigger, '/driver/start')
+    assert resp.success, resp.message
+    assert wait_until(lambda: np.any(rows_of(samples[-20:])[:, 5].astype(int)
+                                     & FLAG_PROFILE_END), 30.0)
+    answers = []   # the identifier may get the profile's last rows a moment after us
+    assert wait_until(lambda: answers.append(identify(client)) or
+                      'no complete' not in answers[-1].message, 10.0, interval=0.2)
+    resp = answers[-1]
+    assert resp.success, resp.message
+    assert 'from 4000 samples' in resp.message
+    reports = client.collect(String, '/identifier/report', messages.LATCHED_QOS)
+    assert wait_until(lambda: reports, 10.0)
+    report = json.loads(reports[-1].data)
+    est = {k: v['value'] for k, v in report['parameters'].items()}
+    for name in ('J', 'K_T', 'K_b', 'B', 'L_m'):
+        assert est[name] == pytest.approx(getattr(truth, name), rel=0.01), name
+    coeffs = transfer_coefficients(truth.to_dict(), channels=('speed', 'current'))
+    for c in report['identifiable_combinations']:
+        if c['name'] in coeffs:
+            assert c['value'] == pytest.approx(coeffs[c['name']], rel=1e-3)
+    for proc in (drv, ident):
+        stop_cleanly(proc)
 
 
 def test_identifier_refuses_without_usable_data(client, launch):

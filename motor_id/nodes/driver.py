@@ -1,6 +1,7 @@
 """The driver node: reads the card's serial stream in a thread and publishes samples."""
 
 from collections import Counter
+import json
 import math
 import sys
 import threading
@@ -41,6 +42,8 @@ PARAMETERS = (
     ParamSpec('input_kind', 'voltage', 'what the voltage column carries (bag metadata)',
               choices=('voltage', 'torque')),
     ParamSpec('record_path', '', 'MCAP file to record to (empty: no recording)'),
+    ParamSpec('meta_file', '', 'JSON object merged into the recording metadata (e.g. '
+              '{"truth": ...} of a simulated card); empty: none'),
     ParamSpec('publish_channels', True, 'also publish voltage, speed, current as Float64'),
     ParamSpec('batch_size', 10, 'samples per samples message (sent earlier when the '
               'stream pauses)', low=1, high=100000),
@@ -113,16 +116,32 @@ class DriverNode(Node):
     def _open_writer(self, path):
         from motor_id.bag import BagWriter
         s = self.settings
+        meta = {
+            'input_kind': s['input_kind'],
+            'provenance': {'node': 'driver', 'device': s['device'],
+                           'excitation': s['excitation'], 'amplitude': s['amplitude'],
+                           'seed': s['seed'], 'duration': s['duration'],
+                           'sample_period': s['sample_period']},
+            'units': {'t': 's', 'voltage': 'V' if s['input_kind'] == 'voltage' else 'N m',
+                      'speed': 'rad/s', 'current': 'A'}}
+        if s['meta_file']:
+            try:
+                with open(s['meta_file']) as fh:
+                    extra = json.load(fh)
+            except (OSError, ValueError) as exc:
+                raise ConfigError(f'parameter meta_file: cannot read {s["meta_file"]!r}: '
+                                  f'{exc}') from None
+            if not isinstance(extra, dict):
+                raise ConfigError(f'parameter meta_file: {s["meta_file"]!r} must hold a '
+                                  'JSON object')
+            for key, value in extra.items():
+                if isinstance(value, dict) and isinstance(meta.get(key), dict):
+                    meta[key] = {**meta[key], **value}
+                else:
+                    meta[key] = value
         try:
             writer = BagWriter(path)
-            writer.write_meta({
-                'input_kind': s['input_kind'],
-                'provenance': {'node': 'driver', 'device': s['device'],
-                               'excitation': s['excitation'], 'amplitude': s['amplitude'],
-                               'seed': s['seed'], 'duration': s['duration'],
-                               'sample_period': s['sample_period']},
-                'units': {'t': 's', 'voltage': 'V' if s['input_kind'] == 'voltage'
-                          else 'N m', 'speed': 'rad/s', 'current': 'A'}})
+            writer.write_meta(meta, log_time_ns=self.get_clock().now().nanoseconds)
         except (MotorIdError, OSError) as exc:
             raise ConfigError(f'parameter record_path: cannot record to {path!r}: '
                               f'{exc}') from None
@@ -270,7 +289,7 @@ class DriverNode(Node):
         rows = np.asarray(batch, dtype=float)
         if self.writer is not None:
             try:
-                self.writer.write_samples(rows)
+                self.writer.write_samples(rows, self.get_clock().now().nanoseconds)
             except (MotorIdError, OSError) as exc:
                 self._fault('record_failed', f'recording failed: {exc}', 'error')
         self._publish(self.samples_pub, messages.rows_to_msg(rows))
