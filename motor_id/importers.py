@@ -33,9 +33,11 @@ DUNKER_AUTHORS_FIT = {'J_eff': 1.14e-6, 'b': [2.0e-5, 2.4e-5], 'T0': [0.0070, 0.
                       'delay_s': 0.15, 'fixed': ['R', 'L', 'k'],
                       'units': {'J_eff': 'kg m^2', 'b': 'N m s/rad', 'T0': 'N m'}}
 DUNKER_SIGN_RULE = ('torque = k_t * |i| * s with s = sign(m{n}vel) where the measured '
-                    'speed is non-zero, else sign(m{n}setvel) (0 when both are 0): the '
-                    'logged current has no sign and follows the speed, including the '
-                    '~0.12 s after a set-point step to 0 while the motor still runs')
+                    'speed is non-zero; else sign(m{n}setvel) where the set-point is non-zero '
+                    '(start-up); else the sign of the last non-zero measured speed (the '
+                    'current trailing a stop), 0 before any motion. The logged current has '
+                    'no sign and follows the speed, also during the ~0.12 s after a '
+                    'set-point step to 0 while the motor still runs')
 SOURCES = ('emps', 'dunker', 'csv')
 
 
@@ -195,7 +197,7 @@ def load_dunker(path, motor=1):
     if np.any(cur < 0):
         raise DataError(f'{path}: m{motor}cur has negative values; this importer expects '
                         'the unsigned current magnitude of the Dunker logs')
-    sign = np.where(vel != 0, np.sign(vel), np.sign(setvel))
+    sign = dunker_sign(vel, setvel)
     torque = DUNKER_K_T * cur * sign
     dt = np.diff(t_ms) * 1e-3
     meta = {
@@ -216,10 +218,31 @@ def load_dunker(path, motor=1):
         'sampling': {'irregular': True, 'dt_min_s': float(dt.min()),
                      'dt_max_s': float(dt.max()), 'dt_mean_s': float(dt.mean())},
         'current_quantum_A': 0.0256,
-        'sign_from_setpoint': int(np.count_nonzero((vel == 0) & (cur > 0))),
+        'sign_from_setpoint': int(np.count_nonzero((vel == 0) & (setvel != 0) & (cur > 0))),
+        'sign_held': int(np.count_nonzero((vel == 0) & (setvel == 0) & (cur > 0))),
         'units': {'t': 's', 'voltage': 'N m', 'speed': 'rad/s', 'current': 'A', 'flags': '1'},
     }
     return Recording(t_ms * 1e-3, torque, vel, None, 'torque', meta)
+
+
+def dunker_sign(vel, setvel):
+    """Direction of the unsigned Dunker current: the rule of :data:`DUNKER_SIGN_RULE`.
+
+    Parameters
+    ----------
+    vel, setvel : ndarray
+        Measured speed and speed set-point [rad/s].
+
+    Returns
+    -------
+    ndarray
+        -1, 0 or +1 per sample.
+    """
+    vel = np.asarray(vel, dtype=float)
+    setvel = np.asarray(setvel, dtype=float)
+    last = np.maximum.accumulate(np.where(vel != 0, np.arange(vel.size), 0))
+    held = np.sign(vel[last])
+    return np.where(vel != 0, np.sign(vel), np.where(setvel != 0, np.sign(setvel), held))
 
 
 def load_csv(path):
