@@ -35,6 +35,7 @@ import os
 from pathlib import Path
 import re
 import struct
+import threading
 import time
 
 from mcap.data_stream import ReadDataStream
@@ -416,6 +417,7 @@ class BagWriter:
     -----
     Times are integer nanoseconds: ``log_time_ns`` is when the message was received
     (rosbag2's receive time, used for playback timing), ``publish_time_ns`` defaults to it.
+    The methods are thread-safe (one lock); writing after :meth:`close` raises BagError.
     """
 
     def __init__(self, path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd',
@@ -445,6 +447,7 @@ class BagWriter:
         self._end_ns = None
         self._last_flush = clock()
         self._closed = False
+        self._lock = threading.RLock()
 
     def __enter__(self):
         return self
@@ -507,13 +510,15 @@ class BagWriter:
         publish_time_ns : int, optional
         sequence : int
         """
-        self._check_open()
-        entry = self.add_topic(topic, msgtype)
-        try:
-            data = entry.encoder(msg)
-        except (ValueError, TypeError, KeyError, AttributeError, struct.error) as exc:
-            raise BagError(f'cannot serialise a {msgtype} for {entry.name}: {exc}') from None
-        self._add(entry, data, log_time_ns, publish_time_ns, sequence)
+        with self._lock:
+            self._check_open()
+            entry = self.add_topic(topic, msgtype)
+            try:
+                data = entry.encoder(msg)
+            except (ValueError, TypeError, KeyError, AttributeError, struct.error) as exc:
+                raise BagError(f'cannot serialise a {msgtype} for {entry.name}: '
+                               f'{exc}') from None
+            self._add(entry, data, log_time_ns, publish_time_ns, sequence)
 
     def _add(self, entry, data, log_time_ns, publish_time_ns, sequence):
         log_time = int(log_time_ns)
@@ -531,9 +536,10 @@ class BagWriter:
 
     def flush(self):
         """Write the chunk in progress now (a SIGKILL after this loses nothing so far)."""
-        self._check_open()
-        self._writer.flush()
-        self._last_flush = self._clock()
+        with self._lock:
+            self._check_open()
+            self._writer.flush()
+            self._last_flush = self._clock()
 
     def write_samples(self, rows, log_time_ns, publish_time_ns=None, sequence=0,
                       topic=SAMPLES_TOPIC):
@@ -615,20 +621,22 @@ class BagWriter:
         channel_metadata : dict, optional
             Copied verbatim (QoS, type hash).
         """
-        self._check_open()
-        name = _topic_name(topic)
-        entry = self._topics.get(name)
-        if entry is None:
-            if schema is None:
-                schema_id, msgtype = 0, ''
-            else:
-                schema_id = self._schema_id(schema.name, schema.encoding, schema.data)
-                msgtype = schema.name
-            meta = dict(channel_metadata or {})
-            channel_id = self._writer.register_channel(name, message_encoding, schema_id, meta)
-            entry = _Topic(name, msgtype, channel_id)
-            self._topics[name] = entry
-        self._add(entry, data, log_time_ns, publish_time_ns, sequence)
+        with self._lock:
+            self._check_open()
+            name = _topic_name(topic)
+            entry = self._topics.get(name)
+            if entry is None:
+                if schema is None:
+                    schema_id, msgtype = 0, ''
+                else:
+                    schema_id = self._schema_id(schema.name, schema.encoding, schema.data)
+                    msgtype = schema.name
+                meta = dict(channel_metadata or {})
+                channel_id = self._writer.register_channel(name, message_encoding, schema_id,
+                                                           meta)
+                entry = _Topic(name, msgtype, channel_id)
+                self._topics[name] = entry
+            self._add(entry, data, log_time_ns, publish_time_ns, sequence)
 
     def _check_open(self):
         if self._closed:
@@ -663,14 +671,16 @@ class BagWriter:
 
     def close(self):
         """Write the rosbag2 metadata record, the summary (statistics, indexes), the footer."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self._writer.add_metadata('rosbag2', {'serialized_metadata': self._rosbag2_metadata()})
-            self._writer.finish()
-        finally:
-            self._file.close()
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.add_metadata('rosbag2',
+                                          {'serialized_metadata': self._rosbag2_metadata()})
+                self._writer.finish()
+            finally:
+                self._file.close()
 
 
 def _kv_text(value):

@@ -442,3 +442,20 @@ def test_yaml_emitter_quotes_what_needs_quoting():
     value = {'a': 'plain_text', 'b': 'yes', 'c': 'x: y', 'd': '', 'e': None, 'f': [],
              'g': [{'h': 1, 'i': [True, 'z']}], 'j': {}}
     assert YAML(typ='safe').load(io.StringIO(bag._yaml(value))) == value
+
+
+def test_writer_is_safe_to_share_between_threads(tmp_path):
+    import threading
+    path = tmp_path / 'threads.mcap'
+    with BagWriter(path, chunk_size=2048) as writer:
+        def worker(offset):
+            for k in range(100):
+                seq = offset + k
+                writer.write_samples([seq, seq * 0.01, 1.0, 2.0, np.nan, 0.0], 1000 * seq)
+        threads = [threading.Thread(target=worker, args=(i * 100,)) for i in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+    rec = read_recording(path)
+    np.testing.assert_array_equal(rec.time, np.arange(400) * 0.01)
