@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from motor_id import bag
-from motor_id.bag import (BagError, BagWriter, bag_info, message_definition, read_recording,
+from motor_id.bag import (bag_info, BagWriter, message_definition, read_recording,
                           read_samples, recover, write_recording)
 from motor_id.cli import main
-from motor_id.errors import ConfigError
+from motor_id.errors import BagError, ConfigError
 from motor_id.recording import Recording
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -459,3 +459,20 @@ def test_writer_is_safe_to_share_between_threads(tmp_path):
             t.join()
     rec = read_recording(path)
     np.testing.assert_array_equal(rec.time, np.arange(400) * 0.01)
+
+
+def test_a_cut_summary_loses_no_data_and_directories_resolve(tmp_path):
+    full = tmp_path / 'run' / 'run_0.mcap'
+    full.parent.mkdir()
+    rows = write_chunked(full, batches=10)
+    data = full.read_bytes()
+    cut = tmp_path / 'nosummary.mcap'
+    cut.write_bytes(data[:-30])
+    rec = read_recording(cut)
+    np.testing.assert_array_equal(rec.time, rows[:, 1])
+    assert 'summary/footer is missing' in rec.meta['bag_note']
+    assert not bag_info(cut)['complete']
+    np.testing.assert_array_equal(read_recording(full.parent).speed, rows[:, 3])
+    (tmp_path / 'empty_dir').mkdir()
+    with pytest.raises(BagError, match='directory with 0 .mcap'):
+        read_recording(tmp_path / 'empty_dir')
