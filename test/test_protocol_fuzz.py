@@ -47,8 +47,20 @@ def _frame_like(draw_bytes):
                                    pr.CARD_TYPES.get(x[0]) or pr.HOST_TYPES[x[0]], x[1][:255])))
 
 
+@st.composite
+def mutated_payloads(draw):
+    """A valid frame with some payload bytes overwritten and the CRC made valid again."""
+    frame = draw(st.one_of(samples().map(pr.encode_sample), replies.map(pr.encode_reply),
+                           commands.map(pr.encode_command)))
+    ftype, payload = frame[2], bytearray(frame[pr.HEADER.size:-pr.CRC.size])
+    for _ in range(draw(st.integers(0, 4)) if payload else 0):
+        payload[draw(st.integers(0, len(payload) - 1))] = draw(st.integers(0, 255))
+    kind = pr.CARD_TYPES.get(ftype) or pr.HOST_TYPES[ftype]
+    return pr._frame(kind, bytes(payload))
+
+
 @SETTINGS
-@given(_frame_like(st.binary(max_size=80)))
+@given(st.one_of(_frame_like(st.binary(max_size=80)), mutated_payloads()))
 def test_parse_frame_raises_only_protocol_error(data):
     for parse in (pr.parse_frame, pr.parse_command):
         try:

@@ -496,7 +496,7 @@ class CardSimulator:
     as a UART would.
     """
 
-    PENDING_MAX = 1 << 16
+    PENDING_MAX = 1 << 20
     ASAP_LOW_WATER = 1 << 12
 
     def __init__(self, plant=None, period=0.01, speedup=1.0, with_current=True,

@@ -1,0 +1,321 @@
+"""The virtual card: exact plant continuation, commands, faults, the pty server and its CLI."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from motor_id.card import protocol as pr
+from motor_id.card.simulator import CardSimulator, FaultConfig, FaultInjector, VirtualCard
+from motor_id.card.transport import open_transport, read_available, TransportError
+from motor_id.errors import ConfigError
+from motor_id.excitation import make_excitation
+from motor_id.model import PAPER_MOTOR, Plant
+from motor_id.simulate import simulate_batch
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MEMORY_EFFECTS = {'sensor_lag': {'tau_s': 0.03}, 'input_delay': {'d': 3},
+                  'coulomb_friction': {'T_c': 0.05}, 'resistance_drift': {}}
+
+
+def _columns(samples):
+    return {k: np.array([getattr(s, k) for s in samples])
+            for k in ('seq', 't_card', 'voltage', 'speed', 'current', 'flags')}
+
+
+def _resimulate(samples, plant, x0=None):
+    c = _columns(samples)
+    return c, simulate_batch(plant.params.to_dict(), c['t_card'], c['voltage'],
+                             plant.input_kind, 'zoh', plant.effects, x0)
+
+
+# ---------------------------------------------------------------------------------------
+# VirtualCard: the card's logic without I/O
+
+
+def test_stream_equals_one_simulation_across_commands_and_effects():
+    plant = Plant(PAPER_MOTOR, 'voltage', MEMORY_EFFECTS)
+    card = VirtualCard(plant, period=0.01, horizon=128)  # many re-plans
+    out = card.samples(20)
+    assert card.handle(pr.StartProfile('prbs', 5.0, 3, 4.0)).value == 20
+    out += card.samples(450)
+    card.handle(pr.SetVoltage(2.0))
+    out += card.samples(200)
+    assert card.handle(pr.SetPeriod(0.004)).status == 'ok'
+    out += card.samples(300)
+    card.handle(pr.Stop())
+    out += card.samples(100)
+    c, sim = _resimulate(out, plant)
+    assert np.array_equal(c['seq'], np.arange(len(out)))
+    np.testing.assert_allclose(np.diff(c['t_card'])[-350:], 0.004, rtol=1e-9)
+    np.testing.assert_allclose(c['speed'], sim['speed'][0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(c['current'], sim['current'][0], rtol=0, atol=1e-9)
+    assert np.abs(c['speed']).max() > 1.0  # the motor did move
+
+
+def test_profile_voltages_and_flags():
+    card = VirtualCard(period=0.01)
+    card.samples(5)
+    reply = card.handle(pr.StartProfile('prbs', 4.0, 11, 1.0))
+    assert reply == pr.Reply('start_profile', 'ok', 5)
+    c = _columns(card.samples(110))
+    expected = make_excitation('prbs', np.arange(100) * 0.01, 4.0, 11).astype(np.float32)
+    np.testing.assert_array_equal(c['voltage'][:100], expected)
+    assert np.all(c['voltage'][100:] == 0.0)
+    assert np.all(c['flags'][:100] & pr.FLAG_PROFILE)
+    assert np.flatnonzero(c['flags'] & pr.FLAG_PROFILE_END).tolist() == [99]
+    assert not np.any(c['flags'][100:] & pr.FLAG_PROFILE)
+
+
+def test_command_replies():
+    card = VirtualCard(period=0.01, max_input=24.0)
+    assert card.samples(1)[0].flags & pr.FLAG_STARTUP
+    assert not card.samples(1)[0].flags & pr.FLAG_STARTUP
+    assert card.handle(pr.Ping(99)) == pr.Reply('ping', 'ok', 99)
+    assert card.handle(pr.StartProfile('nope')).status == 'unknown_profile'
+    assert card.handle(pr.StartProfile('prbs', 30.0)).status == 'bad_value'
+    assert card.handle(pr.StartProfile('prbs', 3.0, 0, 0.0)).status == 'bad_value'
+    assert card.handle(pr.SetVoltage(25.0)).status == 'bad_value'
+    assert card.handle(pr.SetPeriod(1e-6)).status == 'bad_value'
+    assert card.handle(pr.StartProfile('bipolar_steps', 3.0, 0, 1.0)).status == 'ok'
+    assert card.handle(pr.SetPeriod(0.02)).status == 'busy'
+    card.samples(100)
+    assert card.handle(pr.SetPeriod(0.02)) == pr.Reply('set_period', 'ok', 102)
+    s = card.samples(2)
+    assert s[1].t_card - s[0].t_card == pytest.approx(0.02, abs=1e-12)
+    with pytest.raises(ConfigError):
+        card.handle(pr.Reply('stop'))
+
+
+def test_noise_is_seeded_and_sized():
+    def run(seed):
+        card = VirtualCard(speed_noise=0.05, current_noise=0.01, random_state=seed)
+        return _columns(card.samples(2000))
+
+    a, b, c = run(1), run(1), run(2)
+    assert np.array_equal(a['speed'], b['speed']) and not np.array_equal(a['speed'], c['speed'])
+    assert np.std(a['speed']) == pytest.approx(0.05, rel=0.1)  # motor at rest: pure noise
+    assert np.std(a['current']) == pytest.approx(0.01, rel=0.1)
+
+
+def test_torque_plant_has_no_current():
+    card = VirtualCard(Plant(PAPER_MOTOR, 'torque'), with_current=True)
+    card.handle(pr.SetVoltage(1.0))
+    s = card.samples(10)
+    assert all(not x.has_current for x in s) and s[-1].speed > 0
+    assert card.truth()['input_kind'] == 'torque'
+
+
+def test_history_cut_continues_from_the_exact_state():
+    card = VirtualCard(period=0.01, horizon=50, max_history=60)
+    card.handle(pr.StartProfile('multisine', 6.0, 2, 5.0))
+    out = card.samples(500)
+    c, sim = _resimulate(out, Plant())
+    np.testing.assert_allclose(c['speed'], sim['speed'][0], rtol=1e-9, atol=1e-9)
+
+
+def test_truth_reports_plant_and_settings():
+    plant = Plant(PAPER_MOTOR, 'voltage', {'coulomb_friction': {'T_c': 0.1}})
+    truth = VirtualCard(plant, period=0.005, speed_noise=0.1).truth()
+    assert truth['params'] == PAPER_MOTOR.to_dict()
+    assert truth['effects'] == {'coulomb_friction': {'T_c': 0.1}}
+    assert truth['period'] == 0.005 and truth['speed_noise'] == 0.1
+
+
+# ---------------------------------------------------------------------------------------
+# fault injection, exact counts without I/O
+
+
+def _inject(config, n=3000, seed=0):
+    card = VirtualCard(period=0.001)
+    inj = FaultInjector(config, random_state=seed)
+    data = b''.join(inj.apply(pr.encode_sample(s)) for s in card.samples(n))
+    parser = pr.FrameParser()
+    tracker = pr.SequenceTracker()
+    items = parser.feed(data) + parser.flush()
+    for item in items:
+        if isinstance(item, pr.Sample):
+            tracker.update(item.seq)
+    return inj.stats, parser, tracker
+
+
+def test_fault_counts_drop_duplicate_reorder():
+    stats, parser, tr = _inject(FaultConfig(drop=0.02))
+    assert stats['dropped'] > 20 and tr.lost == stats['dropped'] - (tr.last != 2999)
+    stats, parser, tr = _inject(FaultConfig(duplicate=0.02))
+    assert stats['duplicated'] > 20 and tr.duplicates == stats['duplicated'] and tr.lost == 0
+    stats, parser, tr = _inject(FaultConfig(reorder=0.02))
+    assert stats['reordered'] > 20 and tr.late == stats['reordered'] and tr.lost == 0
+    assert not parser.errors and parser.garbage_bytes == 0
+
+
+def test_fault_counts_bad_crc_and_garbage():
+    stats, parser, tr = _inject(FaultConfig(bad_crc=0.02))
+    assert stats['bad_crc'] > 20 and parser.errors == {'bad_crc': stats['bad_crc']}
+    assert tr.lost == stats['bad_crc'] and parser.garbage_bytes == 0
+    stats, parser, tr = _inject(FaultConfig(garbage=0.05, garbage_max=40))
+    assert stats['garbage_bytes'] > 500 and parser.garbage_bytes == stats['garbage_bytes']
+    assert tr.received == 3000 and tr.lost == 0 and not parser.errors
+
+
+def test_fault_config_parsing():
+    f = FaultConfig.parse(['garbage=0.1:8', 'drop=0.01', 'disconnect=2:0.5'])
+    assert (f.garbage, f.garbage_max, f.drop, f.disconnect_every, f.disconnect_for) == \
+        (0.1, 8, 0.01, 2.0, 0.5)
+    assert f.any and not FaultConfig().any
+    for bad in (['drop=2'], ['drop=x'], ['jitter=0.1'], ['drop=0.1:3']):
+        with pytest.raises(ConfigError):
+            FaultConfig.parse(bad)
+
+
+# ---------------------------------------------------------------------------------------
+# the card on a real pseudo-terminal
+
+
+def _read_until(port, parser, done, timeout=10.0):
+    items = []
+    end = time.monotonic() + timeout
+    while not done(items):
+        assert time.monotonic() < end, 'the simulated card did not deliver in time'
+        items += parser.feed(read_available(port, 65536))
+    return items
+
+
+def test_pty_profile_matches_simulate_batch():
+    plant = Plant(PAPER_MOTOR, 'voltage', {'sensor_lag': {'tau_s': 0.02}})
+    with CardSimulator(plant, period=0.01, speedup=100.0, random_state=0) as sim:
+        assert os.path.realpath(sim.path).startswith('/dev/pts/')
+        port = open_transport(sim.path, timeout=0.05)
+        try:
+            port.write(pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 32.0)))
+            parser = pr.FrameParser()
+            items = _read_until(port, parser, lambda it: any(
+                isinstance(s, pr.Sample) and s.flags & pr.FLAG_PROFILE_END for s in it))
+        finally:
+            port.close()
+    samples = [s for s in items if isinstance(s, pr.Sample)]
+    assert not parser.errors and parser.garbage_bytes == 0
+    seqs = np.array([s.seq for s in samples])
+    assert np.all(np.diff(seqs) == 1)
+    reply = parser.replies.popleft()
+    assert reply.command == 'start_profile' and reply.status == 'ok'
+    profile = [s for s in samples if s.flags & pr.FLAG_PROFILE]
+    assert len(profile) == 3200 and profile[0].seq == reply.value
+    c, sim = _resimulate(profile, plant)
+    np.testing.assert_array_equal(c['voltage'], np.float32(
+        make_excitation('paper_steps', np.arange(3200) * 0.01)))
+    # float32 on the wire: ~6e-8 relative
+    np.testing.assert_allclose(c['speed'], sim['speed'][0], rtol=1e-6, atol=1e-5)
+    np.testing.assert_allclose(c['current'], sim['current'][0], rtol=1e-6, atol=1e-5)
+    assert c['speed'].max() > 10.0
+
+
+def test_pty_faults_reach_the_parser():
+    faults = FaultConfig(garbage=0.02, drop=0.01, bad_crc=0.01, duplicate=0.01, reorder=0.01)
+    with CardSimulator(speedup=0, faults=faults, random_state=5) as sim:
+        port = open_transport(sim.path, timeout=0.05)
+        parser, tracker = pr.FrameParser(), pr.SequenceTracker()
+        first = None  # opening the port flushes what the card sent before
+        try:
+            end = time.monotonic() + 10.0
+            while tracker.received < 8000 and time.monotonic() < end:
+                for item in parser.feed(read_available(port, 65536)):
+                    if isinstance(item, pr.Sample):
+                        first = item.seq if tracker.update(item.seq).kind == 'first' else first
+        finally:
+            port.close()
+        stats = sim.stats
+    assert tracker.received >= 8000
+    assert 0 < parser.errors['bad_crc'] <= stats['bad_crc']
+    assert 0 < tracker.duplicates <= stats['duplicated']
+    assert 0 < tracker.late <= stats['reordered']
+    assert parser.garbage_bytes >= 0.8 * stats['garbage_bytes'] * tracker.last / stats['frames']
+    # every sequence number up to the last one is accounted for
+    assert tracker.received - tracker.duplicates + tracker.lost == tracker.last - first + 1
+    assert tracker.lost >= 0.5 * (stats['dropped'] + stats['bad_crc']) * tracker.last \
+        / stats['frames']
+
+
+def test_pty_disconnect_comes_back_at_the_link(tmp_path):
+    link = str(tmp_path / 'card')
+    faults = FaultConfig(disconnect_every=0.4, disconnect_for=0.2)
+    with CardSimulator(speedup=5.0, faults=faults, link=link, random_state=0) as sim:
+        port = open_transport(link, timeout=0.05)
+        parser, tracker = pr.FrameParser(), pr.SequenceTracker()
+        events, vanished = [], False
+        end = time.monotonic() + 5.0
+        while sum(e.kind == 'gap' for e in events) < 1 and time.monotonic() < end:
+            try:
+                for item in parser.feed(read_available(port)):
+                    events.append(tracker.update(item.seq))
+            except TransportError:
+                port.close()
+                parser.reset()
+                while True:
+                    vanished |= not os.path.lexists(link)
+                    try:
+                        port = open_transport(link, timeout=0.05)
+                        break
+                    except TransportError:
+                        time.sleep(0.01)
+        port.close()
+        stats = sim.stats
+    assert vanished, 'the link should disappear while the card is away'
+    gaps = [e for e in events if e.kind == 'gap']
+    assert gaps and gaps[0].lost >= 0.1 / (0.01 / 5.0)  # ~0.2 s of samples at 500/s
+    assert stats['disconnects'] >= 1 and stats['lost_offline'] >= gaps[0].lost * 0.5
+    assert not os.path.lexists(link)  # removed on stop
+
+
+def test_simulator_refuses_to_replace_a_file(tmp_path):
+    target = tmp_path / 'real'
+    target.write_text('keep me')
+    with pytest.raises(ConfigError, match='not a symlink'):
+        CardSimulator(link=str(target)).start()
+    assert target.read_text() == 'keep me'
+
+
+# ---------------------------------------------------------------------------------------
+# command line
+
+
+def _cli(*args):
+    env = dict(os.environ, PYTHONPATH=REPO)
+    return subprocess.Popen([sys.executable, '-m', 'motor_id.cli', 'card-sim', *args],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, cwd=REPO)
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_cli_prints_the_path_and_stops_cleanly(tmp_path, sig):
+    link = tmp_path / 'card'
+    truth = tmp_path / 'truth.json'
+    proc = _cli('--link', str(link), '--speedup', '20', '--effect', 'coulomb_friction=0.1',
+                '--noise', '0.01', '--truth-out', str(truth), '--seed', '3')
+    try:
+        first = proc.stdout.readline().strip()
+        assert first == str(link) and os.path.islink(link)
+        port = open_transport(first, timeout=0.05)
+        port.write(pr.encode_command(pr.Ping(7)))
+        parser = pr.FrameParser()
+        _read_until(port, parser, lambda it: len(parser.replies) > 0)
+        assert parser.replies[0] == pr.Reply('ping', 'ok', 7)
+        port.close()
+        assert '"T_c": 0.1' in truth.read_text()
+    finally:
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err and not os.path.lexists(link)
+
+
+def test_cli_user_errors_are_one_line():
+    proc = _cli('--fault', 'disconnect=1')
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and out == ''
+    assert err.strip().startswith('motor-id card-sim: error:') and 'needs --link' in err
+    assert len(err.strip().splitlines()) == 1
