@@ -167,8 +167,9 @@ def test_fault_config_parsing():
     assert (f.garbage, f.garbage_max, f.drop, f.disconnect_every, f.disconnect_for) == \
         (0.1, 8, 0.01, 2.0, 0.5)
     assert f.any and not FaultConfig().any
-    for bad in (['drop=2'], ['drop=x'], ['jitter=0.1'], ['drop=0.1:3']):
-        with pytest.raises(ConfigError):
+    for bad, message in ((['drop=2'], 'probability'), (['drop=x'], 'needs a number'),
+                         (['jitter=0.1'], 'unknown fault'), (['drop=0.1:3'], 'unknown fault')):
+        with pytest.raises(ConfigError, match=message):
             FaultConfig.parse(bad)
 
 

@@ -372,8 +372,13 @@ class FaultConfig:
         values = {}
         for item in items or ():
             name, _, value = item.partition('=')
+            first, _, second = value.partition(':')
+            if name not in ('garbage', 'drop', 'bad_crc', 'duplicate', 'reorder',
+                            'disconnect') or (second and name not in ('garbage', 'disconnect')):
+                raise ConfigError(
+                    f'unknown fault {item!r}; use garbage=P[:MAX], drop=P, bad_crc=P, '
+                    'duplicate=P, reorder=P or disconnect=EVERY[:DOWN]')
             try:
-                first, _, second = value.partition(':')
                 if name == 'disconnect':
                     values['disconnect_every'] = float(first)
                     if second:
@@ -382,12 +387,8 @@ class FaultConfig:
                     values['garbage'] = float(first)
                     if second:
                         values['garbage_max'] = int(second)
-                elif name in ('drop', 'bad_crc', 'duplicate', 'reorder') and not second:
-                    values[name] = float(first)
                 else:
-                    raise ConfigError(
-                        f'unknown fault {item!r}; use garbage=P[:MAX], drop=P, bad_crc=P, '
-                        'duplicate=P, reorder=P or disconnect=EVERY[:DOWN]')
+                    values[name] = float(first)
             except ValueError:
                 raise ConfigError(f'fault {item!r} needs a number, e.g. {name}=0.01') from None
         return cls(**values)
