@@ -17,7 +17,7 @@ setup(
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
                       'mcap', 'mcap-ros2-support'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'rosbags'],
+        'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions'],
         'bench': ['pygad', 'cma', 'psutil'],
     },
     zip_safe=True,
