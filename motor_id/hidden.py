@@ -1,0 +1,201 @@
+"""Seeded hidden-effect cases: a perturbed paper motor, one named effect, an excitation, noise.
+
+Each case draws, from its own seed: an effect of :data:`motor_id.model.EFFECTS` (or none),
+a magnitude inside that effect's *detectable range*, a motor (the paper's motor with every
+parameter perturbed, K_T = K_b as SI units demand), an excitation profile and its
+amplitude. It simulates the voltage-driven motor with speed and current measured and adds
+white noise. The truth comes back separately in a :class:`HiddenCase` and is never
+written into the data: the recording's metadata name only the generator and the seed.
+
+Detectable ranges are stated relative to the case's own motor and excitation, so that
+every drawn effect changes the outputs by clearly more than the noise:
+
+=====================  ===============================================================
+coulomb_friction       T_c in [0.005, 0.05] x stall torque K_T A / R_m
+load_torque            |T_L| in [0.005, 0.05] x stall torque, either sign
+quadratic_load         k_q w_nl^2 in [0.01, 0.1] x stall torque (w_nl: no-load speed)
+brush_drop             V_b in [0.01, 0.08] x amplitude A
+dead_zone              V_dz in [0.03, 0.2] x A
+input_delay            d in 2 .. 8 samples
+voltage_saturation     V_max in [0.5, 0.85] x A
+sensor_lag             tau_s in [0.05, 0.3] x mechanical time constant J R_m / K_T^2
+speed_quantization     q in [0.01, 0.04] x w_nl
+resistance_drift       tau_th in [0.2, 0.6] x record length, steady rise dR in
+                       [0.2, 1.0] x R_m at the record's RMS current
+resonance              r in [0.3, 3], f_r in [0.5, 5] Hz, zeta in [0.02, 0.15]
+=====================  ===============================================================
+
+A binary input (PRBS) only ever takes two values, so a static input map (dead zone,
+saturation) acts on it as a plain gain and cannot be told from one; cases with those
+effects draw their excitation from the other profiles.
+"""
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from motor_id.errors import ConfigError
+from motor_id.excitation import make_excitation, PROFILES
+from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR, Plant
+from motor_id.recording import Recording, write_csv
+from motor_id.simulate import simulate_batch
+
+VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
+"""Effects the generator can hide (all apply to the voltage-driven motor)."""
+
+STATIC_INPUT_MAPS = ('dead_zone', 'voltage_saturation')
+
+
+@dataclass
+class HiddenCase:
+    """The truth of one generated case (kept apart from the data)."""
+
+    seed: int
+    effect: str
+    effect_params: dict
+    motor: dict
+    excitation: str
+    amplitude: float
+    sample_period: float
+    n_samples: int
+    noise: dict
+    known: dict = field(default_factory=dict)
+
+    def to_dict(self):
+        """JSON-ready dict."""
+        return asdict(self)
+
+
+def _loguniform(rng, lo, hi):
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def perturbed_motor(rng, spread=0.25):
+    """The paper's motor with each parameter scaled by ``exp(U(-spread, spread))``.
+
+    K_T and K_b are equal (one constant in SI units); B spreads twice as wide.
+    """
+    p = PAPER_MOTOR
+
+    def f(s=spread):
+        return float(np.exp(rng.uniform(-s, s)))
+
+    k = 0.65 * f(0.8 * spread)
+    return MotorParams(J=p.J * f(), K_T=k, K_b=k, B=p.B * f(2 * spread), L_m=p.L_m * f(),
+                       R_m=p.R_m * f(0.8 * spread))
+
+
+def effect_magnitude(name, rng, motor, amplitude, t, u):
+    """Draw the parameters of effect ``name`` inside its detectable range.
+
+    Parameters
+    ----------
+    name : str
+        An effect of :data:`VOLTAGE_EFFECTS`.
+    rng : numpy.random.Generator
+    motor : MotorParams
+    amplitude : float
+        Input amplitude A [V].
+    t, u : ndarray
+        Times and input of the case (for the record length and RMS current).
+
+    Returns
+    -------
+    dict
+        ``{param: value}``.
+    """
+    K, R, B, J = motor.K_T, motor.R_m, motor.B, motor.J
+    stall = K * amplitude / R
+    w_nl = K * amplitude / (R * B + K * motor.K_b)
+    if name == 'coulomb_friction':
+        return {'T_c': _loguniform(rng, 0.005, 0.05) * stall}
+    if name == 'load_torque':
+        return {'T_L': float(rng.choice([-1.0, 1.0])) * _loguniform(rng, 0.005, 0.05) * stall}
+    if name == 'quadratic_load':
+        return {'k_q': _loguniform(rng, 0.01, 0.1) * stall / w_nl ** 2}
+    if name == 'brush_drop':
+        return {'V_b': _loguniform(rng, 0.01, 0.08) * amplitude}
+    if name == 'dead_zone':
+        return {'V_dz': _loguniform(rng, 0.03, 0.2) * amplitude}
+    if name == 'input_delay':
+        return {'d': float(rng.integers(2, 9))}
+    if name == 'voltage_saturation':
+        return {'V_max': float(rng.uniform(0.5, 0.85)) * amplitude}
+    if name == 'sensor_lag':
+        tau_m = J * R / (K * motor.K_b)
+        dt = float(np.median(np.diff(t)))
+        return {'tau_s': max(_loguniform(rng, 0.05, 0.3) * tau_m, 1.5 * dt)}
+    if name == 'speed_quantization':
+        return {'q': _loguniform(rng, 0.01, 0.04) * w_nl}
+    if name == 'resistance_drift':
+        out = simulate_batch(motor.to_dict(), t, u, 'voltage')
+        i_rms = float(np.sqrt(np.mean(out['current'][0] ** 2))) or 1.0
+        tau_th = float(rng.uniform(0.2, 0.6)) * float(t[-1] - t[0])
+        dR = _loguniform(rng, 0.2, 1.0) * R
+        return {'k_h': dR / (i_rms ** 2 * tau_th), 'tau_th': tau_th}
+    if name == 'resonance':
+        return {'r': _loguniform(rng, 0.3, 3.0), 'f_r': _loguniform(rng, 0.5, 5.0),
+                'zeta': _loguniform(rng, 0.02, 0.15)}
+    raise ConfigError(f'the generator cannot hide {name!r}; choose from {VOLTAGE_EFFECTS}')
+
+
+def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=0.01,
+              noise=(0.005, 0.01)):
+    """Generate one case.
+
+    Parameters
+    ----------
+    seed : int
+        Everything random about the case follows from it.
+    effect : str, optional
+        An effect name to hide, ``'none'`` for a clean case, or None to draw one of
+        :data:`VOLTAGE_EFFECTS` at random.
+    excitation : str, optional
+        A profile of :data:`motor_id.excitation.PROFILES`; drawn when omitted.
+    n_samples : int
+    sample_period : float
+        [s]
+    noise : (float, float)
+        Speed and current noise standard deviations as fractions of each channel's
+        standard deviation.
+
+    Returns
+    -------
+    rec : Recording
+        Voltage, speed and current, without the truth.
+    case : HiddenCase
+        The truth; ``case.known`` holds what a user would know (R_m).
+    """
+    rng = np.random.default_rng(seed)
+    if effect is None:
+        effect = str(rng.choice(VOLTAGE_EFFECTS))
+    if effect != 'none' and effect not in VOLTAGE_EFFECTS:
+        raise ConfigError(f'unknown effect {effect!r}; choose from {VOLTAGE_EFFECTS} or none')
+    motor = perturbed_motor(rng)
+    if excitation is None:
+        allowed = [p for p in PROFILES if not (effect in STATIC_INPUT_MAPS and p == 'prbs')]
+        excitation = str(rng.choice(allowed))
+    if excitation not in PROFILES:
+        raise ConfigError(f'unknown excitation {excitation!r}; choose from {PROFILES}')
+    amplitude = float(rng.uniform(6.0, 12.0))
+    t = np.arange(n_samples) * sample_period
+    u = make_excitation(excitation, t, amplitude, int(rng.integers(1 << 30)))
+    params = {} if effect == 'none' else effect_magnitude(effect, rng, motor, amplitude, t, u)
+    effects = {} if effect == 'none' else {effect: params}
+    plant = Plant(motor, 'voltage', effects)
+    out = simulate_batch(motor.to_dict(), t, u, 'voltage', 'zoh', plant.effects)
+    speed = out['speed'][0]
+    current = out['current'][0]
+    speed = speed + noise[0] * np.std(speed) * rng.standard_normal(n_samples)
+    current = current + noise[1] * np.std(current) * rng.standard_normal(n_samples)
+    rec = Recording(t, u, speed, current, 'voltage',
+                    {'source': 'motor_id.hidden', 'seed': int(seed)})
+    case = HiddenCase(int(seed), effect, params, motor.to_dict(), excitation, amplitude,
+                      sample_period, n_samples, {'speed': noise[0], 'current': noise[1]},
+                      {'R_m': motor.R_m})
+    return rec, case
+
+
+def write_case(rec, path):
+    """Write a generated recording as CSV (no truth in the file)."""
+    write_csv(rec, path, {'source': 'motor_id.hidden', 'seed': rec.meta.get('seed')})
