@@ -1,11 +1,11 @@
 """Section 5: discrepancy analysis, its wall time and its hit / false-alarm rates.
 
 Part A times ``motor-id analyze`` end to end (a fresh process, CSV in, JSON out) on
-4,000 samples. Part B runs :class:`motor_id.discrepancy.DiscrepancyAnalysis` on
-recordings from a hidden-effect generator at three noise levels: half of the cases
-carry one named effect of :data:`motor_id.model.EFFECTS`, half none. A *hit* is a
-verdict that contains the hidden effect; a *false alarm* is any effect reported on a
-linear motor.
+4,000 samples. Part B runs :class:`motor_id.discrepancy.DiscrepancyAnalysis` on cases of
+the hidden-effect generator :mod:`motor_id.hidden` at three noise levels: half of the
+cases carry one named effect of :data:`motor_id.model.EFFECTS` drawn at random, half
+none. A *hit* is a verdict that
+contains the hidden effect; a *false alarm* is any effect reported on a linear motor.
 """
 
 from concurrent.futures import ProcessPoolExecutor
@@ -20,64 +20,33 @@ import time
 import numpy as np
 
 from common import REPO, Skip, target
-from motor_id.excitation import make_excitation
-from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR
-from motor_id.recording import Recording, write_csv
-from motor_id.simulate import simulate_batch
+from motor_id.recording import write_csv
 
 TITLE = 'Discrepancy analysis: wall time and hit / false-alarm rates'
-MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
-                    R_m=PAPER_MOTOR.R_m)
-"""K_T = K_b, so that the linear base fit (default tie) is not itself a discrepancy."""
-NOISE_LEVELS = (0.005, 0.02, 0.05)
-EXCITATION = 'bipolar_steps'
+NOISE_LEVELS = ((0.005, 0.01), (0.02, 0.04), (0.05, 0.1))
+"""Speed and current noise std as fractions of each channel's std (motor_id.hidden's
+default, x4 and x10)."""
+GENERATOR = ('motor_id.hidden.make_case: a perturbed paper motor (K_T = K_b), one random '
+             'effect in its detectable range or none, a random excitation and amplitude')
 
 
 def _require():
     try:
         from motor_id.discrepancy import DiscrepancyAnalysis  # noqa: F401
+        from motor_id.hidden import make_case  # noqa: F401
     except ImportError as exc:
-        raise Skip(f'motor_id.discrepancy is not available ({exc})') from None
+        raise Skip(f'the discrepancy analysis is not available ({exc})') from None
 
 
-def simulate_case(effects, noise, seed, n=4000, dt=0.01):
-    """:data:`MOTOR` with ``effects`` on ``bipolar_steps``, white noise of ``noise`` x std."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(n) * dt
-    u = make_excitation(EXCITATION, t)
-    out = simulate_batch(MOTOR.to_dict(), t, u, 'voltage', 'zoh', effects)
-    s, c = out['speed'][0], out['current'][0]
-    return Recording(t, u, s + noise * np.std(s) * rng.standard_normal(n),
-                     c + noise * np.std(c) * rng.standard_normal(n), 'voltage',
-                     {'truth': MOTOR.to_dict(), 'effects': effects, 'noise': noise})
+def make_case(seed, noise, with_effect, n=4000, effect=None, excitation=None):
+    """One case of :func:`motor_id.hidden.make_case`: ``(rec, hidden effect or None, R_m)``."""
+    from motor_id.hidden import make_case as hidden_case
 
-
-def own_case(seed, noise, with_effect, n=4000):
-    """One case of this benchmark's hidden-effect generator.
-
-    With ``with_effect`` one effect applicable to a voltage plant is drawn (seeded)
-    and given its catalogue default magnitude.
-
-    Returns
-    -------
-    rec : Recording
-    hidden : str or None
-        The effect's name.
-    """
-    rng = np.random.default_rng(seed)
-    names = sorted(k for k, e in EFFECTS.items() if 'voltage' in e.kinds)
-    hidden = str(rng.choice(names)) if with_effect else None
-    effects = {hidden: EFFECTS[hidden].defaults()} if hidden else {}
-    return simulate_case(effects, noise, seed + 1, n), hidden
-
-
-def generator_name():
-    """Which hidden-effect generator this section uses."""
-    try:
-        import motor_id.hidden  # noqa: F401
-    except ImportError:
-        return 'benchmark generator (motor_id.hidden not available)'
-    return 'benchmark generator (motor_id.hidden present but not wired in yet)'
+    if effect is None:
+        effect = None if with_effect else 'none'
+    rec, case = hidden_case(seed, effect=effect, excitation=excitation, n_samples=n,
+                            noise=tuple(noise))
+    return rec, (None if case.effect == 'none' else case.effect), case.known['R_m']
 
 
 def _analyse(job):
@@ -85,14 +54,15 @@ def _analyse(job):
     from motor_id.discrepancy import DiscrepancyAnalysis
 
     seed, noise, with_effect, n, candidates = job
-    rec, hidden = own_case(seed, noise, with_effect, n)
+    rec, hidden, r_m = make_case(seed, noise, with_effect, n)
     t0 = time.perf_counter()
-    ana = DiscrepancyAnalysis(R_m=MOTOR.R_m, candidates=candidates, random_state=seed)
+    ana = DiscrepancyAnalysis(R_m=r_m, candidates=candidates, random_state=seed)
     ana.fit(rec)
     rep = ana.report_
     found = [] if rep.verdict == 'none' else rep.verdict.split('+')
     ambiguous = [a['name'] for a in rep.ambiguous_with]
-    return {'seed': seed, 'noise': noise, 'hidden': hidden, 'verdict': rep.verdict,
+    return {'seed': seed, 'noise': f'{noise[0]:.1%}/{noise[1]:.1%}', 'hidden': hidden,
+            'verdict': rep.verdict,
             'ambiguous_with': ambiguous, 'unexplained': rep.unexplained,
             'hit': hidden is not None and hidden in found,
             'hit_or_ambiguous': hidden is not None and (hidden in found
@@ -104,14 +74,15 @@ def _analyse(job):
 
 def time_cli(tmp, n, with_effect, candidates=None):
     """Wall time of ``motor-id analyze`` in a fresh process on one CSV of n samples."""
-    hidden = 'coulomb_friction' if with_effect else None
-    rec = simulate_case({hidden: {'T_c': 0.05}} if hidden else {}, 0.01, 7, n)
+    rec, hidden, r_m = make_case(7, NOISE_LEVELS[0], with_effect, n,
+                                 effect='coulomb_friction' if with_effect else 'none',
+                                 excitation='bipolar_steps')
     csv = os.path.join(tmp, f'case_{int(with_effect)}.csv')
     js = os.path.join(tmp, f'case_{int(with_effect)}.json')
     write_csv(rec, csv)
     env = dict(os.environ)
     env['PYTHONPATH'] = REPO + os.pathsep + env.get('PYTHONPATH', '')
-    args = [sys.executable, '-m', 'motor_id.cli', 'analyze', csv, '-R', str(MOTOR.R_m),
+    args = [sys.executable, '-m', 'motor_id.cli', 'analyze', csv, '-R', repr(r_m),
             '--json', js, '--quiet']
     if candidates:
         args += ['--candidates', ','.join(candidates)]
@@ -147,7 +118,6 @@ def run(quick=False):
     cases = 1 if quick else 6          # per noise level, with and without an effect each
     levels = NOISE_LEVELS[:1] if quick else NOISE_LEVELS
     candidates = ['coulomb_friction', 'load_torque'] if quick else None
-    gen_name = generator_name()
     tmp = tempfile.mkdtemp(prefix='motor_id_bench_')
     try:
         cli_rows = [time_cli(tmp, n, False, candidates), time_cli(tmp, n, True, candidates)]
@@ -160,18 +130,18 @@ def run(quick=False):
         rows = list(pool.map(_analyse, jobs))
     rate_rows = []
     for noise in levels:
-        r = _rates([x for x in rows if x['noise'] == noise])
-        r['noise'] = f'{noise:.1%}'
+        label = f'{noise[0]:.1%}/{noise[1]:.1%}'
+        r = _rates([x for x in rows if x['noise'] == label])
+        r['noise'] = label
         rate_rows.append(r)
     total = _rates(rows)
     cli_lin = cli_rows[0]['wall_s']
     return {
         'title': TITLE,
         'status': 'ok',
-        'settings': {'samples': n, 'sample_period': 0.01, 'excitation': EXCITATION,
-                     'motor': MOTOR.to_dict(), 'noise_levels': list(levels),
+        'settings': {'samples': n, 'sample_period': 0.01, 'noise_levels': list(levels),
                      'cases_per_level': {'with_effect': cases, 'linear': cases},
-                     'generator': gen_name, 'candidates': candidates or 'all',
+                     'generator': GENERATOR, 'candidates': candidates or 'all',
                      'workers': workers},
         'tables': [
             {'title': '`motor-id analyze` end to end (fresh process: start-up, CSV, '
@@ -180,8 +150,8 @@ def run(quick=False):
                          ('analysis_s', 'analysis s', '.2f'), ('verdict', 'verdict', ''),
                          ('correct', 'correct', '')],
              'rows': cli_rows},
-            {'title': 'hit / false-alarm rates per noise level (noise = fraction of each '
-                      'channel std)',
+            {'title': 'hit / false-alarm rates per noise level (speed/current noise std as '
+                      'a fraction of each channel std)',
              'columns': [('noise', 'noise', ''), ('cases_with_effect', 'effect cases', 'd'),
                          ('hit_rate', 'hit', '%'),
                          ('hit_or_ambiguous_rate', 'hit or ambiguous', '%'),
@@ -191,7 +161,7 @@ def run(quick=False):
                          ('median_s', 'median s', '.1f')],
              'rows': rate_rows},
             {'title': 'cases', 'columns': [
-                ('seed', 'seed', 'd'), ('noise', 'noise', '.3f'), ('hidden', 'hidden', ''),
+                ('seed', 'seed', 'd'), ('noise', 'noise', ''), ('hidden', 'hidden', ''),
                 ('verdict', 'verdict', ''), ('hit', 'hit', ''),
                 ('false_alarm', 'false alarm', ''), ('seconds', 's', '.1f')],
              'rows': [{**r, 'hidden': r['hidden'] or '-'} for r in rows]},
@@ -206,9 +176,9 @@ def run(quick=False):
         ],
         'totals': total,
         'notes': [
-            f'generator: {gen_name}; each effect case draws one effect applicable to a '
-            'voltage plant (seeded) at its catalogue default magnitude; the motor has '
-            'K_T = K_b so that the linear fit with the default tie is exact',
+            f'generator: {GENERATOR}; R_m is given to the analysis as the generator '
+            'states it (case.known); the CLI timing cases use bipolar_steps, a linear motor '
+            'and one with Coulomb friction',
             'hit: the verdict contains the hidden effect; "hit or ambiguous": or the '
             'report lists it as indistinguishable from the winner; false alarm: any '
             'effect reported on a linear motor',
