@@ -71,6 +71,16 @@ EXPERIMENTS = {
         'a multisine through the suspected resonance: a delay only shifts the phase, '
         'a compliant shaft rings',
 }
+TORQUE_EXPERIMENTS = {
+    frozenset(('coulomb_friction', 'dead_zone')):
+        'log the current with its sign and brake with the torque reversed while the '
+        'shaft still turns: friction follows the speed sign, a dead zone the torque sign '
+        '(a torque whose sign is inferred from the speed makes both act alike)',
+    frozenset(('coulomb_friction', 'load_torque')):
+        'reverse the motion: friction changes sign with the speed, a constant load or '
+        'force offset does not',
+}
+"""Experiments for torque-input plants where they differ from :data:`EXPERIMENTS`."""
 GENERIC_EXPERIMENT = ('an excitation that visits more operating points: bipolar steps with '
                       'rests at several amplitudes, a PRBS, and the current measured')
 
@@ -175,8 +185,9 @@ def steady_state_map(rec, min_len=None):
     """Steady-state points (input, speed[, current]) from plateaus of the recording.
 
     Plateaus are runs of a constant input at least ``min_len`` samples long (the last
-    40 % of each run is averaged, after the transient); when there are fewer than two,
-    quasi-steady windows (speed varying by less than 5 % of its spread) are used.
+    40 % of each run is averaged, after the transient); when they hold fewer than three
+    distinct input levels (a noisy measured input, say), quasi-steady windows of
+    ``min_len`` samples (speed varying by less than 5 % of its spread) are used.
 
     Returns
     -------
@@ -194,7 +205,8 @@ def steady_state_map(rec, min_len=None):
     for a, b in zip(edges[:-1], edges[1:]):
         if b - a >= min_len:
             ranges.append((int(b - max(3, int(0.4 * (b - a)))), int(b)))
-    if len(ranges) < 2:
+    levels = np.unique(np.round(np.array([u[a] for a, _ in ranges]) / (1e-6 * scale)))
+    if levels.size < 3:
         ranges = []
         spread = float(np.std(rec.speed)) or 1.0
         for a in range(0, n - min_len + 1, min_len):
@@ -293,7 +305,11 @@ def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None
     cov = np.linalg.pinv(X.T @ X) * float(res @ res) / dof
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     params = {k: {'value': float(v), 'std': float(s)} for k, v, s in zip(cols, theta, std)}
+    physical = bool(theta[0] > 0 and theta[1] >= 0 and all(
+        params[k]['value'] >= 0 for k in params if k in ('coulomb_friction.T_c',
+                                                         'quadratic_load.k_q')))
     return {'parameters': params, 'cutoff': cutoff, 'delay': int(delay),
+            'physical': physical,
             'relative_error': float(np.linalg.norm(res) / (np.linalg.norm(y) or 1.0)),
             'model': 'u = J dw/dt + B w' + ''.join(
                 {'coulomb_friction': ' + T_c sgn(w)', 'load_torque': ' + T_L',
@@ -316,6 +332,7 @@ class ModelScore:
     n_extra: int
     delta_bic: float
     significant: bool = False
+    at_bound: list = field(default_factory=list)
     physical: dict = field(default_factory=dict, repr=False)
     x0: dict = field(default_factory=dict, repr=False)
     prediction: dict = field(default_factory=dict, repr=False)
@@ -329,6 +346,7 @@ class ModelScore:
                              'heldout_blocks_improved': self.block_wins,
                              'extra_parameters': self.n_extra,
                              'delta_bic': self.delta_bic,
+                             'at_search_limit': self.at_bound,
                              'significant': self.significant,
                              'seconds': self.seconds}}
 
@@ -419,7 +437,10 @@ class DiscrepancyReport:
             idm = self.inverse_dynamics
             lines.append(f'inverse dynamics (equation error, {idm["model"]}, filter '
                          f'{idm["cutoff"]:.3g} Hz): relative error '
-                         f'{100 * idm["relative_error"]:.2f} %')
+                         f'{100 * idm["relative_error"]:.2f} %' +
+                         ('' if idm['physical'] else
+                          '; NOT physical (negative inertia or friction): the derivative '
+                          'of this speed is too noisy or too coarsely sampled'))
             for k, v in idm['parameters'].items():
                 lines.append(f'  {k:<24}{v["value"]:>14.6g} +- {v["std"]:.3g}')
         lines.append(f'analysis time {self.seconds:.2f} s')
@@ -454,11 +475,13 @@ class DiscrepancyAnalysis:
         Largest input delay tried [samples]; default min(40, N / 25).
     generations : int
         GA generations of the base fit.
+    pool_size : int
+        Combinations are formed from this many best single effects (positive gain).
     """
 
     def __init__(self, R_m=None, candidates=None, random_state=0, min_gain=0.05,
                  ambiguity=0.03, max_effects=3, structure_ratio=1.5, n_blocks=10,
-                 max_delay=None, generations=160):
+                 max_delay=None, generations=160, pool_size=4):
         self.R_m = R_m
         self.candidates = candidates
         self.random_state = random_state
@@ -469,6 +492,7 @@ class DiscrepancyAnalysis:
         self.n_blocks = n_blocks
         self.max_delay = max_delay
         self.generations = generations
+        self.pool_size = pool_size
 
     # ------------------------------------------------------------------ set-up
     def _say(self, msg):
@@ -540,8 +564,16 @@ class DiscrepancyAnalysis:
                    for p, v in vals.items()} for e, vals in res.effects.items()}
         if quant is not None:
             eff['speed_quantization'] = {'q': float(quant)}
+        at_bound = []
+        for key, (lo, hi) in (est.bounds or {}).items():
+            e, _, p = key.partition('.')
+            if e not in eff or p not in eff[e]:
+                continue
+            v, tol = eff[e][p], 1e-3 * (hi - lo)
+            if (lo != 0.0 and v <= lo + tol) or v >= hi - tol:
+                at_bound.append(key)
         return ModelScore(name, eff, params, 0.0, e_te, e_tr, 0.0, n_extra, 0.0,
-                          physical=dict(est.params_),
+                          at_bound=at_bound, physical=dict(est.params_),
                           x0=dict(res.fit.get('initial_state', {})),
                           prediction={'preds': preds, 'sub': sub},
                           seconds=time.perf_counter() - t0)
@@ -562,7 +594,8 @@ class DiscrepancyAnalysis:
         if score.train_error > 0 and ref.train_error > 0:
             score.delta_bic = float(n_eff * 2 * math.log(score.train_error / ref.train_error)
                                     + k * math.log(n_eff))
-        score.significant = bool(score.gain >= self.min_gain and score.block_wins > 0.5)
+        score.significant = bool(score.gain >= self.min_gain and score.delta_bic < 0
+                                 and not score.at_bound)
         return score
 
     # ------------------------------------------------------------- grids
@@ -638,26 +671,34 @@ class DiscrepancyAnalysis:
             kw['effects'] = effects
             kw['free_effects'] = free
         est = self._identifier(start=start, use_ga=False, **kw)
-        bounds = {}
-        for fe in free:
-            e, _, p = fe.partition('.')
-            spec = {q.name: q for q in EFFECTS[e].params}[p]
-            lo, hi = spec.low, spec.high
-            if e == 'load_torque' or e == 'coulomb_friction':
-                hi = min(hi, 10 * self._sc['tau'])
-                lo = max(lo, -10 * self._sc['tau'])
-            if e in ('dead_zone', 'voltage_saturation', 'brush_drop'):
-                hi = min(hi, 2 * self._sc['u_max'])
-            if e == 'sensor_lag':
-                hi = min(hi, max(self._T, 10 * self._dt))
-            if e == 'resonance' and p == 'f_r':
-                hi = min(hi, 0.5 / self._dt)
-            bounds[fe] = (lo, hi)
+        bounds = {fe: self._bounds_for(fe) for fe in free}
         if bounds:
             est.bounds = bounds
         with np.errstate(all='ignore'):
             est.fit(self._rec, sample_weight=self._train.astype(float) if weight else None)
         return est
+
+    def _bounds_for(self, key):
+        """Search range of an effect parameter on the scale of this recording.
+
+        The catalogue ranges span decades beyond any one motor; a range on the data's own
+        scale keeps the refinement's steps and its start (pulled into the interior)
+        meaningful for a 1e-6 kg m^2 motor and a 100 kg axis alike.
+        """
+        e, _, p = key.partition('.')
+        spec = {q.name: q for q in EFFECTS[e].params}[p]
+        tau, u_max, w_max = self._sc['tau'], self._sc['u_max'], self._sc['w_max']
+        T, dt = self._T, self._dt
+        R = self.R_m or 1.0
+        rng = {
+            'T_c': (0.0, 2 * tau), 'T_L': (-2 * tau, 2 * tau),
+            'k_q': (0.0, 2 * tau / w_max ** 2), 'V_b': (0.0, u_max),
+            'V_dz': (0.0, u_max), 'V_max': (0.01 * u_max, 2 * u_max),
+            'tau_s': (0.0, max(0.2 * T, 10 * dt)),
+            'k_h': (0.0, 10 * R / (self._sc['i_rms'] ** 2 * max(0.01 * T, dt))),
+            'tau_th': (max(spec.low, dt), 10 * T), 'f_r': (3.0 / T, 0.5 / dt),
+        }.get(p, (spec.low, spec.high))
+        return (max(rng[0], spec.low), min(rng[1], spec.high))
 
     def _start(self, base_like, effects_start):
         start = dict(base_like.physical)
@@ -729,6 +770,30 @@ class DiscrepancyAnalysis:
                           x0=dict(ref.x0), prediction={'preds': preds, 'sub': sub},
                           seconds=time.perf_counter() - t0)
 
+    def _structure(self, model):
+        """True when the model's held-out error is well above the noise floor."""
+        return model.heldout_error > self.structure_ratio * self._floor
+
+    def _combine(self, base, prior, name):
+        """Fit ``name`` on top of the model ``prior``; gain against the linear model."""
+        s = self._fit_candidate(name, base, prior=prior)
+        s.name = '+'.join(prior.name.split('+') + [name])
+        s = self._finish(s, base)
+        self._say(f'  {s.name:<40} gain {100 * s.gain:6.1f} %  ({s.seconds:.2f} s)')
+        return s
+
+    def _accept(self, chosen, trials):
+        """The best trial if it cuts the held-out error of ``chosen`` by ``min_gain``
+        (and has no parameter at a search limit); otherwise ``chosen``."""
+        for s in trials:
+            s.significant = False
+        best = min(trials, key=lambda s: s.heldout_error)
+        cut = 1.0 - best.heldout_error / chosen.heldout_error
+        if cut >= self.min_gain and best.gain >= self.min_gain and not best.at_bound:
+            best.significant = True
+            return best
+        return chosen
+
     # -------------------------------------------------------------------- fit
     def fit(self, rec, progress=None):
         """Run the analysis.
@@ -782,35 +847,38 @@ class DiscrepancyAnalysis:
         singles.sort(key=lambda s: s.heldout_error)
         ranked = list(singles)
 
-        # ---- greedy combination while structure remains
+        # ---- combinations while structure remains: every pair of the best singles
+        # (effects can act together: an offset and friction, say), then greedy additions
         chosen = base
         sig = [s for s in singles if s.significant]
         if sig:
             chosen = sig[0]
-            pool = [s.name for s in sig[1:4]]
-            while (len(chosen.effects) < self.max_effects and pool and
-                   chosen.heldout_error > self.structure_ratio * self._floor):
-                trials = []
-                for name in pool:
-                    if name in chosen.effects:
-                        continue
-                    s = self._fit_candidate(name, base, prior=chosen)
-                    s.name = '+'.join(list(chosen.name.split('+')) + [name])
-                    s = self._finish(s, chosen)
-                    s.gain = float(1.0 - s.heldout_error / base.heldout_error)
-                    self._say(f'  {s.name:<40} held-out {s.heldout_error:.4g} '
-                              f'({s.seconds:.2f} s)')
-                    trials.append(s)
+            if self._structure(chosen):
+                # the best still misfits: error differences within the ambiguity band
+                # reflect the misfit, not the effect, so the more common effect (the
+                # catalogue's order) is named and the others are listed as ambiguous
+                ties = [s for s in sig
+                        if s.heldout_error <= (1 + self.ambiguity) * chosen.heldout_error]
+                chosen = min(ties, key=lambda s: CANDIDATES.index(s.name))
+        pool = [s for s in singles if s.gain > 0][:self.pool_size]
+        if len(pool) >= 2 and self.max_effects >= 2 and self._structure(chosen):
+            trials = []
+            for i, first in enumerate(pool):
+                for second in pool[i + 1:]:
+                    trials.append(self._combine(base, first, second.name))
+            ranked.extend(trials)
+            chosen = self._accept(chosen, trials)
+            while (chosen is not base and '+' in chosen.name and
+                   len(chosen.effects) < self.max_effects and self._structure(chosen)):
+                trials = [self._combine(base, chosen, s.name) for s in pool
+                          if s.name not in chosen.effects]
                 if not trials:
                     break
-                best = min(trials, key=lambda s: s.heldout_error)
                 ranked.extend(trials)
-                cut = 1.0 - best.heldout_error / chosen.heldout_error
-                if not (cut >= self.min_gain and best.significant):
+                nxt = self._accept(chosen, trials)
+                if nxt is chosen:
                     break
-                best.significant = True
-                chosen = best
-                pool = [n for n in pool if n not in chosen.effects]
+                chosen = nxt
         ranked.sort(key=lambda s: s.heldout_error)
         verdict = 'none' if chosen is base else chosen.name
 
@@ -824,7 +892,9 @@ class DiscrepancyAnalysis:
                     continue
                 if s.heldout_error <= (1 + self.ambiguity) * chosen.heldout_error:
                     main = chosen.name.split('+')[0]
-                    exp = EXPERIMENTS.get(frozenset((main, s.name)), GENERIC_EXPERIMENT)
+                    key = frozenset((main, s.name))
+                    exp = (TORQUE_EXPERIMENTS.get(key) if self._kind == 'torque' else None) \
+                        or EXPERIMENTS.get(key, GENERIC_EXPERIMENT)
                     ambiguous.append({'name': s.name, 'gain': s.gain, 'experiment': exp})
 
         unexplained = bool(chosen.heldout_error > self.structure_ratio * self._floor)
@@ -850,6 +920,17 @@ class DiscrepancyAnalysis:
             if 'speed_quantization' in chosen.effects:
                 chosen_d['effects']['speed_quantization'] = chosen.effects[
                     'speed_quantization']
+            for e, vals in fe.items():
+                for p, v in vals.items():
+                    if isinstance(v, dict):
+                        params[f'{e}.{p}'] = dict(v)
+                    else:
+                        params[f'{e}.{p}'] = {'value': float(v), 'std': None,
+                                              'determined': True, 'grid': True}
+            if 'speed_quantization' in chosen.effects:
+                params['speed_quantization.q'] = {
+                    'value': chosen.effects['speed_quantization']['q'], 'std': None,
+                    'determined': True, 'grid': True}
 
         # ---- diagnostics of the linear model's residuals
         bres = full_base.result_
@@ -1009,18 +1090,11 @@ def add_arguments(parser):
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
 
 
-def load_recording(path):
-    """Read a recording from a CSV file or an MCAP bag (by extension)."""
-    if str(path).endswith('.mcap'):
-        from motor_id.bag import read_recording
-        return read_recording(path)
-    from motor_id.recording import read_csv
-    return read_csv(path)
-
-
 def run(args):
     """Analyse the recording, print the report, write JSON / plots."""
     import os
+
+    from motor_id.commands.fit import load_recording
 
     rec = load_recording(args.data)
     cands = None

@@ -13,16 +13,16 @@ every drawn effect changes the outputs by clearly more than the noise:
 =====================  ===============================================================
 coulomb_friction       T_c in [0.005, 0.05] x stall torque K_T A / R_m
 load_torque            |T_L| in [0.005, 0.05] x stall torque, either sign
-quadratic_load         k_q w_nl^2 in [0.01, 0.1] x stall torque (w_nl: no-load speed)
+quadratic_load         k_q w_nl^2 in [0.02, 0.15] x stall torque (w_nl: no-load speed)
 brush_drop             V_b in [0.01, 0.08] x amplitude A
 dead_zone              V_dz in [0.03, 0.2] x A
 input_delay            d in 2 .. 8 samples
 voltage_saturation     V_max in [0.5, 0.85] x A
 sensor_lag             tau_s in [0.05, 0.3] x mechanical time constant J R_m / K_T^2
-speed_quantization     q in [0.01, 0.04] x w_nl
+speed_quantization     q in [0.02, 0.06] x w_nl
 resistance_drift       tau_th in [0.2, 0.6] x record length, steady rise dR in
                        [0.2, 1.0] x R_m at the record's RMS current
-resonance              r in [0.3, 3], f_r in [0.5, 5] Hz, zeta in [0.02, 0.15]
+resonance              r in [0.3, 3], f_r in [0.5, 5] Hz, zeta in [0.02, 0.1]
 =====================  ===============================================================
 
 A binary input (PRBS) only ever takes two values, so a static input map (dead zone,
@@ -112,7 +112,7 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
     if name == 'load_torque':
         return {'T_L': float(rng.choice([-1.0, 1.0])) * _loguniform(rng, 0.005, 0.05) * stall}
     if name == 'quadratic_load':
-        return {'k_q': _loguniform(rng, 0.01, 0.1) * stall / w_nl ** 2}
+        return {'k_q': _loguniform(rng, 0.02, 0.15) * stall / w_nl ** 2}
     if name == 'brush_drop':
         return {'V_b': _loguniform(rng, 0.01, 0.08) * amplitude}
     if name == 'dead_zone':
@@ -126,7 +126,7 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
         dt = float(np.median(np.diff(t)))
         return {'tau_s': max(_loguniform(rng, 0.05, 0.3) * tau_m, 1.5 * dt)}
     if name == 'speed_quantization':
-        return {'q': _loguniform(rng, 0.01, 0.04) * w_nl}
+        return {'q': _loguniform(rng, 0.02, 0.06) * w_nl}
     if name == 'resistance_drift':
         out = simulate_batch(motor.to_dict(), t, u, 'voltage')
         i_rms = float(np.sqrt(np.mean(out['current'][0] ** 2))) or 1.0
@@ -135,7 +135,7 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
         return {'k_h': dR / (i_rms ** 2 * tau_th), 'tau_th': tau_th}
     if name == 'resonance':
         return {'r': _loguniform(rng, 0.3, 3.0), 'f_r': _loguniform(rng, 0.5, 5.0),
-                'zeta': _loguniform(rng, 0.02, 0.15)}
+                'zeta': _loguniform(rng, 0.02, 0.1)}
     raise ConfigError(f'the generator cannot hide {name!r}; choose from {VOLTAGE_EFFECTS}')
 
 

@@ -340,6 +340,10 @@ class Identifier:
         """Central-difference Jacobian of weighted residuals w.r.t. z, one batch."""
         d = z.size
         h = 1e-5 * np.maximum(1.0, np.abs(z))
+        # linear coordinates whose range is narrow (effect parameters of a small motor,
+        # given bounds) step by a fraction of that range, never by more than before
+        lo, hi = self._z_bounds(d)
+        h = np.minimum(h, 1e-5 * np.maximum(np.abs(z), 1e-3 * (hi - lo)))
         h = np.where(self._log_mask(d), 1e-5, h)
         Z = np.repeat(z[None, :], 2 * d, axis=0)
         Z[np.arange(d), np.arange(d)] += h
