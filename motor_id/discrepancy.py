@@ -249,13 +249,13 @@ def map_summary(points):
 
 
 def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None,
-                     delay=0):
+                     delay=0, min_speed=0.02):
     """Equation-error (inverse dynamics) least squares for a torque-input plant.
 
     Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for) with
     the speed, its derivative and the input all low-pass filtered by the same zero-phase
     Butterworth filter (parallel filtering, as in IDIM-LS); the first and last 2 % of
-    samples are dropped.
+    samples are dropped, and with Coulomb friction the samples near rest.
 
     Parameters
     ----------
@@ -267,6 +267,9 @@ def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None
         Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
     delay : int
         Input delay in samples (from an ``input_delay`` effect).
+    min_speed : float
+        With Coulomb friction, samples slower than this fraction of the top speed are
+        left out (at rest the friction takes any value up to T_c).
 
     Returns
     -------
@@ -297,8 +300,14 @@ def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None
     if 'quadratic_load' in terms:
         cols['quadratic_load.k_q'] = w * np.abs(w)
     trim = max(1, int(0.02 * t.size))
-    X = np.column_stack(list(cols.values()))[trim:-trim]
-    y = uf[trim:-trim]
+    keep = np.zeros(t.size, dtype=bool)
+    keep[trim:-trim] = True
+    if 'coulomb_friction' in terms:
+        # at rest the friction is anything up to T_c, not T_c sgn(w): leave out the
+        # samples near zero speed
+        keep &= np.abs(w) > min_speed * np.max(np.abs(w))
+    X = np.column_stack(list(cols.values()))[keep]
+    y = uf[keep]
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
     res = y - X @ theta
     dof = max(y.size - theta.size, 1)
