@@ -296,8 +296,8 @@ class Identifier:
             effects[e][p] = X[:, len(self._free) + j]
         return theta, effects
 
-    def _simulate(self, X):
-        """Outputs for parameter rows X; extra trailing columns are the initial state."""
+    def _simulate_channels(self, X):
+        """Outputs per channel for parameter rows X (trailing columns: initial state)."""
         X = np.atleast_2d(X)
         d = self._bounds.dim
         x0 = X[:, d:] if X.shape[1] > d else self._x0
@@ -305,12 +305,24 @@ class Identifier:
         with np.errstate(all='ignore'):
             out = simulate_batch(theta, self._t, self._u, self._kind, self._disc, effects,
                                  x0)
-        return np.concatenate([out[c] for c in self._channels], axis=1)
+        return [out[c] for c in self._channels]
+
+    def _simulate(self, X):
+        """All channels side by side, shape (P, n_channels * N)."""
+        return np.concatenate(self._simulate_channels(X), axis=1)
 
     def _cost(self, X):
+        """The GA's fitness: weighted mean squared output error per row of X."""
+        ys = self._simulate_channels(X)
+        c = np.zeros(ys[0].shape[0])
+        n = ys[0].shape[1]
         with np.errstate(all='ignore'):
-            e = (self._simulate(X) - self._y[None, :]) * self._w[None, :]
-            c = np.mean(e * e, axis=1)
+            for k, y in enumerate(ys):
+                sl = slice(k * n, (k + 1) * n)
+                e = y - self._y[sl]
+                e *= self._w[sl]
+                c += np.einsum('ij,ij->i', e, e)
+        c /= n * len(ys)
         return np.where(np.isfinite(c), c, np.inf)
 
     # ------------------------------------------------------------- transforms

@@ -18,8 +18,8 @@ simulator (card), the fitter and the discrepancy analysis all use this one catal
 from dataclasses import asdict, dataclass, field
 import math
 
-import numba
 import numpy as np
+from scipy.linalg import expm
 
 from motor_id.errors import ConfigError
 
@@ -272,70 +272,6 @@ def continuous_matrices(theta, input_kind='voltage', resonance=None):
     return F, G
 
 
-@numba.njit(cache=True, nogil=True)
-def _expm_batch(M):  # noqa: C901
-    """Exponentials of a stack of small matrices: scaling, Taylor series, squaring.
-
-    Much faster than ``scipy.linalg.expm`` on thousands of 2x2 .. 6x6 matrices; the
-    Taylor series runs on the matrix scaled to 1-norm <= 0.5 until terms fall below
-    1e-18 (at most 19 terms).
-    """
-    K, n, _ = M.shape
-    out = np.empty_like(M)
-    A = np.empty((n, n))
-    T = np.empty((n, n))
-    T2 = np.empty((n, n))
-    E = np.empty((n, n))
-    for k in range(K):
-        nrm = 0.0
-        for j in range(n):
-            c = 0.0
-            for i in range(n):
-                c += abs(M[k, i, j])
-            nrm = max(nrm, c)
-        if not np.isfinite(nrm):
-            out[k] = np.nan
-            continue
-        s = 0
-        if nrm > 0.5:
-            s = int(np.ceil(np.log2(nrm / 0.5)))
-        f = 0.5 ** s
-        for i in range(n):
-            for j in range(n):
-                A[i, j] = M[k, i, j] * f
-                T[i, j] = 1.0 if i == j else 0.0
-                E[i, j] = T[i, j]
-        for m in range(1, 20):
-            tmax = 0.0
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for l in range(n):
-                        acc += T[i, l] * A[l, j]
-                    T2[i, j] = acc / m
-            for i in range(n):
-                for j in range(n):
-                    T[i, j] = T2[i, j]
-                    E[i, j] += T2[i, j]
-                    tmax = max(tmax, abs(T2[i, j]))
-            if tmax < 1e-18:
-                break
-        for _ in range(s):
-            for i in range(n):
-                for j in range(n):
-                    acc = 0.0
-                    for l in range(n):
-                        acc += E[i, l] * E[l, j]
-                    T2[i, j] = acc
-            for i in range(n):
-                for j in range(n):
-                    E[i, j] = T2[i, j]
-        for i in range(n):
-            for j in range(n):
-                out[k, i, j] = E[i, j]
-    return out
-
-
 def discretize(F, G, dt, method='zoh'):
     """Discretise ``dx/dt = F x + G u`` with the input held over each interval.
 
@@ -376,7 +312,7 @@ def discretize(F, G, dt, method='zoh'):
     M[:, :, :n, :n] = F[:, None]
     M[:, :, :n, n:] = G[:, None]
     M *= dt[None, :, None, None]
-    E = _expm_batch(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
+    E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
     return E[:, :, :n, :n], E[:, :, :n, n:]
 
 

@@ -105,6 +105,28 @@ def _linear_kernel(A, Bd, idx, u, x0):
     return out
 
 
+@numba.njit(cache=True, nogil=True)
+def _linear2_regular_kernel(A, Bd, u, x0):
+    """Fast path for the two-state plant on a regular grid (the GA's case)."""
+    P, N = u.shape
+    out = np.empty((P, N, 2))
+    for p in range(P):
+        a00 = A[p, 0, 0, 0]
+        a01 = A[p, 0, 0, 1]
+        a10 = A[p, 0, 1, 0]
+        a11 = A[p, 0, 1, 1]
+        b0 = Bd[p, 0, 0, 0]
+        b1 = Bd[p, 0, 1, 0]
+        w = x0[p, 0]
+        i = x0[p, 1]
+        for k in range(N):
+            out[p, k, 0] = w
+            out[p, k, 1] = i
+            v = u[p, k]
+            w, i = a00 * w + a01 * i + b0 * v, a10 * w + a11 * i + b1 * v
+    return out
+
+
 def interval_table(t):
     """Split time stamps into unique interval lengths and an index per interval.
 
@@ -222,7 +244,10 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
     kernel_effects = {'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
                       'resistance_drift', 'sensor_lag'}
     if not kernel_effects & set(effects):
-        X = _linear_kernel(A, Bd, idx, ueff, x0b)
+        if n == 2 and dts.size == 1:
+            X = _linear2_regular_kernel(A, Bd, ueff, x0b)
+        else:
+            X = _linear_kernel(A, Bd, idx, ueff, x0b)
         Y = X[:, :, 0]
         out = {'speed': _quantize(Y, effects, P), 'states': X}
         if input_kind == 'voltage':
