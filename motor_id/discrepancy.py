@@ -16,6 +16,7 @@ the majority of held-out sub-blocks; candidates whose held-out error is within
 """
 
 import contextlib
+import dataclasses
 from dataclasses import dataclass, field
 import math
 import sys
@@ -342,6 +343,7 @@ class ModelScore:
     delta_bic: float
     significant: bool = False
     at_bound: list = field(default_factory=list)
+    implausible: str = ''
     physical: dict = field(default_factory=dict, repr=False)
     x0: dict = field(default_factory=dict, repr=False)
     prediction: dict = field(default_factory=dict, repr=False)
@@ -356,6 +358,7 @@ class ModelScore:
                              'extra_parameters': self.n_extra,
                              'delta_bic': self.delta_bic,
                              'at_search_limit': self.at_bound,
+                             'implausible': self.implausible,
                              'significant': self.significant,
                              'seconds': self.seconds}}
 
@@ -486,11 +489,13 @@ class DiscrepancyAnalysis:
         GA generations of the base fit.
     pool_size : int
         Combinations are formed from this many best single effects (positive gain).
+    starts : int
+        Distinct grid points each candidate's refinement starts from.
     """
 
     def __init__(self, R_m=None, candidates=None, random_state=0, min_gain=0.05,
                  ambiguity=0.03, max_effects=3, structure_ratio=1.5, n_blocks=10,
-                 max_delay=None, generations=160, pool_size=4):
+                 max_delay=None, generations=160, pool_size=4, starts=2):
         self.R_m = R_m
         self.candidates = candidates
         self.random_state = random_state
@@ -502,6 +507,7 @@ class DiscrepancyAnalysis:
         self.max_delay = max_delay
         self.generations = generations
         self.pool_size = pool_size
+        self.starts = starts
 
     # ------------------------------------------------------------------ set-up
     def _say(self, msg):
@@ -604,7 +610,7 @@ class DiscrepancyAnalysis:
             score.delta_bic = float(n_eff * 2 * math.log(score.train_error / ref.train_error)
                                     + k * math.log(n_eff))
         score.significant = bool(score.gain >= self.min_gain and score.delta_bic < 0
-                                 and not score.at_bound)
+                                 and not score.at_bound and not score.implausible)
         return score
 
     # ------------------------------------------------------------- grids
@@ -670,8 +676,13 @@ class DiscrepancyAnalysis:
                 r = (out[c] - y[None, :]) / s
                 cost += np.mean(r[:, self._train] ** 2, axis=1)
         cost = np.where(np.isfinite(cost), cost, np.inf)
-        order = np.argsort(cost)[:top]
-        return [{p: float(v[k]) for p, v in grid.items()} for k in order], cost
+        picked = []
+        for k in np.argsort(cost):
+            if len(picked) >= top:
+                break
+            if all(_distinct(grid, k, j) for j in picked):
+                picked.append(k)
+        return [{p: float(v[k]) for p, v in grid.items()} for k in picked], cost
 
     # --------------------------------------------------------------- fitting
     def _fit_model(self, effects, free, start, weight=True):
@@ -716,10 +727,16 @@ class DiscrepancyAnalysis:
                 start[f'{e}.{p}'] = v
         return start
 
-    def _fit_candidate(self, name, base, prior=None):
-        """Fit one effect (on top of the effects of ``prior``, a ModelScore or None)."""
+    def _fit_candidate(self, name, base, prior=None, seed=None):
+        """Fit one effect (on top of the effects of ``prior``, a ModelScore or None).
+
+        ``seed`` (a ModelScore) supplies the starting physical parameters and initial
+        state instead of ``prior`` or the linear fit.
+        """
         t0 = time.perf_counter()
         ref = prior or base
+        if seed is not None:
+            ref = dataclasses.replace(ref, physical=dict(seed.physical), x0=dict(seed.x0))
         fixed_eff = {e: dict(v) for e, v in (prior.effects if prior else {}).items()}
         quant = fixed_eff.pop('speed_quantization', {}).get('q')
         if name == 'speed_quantization':
@@ -731,20 +748,37 @@ class DiscrepancyAnalysis:
                 int(min(40, max(2, len(self._rec) // 25)))
             grid = {'d': np.arange(1, d_max + 1, dtype=float)}
             rows, _ = self._grid_best(ref, name, grid, _batchable(fixed_eff), top=2)
-            best = None
+            tried = {}
+
+            def fit_delay(d):
+                if d not in tried and 1 <= d <= d_max:
+                    eff = {**fixed_eff, name: {'d': float(d)}}
+                    est = self._fit_model(eff, free_prior, self._start(ref, fixed_eff))
+                    tried[d] = self._score(name, est, eff, {}, ref.n_extra + 1, t0, quant)
+                return tried.get(d)
+
             for row in rows:
-                eff = {**fixed_eff, name: {'d': row['d']}}
-                est = self._fit_model(eff, free_prior, self._start(ref, fixed_eff))
-                s = self._score(name, est, eff, {}, ref.n_extra + 1, t0, quant)
-                if best is None or s.train_error < best.train_error:
-                    best = s
+                fit_delay(int(row['d']))
+            while True:  # the grid ran at the linear fit's parameters: climb to the best d
+                d_best = min(tried, key=lambda d: tried[d].train_error)
+                for d in (d_best - 1, d_best + 1):
+                    fit_delay(d)
+                if min(tried, key=lambda d: tried[d].train_error) == d_best:
+                    break
+            best = tried[d_best]
+            best.seconds = time.perf_counter() - t0
             return best
         grid = self._grid(name, self._sc)
-        rows, _ = self._grid_best(ref, name, grid, _batchable(fixed_eff), top=1)
-        eff = {**fixed_eff, name: rows[0]}
-        free = free_prior + [f'{name}.{p}' for p in rows[0]]
-        est = self._fit_model(eff, free, self._start(ref, eff))
-        return self._score(name, est, eff, {}, ref.n_extra + len(rows[0]), t0, quant)
+        rows, _ = self._grid_best(ref, name, grid, _batchable(fixed_eff), top=self.starts)
+        best = None
+        for row in rows:  # a few distinct starts: some effects have local minima
+            eff = {**fixed_eff, name: row}
+            free = free_prior + [f'{name}.{p}' for p in row]
+            est = self._fit_model(eff, free, self._start(ref, eff))
+            s = self._score(name, est, eff, {}, ref.n_extra + len(row), t0, quant)
+            if best is None or s.train_error < best.train_error:
+                best = s
+        return best
 
     def _fit_quantization(self, ref, t0):
         """Quantisation is an output map: grid its step on the reference prediction."""
@@ -766,6 +800,15 @@ class DiscrepancyAnalysis:
         Q = np.round(w_hat[None, tr] / fine[:, None]) * fine[:, None]
         c = np.mean((Q - y[None, tr]) ** 2, axis=1)
         q = float(fine[int(np.argmin(c))])
+        # a real quantiser puts the measured speed on the grid while it moves, too (on
+        # plateaus any grid can be made to fit a few levels)
+        moving = np.zeros(y.size, dtype=bool)
+        moving[1:-1] = np.abs(w_hat[2:] - w_hat[:-2]) > 0.2 * q
+        coherence = float(np.abs(np.mean(np.exp(2j * np.pi * y[moving] / q)))) \
+            if np.sum(moving) >= 30 else 0.0
+        implausible = '' if coherence >= 0.3 else (
+            f'the moving speed does not sit on a grid of {q:.4g} (coherence '
+            f'{coherence:.2f} over {int(np.sum(moving))} samples)')
         preds = [np.array(p) for p in ref.prediction['preds']]
         preds[k] = _quantize(preds[k], q)
         e_tr, e_te, sub = self._errors(preds)
@@ -775,7 +818,8 @@ class DiscrepancyAnalysis:
                   'speed_quantization.q': {'value': q, 'std': None, 'determined': True,
                                            'grid': True}}
         return ModelScore('speed_quantization', eff, params, 0.0, e_te, e_tr, 0.0,
-                          ref.n_extra + 1, 0.0, physical=dict(ref.physical),
+                          ref.n_extra + 1, 0.0, implausible=implausible,
+                          physical=dict(ref.physical),
                           x0=dict(ref.x0), prediction={'preds': preds, 'sub': sub},
                           seconds=time.perf_counter() - t0)
 
@@ -798,7 +842,8 @@ class DiscrepancyAnalysis:
             s.significant = False
         best = min(trials, key=lambda s: s.heldout_error)
         cut = 1.0 - best.heldout_error / chosen.heldout_error
-        if cut >= self.min_gain and best.gain >= self.min_gain and not best.at_bound:
+        if (cut >= self.min_gain and best.gain >= self.min_gain and not best.at_bound
+                and not best.implausible):
             best.significant = True
             return best
         return chosen
@@ -854,6 +899,20 @@ class DiscrepancyAnalysis:
             self._say(f'  {name:<20} gain {100 * s.gain:6.1f} %  '
                       f'({s.seconds:.2f} s){"  *" if s.significant else ""}')
         singles.sort(key=lambda s: s.heldout_error)
+        if singles and singles[0].significant:
+            # a poor start must not decide the verdict: refit the runners-up from the
+            # physical parameters of the best (the linear fit may sit at a bound)
+            lead = singles[0]
+            for k, s in enumerate(singles[1:self.pool_size + 1], 1):
+                if s.name == 'speed_quantization' or s.gain < self.min_gain:
+                    continue
+                r = self._finish(self._fit_candidate(s.name, base, seed=lead), base)
+                if r.train_error < s.train_error:
+                    singles[k] = r
+                    self._say(f'  {s.name:<20} gain {100 * r.gain:6.1f} %  (restarted '
+                              f'from {lead.name}, {r.seconds:.2f} s)'
+                              f'{"  *" if r.significant else ""}')
+            singles.sort(key=lambda s: s.heldout_error)
         ranked = list(singles)
 
         # ---- combinations while structure remains: every pair of the best singles
@@ -1012,6 +1071,15 @@ def _single_blas_thread():
     except ImportError:
         return contextlib.nullcontext()
     return threadpool_limits(1)
+
+
+def _distinct(grid, a, b):
+    """True when grid rows a and b differ by more than a factor 2 in some parameter."""
+    for v in grid.values():
+        x, y = abs(v[a]), abs(v[b])
+        if np.sign(v[a]) != np.sign(v[b]) or max(x, y) > 2 * min(x, y):
+            return True
+    return False
 
 
 def _quantize(w, q):

@@ -25,9 +25,11 @@ resistance_drift       tau_th in [0.2, 0.6] x record length, steady rise dR in
 resonance              r in [0.3, 3], f_r in [0.5, 5] Hz, zeta in [0.02, 0.1]
 =====================  ===============================================================
 
-A binary input (PRBS) only ever takes two values, so a static input map (dead zone,
-saturation) acts on it as a plain gain and cannot be told from one; cases with those
-effects draw their excitation from the other profiles.
+Some excitations cannot reveal an effect at all, and cases with it draw from the other
+profiles: a binary input (PRBS) only ever takes two values, so a static input map (dead
+zone, saturation) acts on it as a plain gain; the paper's steps only ever go up, so the
+current never reverses and a brush drop (``V_b sgn(i)``) and a dead zone
+(``V_dz sgn(V)``) are the same term.
 """
 
 from dataclasses import asdict, dataclass, field
@@ -43,7 +45,12 @@ from motor_id.simulate import simulate_batch
 VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
 """Effects the generator can hide (all apply to the voltage-driven motor)."""
 
-STATIC_INPUT_MAPS = ('dead_zone', 'voltage_saturation')
+NOT_REVEALED_BY = {
+    'dead_zone': ('prbs', 'paper_steps'),
+    'voltage_saturation': ('prbs',),
+    'brush_drop': ('paper_steps',),
+}
+"""Excitations under which an effect is identical to another one (see the module notes)."""
 
 
 @dataclass
@@ -173,7 +180,7 @@ def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=
         raise ConfigError(f'unknown effect {effect!r}; choose from {VOLTAGE_EFFECTS} or none')
     motor = perturbed_motor(rng)
     if excitation is None:
-        allowed = [p for p in PROFILES if not (effect in STATIC_INPUT_MAPS and p == 'prbs')]
+        allowed = [p for p in PROFILES if p not in NOT_REVEALED_BY.get(effect, ())]
         excitation = str(rng.choice(allowed))
     if excitation not in PROFILES:
         raise ConfigError(f'unknown excitation {excitation!r}; choose from {PROFILES}')

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from motor_id.discrepancy import DiscrepancyAnalysis
-from motor_id.hidden import make_case, VOLTAGE_EFFECTS, write_case
+from motor_id.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS, write_case
 from motor_id.recording import read_csv
 
 SEEDS_PER_EFFECT = 2
@@ -69,8 +69,7 @@ def test_generator_draws_every_effect_inside_its_range():
         rec, case = make_case(50 + k, effect)
         assert case.effect == effect and case.effect_params
         rec.validate()
-        if effect in ('dead_zone', 'voltage_saturation'):
-            assert case.excitation != 'prbs'
+        assert case.excitation not in NOT_REVEALED_BY.get(effect, ())
     _, clean = make_case(3, 'none')
     assert clean.effect_params == {}
 
