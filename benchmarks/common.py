@@ -64,13 +64,28 @@ def paper_recording(n=4000, dt=0.01, params=PAPER_MOTOR, noise=0.005, seed=0):
 
 
 class CountingIdentifier(Identifier):
-    """An :class:`Identifier` that counts every simulated parameter set."""
+    """An :class:`Identifier` that counts every simulated parameter set.
+
+    The count is taken in the Identifier's lowest-level simulation method, whichever of
+    ``_simulate_channels`` / ``_simulate`` it has.
+    """
 
     evaluations = 0
 
-    def _simulate(self, X):
+    def _count(self, X):
         self.evaluations += np.atleast_2d(X).shape[0]
-        return super()._simulate(X)
+
+
+if hasattr(Identifier, '_simulate_channels'):
+    def _counted_channels(self, X):
+        self._count(X)
+        return Identifier._simulate_channels(self, X)
+    CountingIdentifier._simulate_channels = _counted_channels
+else:
+    def _counted(self, X):
+        self._count(X)
+        return Identifier._simulate(self, X)
+    CountingIdentifier._simulate = _counted
 
 
 class Objective:

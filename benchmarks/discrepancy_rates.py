@@ -115,7 +115,7 @@ def run(quick=False):
     """Run the section; returns the section record."""
     _require()
     n = 1000 if quick else 4000
-    cases = 1 if quick else 6          # per noise level, with and without an effect each
+    cases = 1 if quick else 10         # per noise level, with and without an effect each
     levels = NOISE_LEVELS[:1] if quick else NOISE_LEVELS
     candidates = ['coulomb_friction', 'load_torque'] if quick else None
     tmp = tempfile.mkdtemp(prefix='motor_id_bench_')
