@@ -1,0 +1,75 @@
+"""Republish a bag's sample stream into the ROS graph at a chosen rate."""
+
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.task import Future
+
+from motor_id.nodes import messages
+
+
+class Replayer(Node):
+    """Publishes ``samples`` batches from recorded rows, paced by their card time.
+
+    Parameters
+    ----------
+    rows : ndarray, shape (n, 6)
+        Sample rows (seq, t, voltage, speed, current, flags) in recorded order.
+    rate : float
+        Playback speed relative to the recorded time (2.0 = twice as fast).
+    batch : int
+        Rows per message.
+    """
+
+    def __init__(self, rows, rate=1.0, batch=10):
+        super().__init__('replayer')
+        self.rows = rows
+        self.rate = rate
+        self.batch = batch
+        self.pub = self.create_publisher(messages.Float64MultiArray, messages.SAMPLES_TOPIC,
+                                         messages.SAMPLES_QOS)
+        self.next = 0
+        self.t0_wall = None
+        self.done = Future()
+        self._wait_until = time.monotonic() + 5.0
+        self.timer = self.create_timer(0.005, self._tick)
+
+    def _tick(self):
+        if self.done.done():
+            return
+        if self.t0_wall is None:
+            if self.pub.get_subscription_count() == 0 and time.monotonic() < self._wait_until:
+                return  # give subscribers up to 5 s to match before the first rows
+            self.t0_wall = time.monotonic()
+        t_card = self.rows[:, 1]
+        elapsed = (time.monotonic() - self.t0_wall) * self.rate
+        due = int(((t_card - t_card[0]) <= elapsed).sum())
+        while self.next < due:
+            end = min(self.next + self.batch, due)
+            self.pub.publish(messages.rows_to_msg(self.rows[self.next:end]))
+            self.next = end
+        if self.next >= len(self.rows):
+            self.get_logger().info(f'replayed {len(self.rows)} samples')
+            self.done.set_result(len(self.rows))
+
+
+def replay(rows, rate, batch=10):
+    """Publish every row, paced, then return the number published (Ctrl-C stops early)."""
+    rclpy.init(args=[])
+    node = Replayer(rows, rate, batch)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin_until_future_complete(node.done)
+        time.sleep(0.5)  # let reliable transport deliver the last batches
+        executor.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        sent = node.next
+        executor.shutdown(timeout_sec=1.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return sent
