@@ -406,6 +406,12 @@ class DiscrepancyReport:
         h = self.heldout
         lines.append(f'linear model: held-out error {h["base_error"]:.4g} '
                      f'(noise floor {h["noise_floor"]:.4g}; errors are RMS / channel std)')
+        for ch, m in self.baseline['fit']['channels'].items():
+            after = ''
+            if self.chosen.get('fit'):
+                after = (f' -> {self.chosen["fit"]["channels"][ch]["fit_percent"]:.2f} % '
+                         f'with {self.verdict}')
+            lines.append(f'  {ch} fit on all data: {m["fit_percent"]:.2f} %{after}')
         diag = self.diagnostics
         for ch, dd in diag['residual'].items():
             lines.append(f'  {ch} residual: {100 * dd["autocorrelation_outside"]:.0f} % of '
@@ -419,8 +425,10 @@ class DiscrepancyReport:
             parts = []
             for side in ('positive', 'negative'):
                 if side in ms:
+                    z = ms[side]['zero_speed_input']
                     parts.append(f'{side} side: speed = {ms[side]["slope"]:.4g} u '
-                                 f'{ms[side]["intercept"]:+.4g}')
+                                 f'{ms[side]["intercept"]:+.4g}' +
+                                 ('' if z is None else f' (zero at u = {z:.4g})'))
             lines.append(f'  steady-state map: {ms["n_points"]} plateau(s)' +
                          (('; ' + '; '.join(parts)) if parts else ''))
         lines.append(f'{"candidate":<42}{"gain":>8}{"held-out":>11}  parameters')
@@ -1045,8 +1053,9 @@ class DiscrepancyAnalysis:
             delay = int(chosen.effects.get('input_delay', {}).get('d', 0))
             idyn = inverse_dynamics(rec, terms, delay=delay)
 
-        heldout = {'scheme': f'{self.n_blocks} blocks, blocks {[b for b in range(2, self.n_blocks, 3)]} '
-                             'held out (simulation runs through them)',
+        held = list(range(2, self.n_blocks, 3))
+        heldout = {'scheme': f'{self.n_blocks} blocks, blocks {held} held out (the '
+                             'simulation runs through them)',
                    'fraction': float(np.mean(self._test)), 'blocks': self._blocks,
                    'base_error': base.heldout_error, 'final_error': chosen.heldout_error,
                    'noise_floor': self._floor, 'min_gain': self.min_gain}
@@ -1134,16 +1143,24 @@ def plot_report(report, path, title=None):
     items = singles + combos
     names = [e.name for e in items]
     gains = [100 * e.gain for e in items]
-    colors = ['tab:green' if e.significant else 'tab:gray' for e in items]
+    colors = ['tab:blue' if e.name == report.verdict else
+              'tab:green' if e.significant else 'tab:gray' for e in items]
     ax.barh(range(len(items)), gains, color=colors)
     ax.set_yticks(range(len(items)))
     ax.set_yticklabels(names, fontsize=7)
     ax.invert_yaxis()
     ax.axvline(100 * report.heldout['min_gain'], color='k', ls='--', lw=0.8)
-    ax.set_xlabel('held-out gain [%] (cut of the simulation error)')
+    ax.set_xlabel('held-out gain [%] (blue: chosen, green: significant)')
     ax.set_title(f'gain per candidate; verdict: {report.verdict}')
     if len(chans) < 2:
-        axes[1, 1].axis('off')
+        ax = axes[1, 1]
+        ax.plot(t, pd['ys'][0], lw=0.8, color='k', label='measured')
+        ax.plot(t, pd['base'][0], lw=0.8, label='linear model')
+        if report.verdict != 'none':
+            ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.verdict)
+        ax.set_title(f'{chans[0]}: measured and simulated')
+        ax.set_xlabel('time [s]')
+        ax.legend(loc='best', fontsize=8)
     fig.suptitle(title or 'motor_id discrepancy analysis')
     fig.tight_layout()
     fig.savefig(path, dpi=110)
