@@ -564,7 +564,8 @@ class DiscrepancyAnalysis:
             sub += [np.sum(r2[a:b]) for a, b in self._subblocks]
         return float(np.sqrt(np.mean(tr))), float(np.sqrt(np.mean(te))), sub
 
-    def _score(self, name, est, effects, extra_params, n_extra, t0, quant=None):
+    def _score(self, name, est, effects, n_extra, t0, quant=None):
+        """A :class:`ModelScore` from a fitted Identifier (``quant``: a speed grid)."""
         res = est.result_
         preds = [np.asarray(res.prediction[c]) for c in self._channels]
         if quant is not None:
@@ -581,8 +582,6 @@ class DiscrepancyAnalysis:
                 elif e in effects and (e in FIXED_PARAMS and p in FIXED_PARAMS[e]):
                     params[key] = {'value': float(v), 'std': None, 'determined': True,
                                    'grid': True}
-        for key, v in extra_params.items():
-            params[key] = {'value': float(v), 'std': None, 'determined': True, 'grid': True}
         eff = {e: {p: (v['value'] if isinstance(v, dict) else float(v))
                    for p, v in vals.items()} for e, vals in res.effects.items()}
         if quant is not None:
@@ -762,7 +761,7 @@ class DiscrepancyAnalysis:
                 if d not in tried and 1 <= d <= d_max:
                     eff = {**fixed_eff, name: {'d': float(d)}}
                     est = self._fit_model(eff, free_prior, self._start(ref, fixed_eff))
-                    tried[d] = self._score(name, est, eff, {}, ref.n_extra + 1, t0, quant)
+                    tried[d] = self._score(name, est, eff, ref.n_extra + 1, t0, quant)
                 return tried.get(d)
 
             for row in rows:
@@ -783,7 +782,7 @@ class DiscrepancyAnalysis:
             eff = {**fixed_eff, name: row}
             free = free_prior + [f'{name}.{p}' for p in row]
             est = self._fit_model(eff, free, self._start(ref, eff))
-            s = self._score(name, est, eff, {}, ref.n_extra + len(row), t0, quant)
+            s = self._score(name, est, eff, ref.n_extra + len(row), t0, quant)
             if best is None or s.train_error < best.train_error:
                 best = s
         return best
@@ -893,7 +892,7 @@ class DiscrepancyAnalysis:
         est = self._identifier(generations=self.generations)
         with np.errstate(all='ignore'):
             est.fit(rec, sample_weight=self._train.astype(float))
-        base = self._score('linear', est, {}, {}, 0, t0)
+        base = self._score('linear', est, {}, 0, t0)
         base.significant = False
         self._sc = self._scales_for_grid(base.physical)
         self._say(f'  held-out error {base.heldout_error:.4g} '
