@@ -954,7 +954,8 @@ class DiscrepancyAnalysis:
                 if nxt is chosen:
                     break
                 chosen = nxt
-        ranked.sort(key=lambda s: s.heldout_error)
+        # best first: the chosen model, then the significant ones, then the rest
+        ranked.sort(key=lambda s: (s is not chosen, not s.significant, s.heldout_error))
         verdict = 'none' if chosen is base else chosen.name
 
         # ---- ambiguity: other significant models as good as the winner
