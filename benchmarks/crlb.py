@@ -120,7 +120,7 @@ def run_config(cfg, runs, n, generations, seed0=1000):
 
 def run(quick=False):
     """Run the section; returns the section record."""
-    runs = 4 if quick else 200
+    runs = 4 if quick else 100
     n = 1000 if quick else 4000
     generations = 20 if quick else 160
     rows, raws = [], []

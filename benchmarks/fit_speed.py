@@ -267,8 +267,8 @@ def run(quick=False, blas_one=None):
                '< 0.25 s', ga_t < 0.25 if not quick else None, 's'),
     ]
     ga_cpu = by['motor_id GA']['cpu_seconds']
-    targets.append(target('motor_id GA CPU time (process time; less sensitive to other load)',
-                          ga_cpu, '< 0.25 s', ga_cpu < 0.25 if not quick else None, 's'))
+    targets.append(target('motor_id GA CPU time (process time, all threads: BLAS worker '
+                          'threads spinning count too)', ga_cpu, 'informative', None, 's'))
     if 'motor_id GA (BLAS 1 thread)' in by:
         t1 = by['motor_id GA (BLAS 1 thread)']['seconds']
         targets.append(target('motor_id GA wall time with BLAS limited to 1 thread', t1,
