@@ -17,7 +17,8 @@ setup(
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
                       'mcap', 'mcap-ros2-support'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions'],
+        'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions', 'pygad', 'cma',
+                 'psutil'],
         'bench': ['pygad', 'cma', 'psutil'],
     },
     zip_safe=True,

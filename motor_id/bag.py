@@ -27,6 +27,7 @@ and no footer; :func:`recover` salvages every complete chunk into a clean file.
 (A power cut can lose more: the writer does not fsync.)
 """
 
+import contextlib
 from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 import io
@@ -46,6 +47,7 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 import mcap_ros2
 from mcap_ros2._dynamic import serialize_dynamic
+from mcap_ros2._vendor.rosidl_adapter.parser import InvalidSpecification, InvalidValue
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import zstandard
@@ -210,7 +212,11 @@ _MAX_DEPTH = 50
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 1, 2, 3, 4, 5, 6
 _OP_STATISTICS, _OP_METADATA, _OP_DATA_END = 0x0B, 0x0C, 0x0F
 _DECODE_ERRORS = (McapError, ValueError, struct.error, RuntimeError, EOFError, IndexError,
-                  zstandard.ZstdError)
+                  ArithmeticError, zstandard.ZstdError, InvalidSpecification, InvalidValue)
+_FIELD_ERRORS = _DECODE_ERRORS + (AttributeError, TypeError)
+"""Also what reading fields of a message decoded with a damaged definition raises."""
+_SCHEMA_ERRORS = _DECODE_ERRORS + (NameError, TypeError)
+"""What parsing a damaged message definition raises (NameError, TypeError: bad names)."""
 
 
 def message_definition(msgtype):
@@ -949,8 +955,9 @@ def _decoder(scan, channel):
                        f'{schema.encoding!r}, message encoding {channel.message_encoding!r} '
                        "(need 'ros2msg' and 'cdr')")
     try:
-        return schema, DecoderFactory().decoder_for('cdr', schema)
-    except _DECODE_ERRORS as exc:
+        with contextlib.redirect_stderr(io.StringIO()):   # the msg parser prints errors
+            return schema, DecoderFactory().decoder_for('cdr', schema)
+    except _SCHEMA_ERRORS as exc:
         raise BagError(f'{scan.path}: cannot parse the message definition {schema.name!r} '
                        f'of {channel.topic}: {exc}') from None
 
@@ -975,14 +982,15 @@ def _samples_from_scan(scan, topic=SAMPLES_TOPIC):
     for i, msg in enumerate(m for m in scan.messages if m.channel_id in decoders):
         try:
             decoded = decoders[msg.channel_id](msg.data)
-        except _DECODE_ERRORS as exc:
+            dims = list(decoded.layout.dim)
+            values = np.asarray(decoded.data, dtype=float)
+            offset = decoded.layout.data_offset
+            labels = [(d.label, d.size) for d in dims]
+        except _FIELD_ERRORS as exc:
             raise BagError(f'{scan.path}: {topic} message {i} (log time {msg.log_time} ns) '
                            f'is not a valid {FLOAT64_MULTI_ARRAY}: {exc}') from None
-        dims = list(decoded.layout.dim)
-        values = np.asarray(decoded.data, dtype=float)
         if (len(dims) != 2 or dims[1].size != 6 or dims[1].label != SAMPLES_LABEL
-                or values.size != dims[0].size * 6 or decoded.layout.data_offset != 0):
-            labels = [(d.label, d.size) for d in dims]
+                or values.size != dims[0].size * 6 or offset != 0):
             raise BagError(f'{scan.path}: {topic} message {i} has layout {labels} with '
                            f'{values.size} values; expected rows of {SAMPLES_LABEL}')
         blocks.append(values.reshape(-1, 6))
@@ -1020,7 +1028,7 @@ def _meta_from_scan(scan):
             try:
                 text = decode(msg.data).data
                 item = json.loads(text)
-            except _DECODE_ERRORS as exc:
+            except _FIELD_ERRORS as exc:
                 raise BagError(f'{scan.path}: a {META_TOPIC} message is not valid JSON '
                                f'({exc})') from None
             if not isinstance(item, dict):

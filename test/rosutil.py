@@ -1,5 +1,6 @@
 """Test helpers for ROS node tests: domain ids, environments, node processes, a client."""
 
+import atexit
 import os
 import re
 import signal
@@ -10,6 +11,14 @@ import time
 import zlib
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+_LIVE = set()
+
+
+@atexit.register
+def _kill_leftovers():
+    """Never leave node processes behind, even when a test run dies."""
+    for proc in list(_LIVE):
+        proc.kill()
 
 
 def domain_id(name):
@@ -29,6 +38,7 @@ def ros_env(domain, **extra):
     env.pop('ROS_STATIC_PEERS', None)
     env['PYTHONPATH'] = REPO + os.pathsep + env.get('PYTHONPATH', '')
     env['PYTHONUNBUFFERED'] = '1'
+    env['PYTHONFAULTHANDLER'] = '1'   # a crash in a node prints the Python stacks
     env['RCUTILS_COLORIZED_OUTPUT'] = '0'
     env.update({k: str(v) for k, v in extra.items()})
     return env
@@ -58,6 +68,7 @@ class Process:
         self._err = open(self.err_path, 'wb')
         self.proc = subprocess.Popen(args, env=env, stdout=self._out, stderr=self._err,
                                      stdin=subprocess.DEVNULL, start_new_session=True)
+        _LIVE.add(self)
 
     @property
     def pid(self):
@@ -118,7 +129,17 @@ class Process:
             self.proc.wait(10)
 
     def close(self):
+        """End the process: SIGINT first, so that it leaves the ROS graph at once (a
+        killed participant's endpoints linger in its peers until their lease expires and
+        would match the next test's publishers and clients); SIGKILL if it hangs."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                pass
         self.kill()
+        _LIVE.discard(self)
         self._out.close()
         self._err.close()
 

@@ -67,7 +67,9 @@ def publish(client, rows, batch=100):
         pub = client.node.create_publisher(Float64MultiArray, 'samples',
                                            messages.SAMPLES_QOS)
         client._samples_pub = pub
-    assert wait_until(lambda: pub.get_subscription_count() > 0, 20.0)
+    own = sum(1 for info in client.node.get_subscriptions_info_by_topic('/samples')
+              if info.node_name == client.node.get_name())
+    assert wait_until(lambda: pub.get_subscription_count() > own, 20.0)
     for k in range(0, rows.shape[0], batch):
         pub.publish(messages.rows_to_msg(rows[k:k + batch]))
 
@@ -118,8 +120,11 @@ def test_driver_streams_contiguous_samples_and_records(client, launch, tmp_path)
     speeds = client.collect(Float64, 'speed', messages.CHANNEL_QOS)
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
     drv = launch('driver', driver_args(f'device:={link}', 'excitation:=prbs',
-                                       'duration:=3.0', f'record_path:={bag}'))
+                                       'duration:=3.0', f'record_path:={bag}',
+                                       'autostart:=false'))
     drv.wait_for('device .* open')
+    assert wait_until(lambda: len(samples) > 0, 20.0)
+    assert client.call(Trigger, '/driver/start').success
     assert wait_until(lambda: np.any(rows_of(samples)[:, 5].astype(int) & FLAG_PROFILE_END),
                       30.0), drv.output()
     rows = rows_of(samples)

@@ -1,15 +1,23 @@
 """Shared node plumbing: table-driven parameters with ranges, and the spin/shutdown main."""
 
 from dataclasses import dataclass
+import functools
+import os
 import re
+import signal
+import socket
 import sys
+import threading
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
+                              SingleThreadedExecutor)
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.signals import SignalHandlerOptions
+from rclpy.task import Future
 
 from motor_id.errors import ConfigError
 
@@ -119,11 +127,101 @@ def declare_parameters(node, specs):
     return values
 
 
+class InFlight:
+    """Count callbacks running in executor threads, so that shutdown can wait for them.
+
+    rclpy's ``MultiThreadedExecutor.shutdown`` does not wait for callbacks already
+    running in its thread pool; destroying the node under one of them is a race.
+    Wrap every callback with :meth:`wrap` and call :meth:`wait_idle` before
+    ``destroy_node``.
+    """
+
+    def __init__(self):
+        self._count = 0
+        self._cond = threading.Condition()
+
+    def wrap(self, callback):
+        """The callback, counted while it runs (same signature for rclpy's inspection)."""
+        @functools.wraps(callback)
+        def counted(*args):
+            with self._cond:
+                self._count += 1
+            try:
+                return callback(*args)
+            finally:
+                with self._cond:
+                    self._count -= 1
+                    self._cond.notify_all()
+        return counted
+
+    def wait_idle(self, timeout=5.0):
+        """Wait until no wrapped callback runs; return False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._count == 0, timeout)
+
+
+def _ignore_handler(signum, frame):
+    """Python-level handler: a no-op; the signal number reaches the wakeup fd."""
+
+
+class SignalWatcher:
+    """Turn SIGINT / SIGTERM into a clean end of spinning, with the context still valid.
+
+    rclpy's own handlers shut the context down inside the signal handler, so the node
+    is then destroyed on a dead context, and ``Executor.shutdown`` from another thread
+    destroys the guard condition that a running ``spin`` waits on (Jazzy). Instead
+    :meth:`install` sets no-op Python handlers and :func:`signal.set_wakeup_fd`: the
+    interpreter's C-level handler writes the signal number to a socket whichever thread
+    the kernel delivers it to, and a thread reading that socket resolves :attr:`stop`,
+    a future the main thread spins on. ``spin_until_future_complete`` then returns, the
+    node stops and is destroyed, and only then the context. A second signal while
+    shutting down ends the process at once (exit code 128 + signal number).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self):
+        self.received = None
+        self.stop = Future()
+        self._read = self._write = None
+
+    def install(self):
+        """Route the signals to the watcher (call in the main thread before ``rclpy.init``).
+
+        A handler is installed even where the disposition was "ignore" (as a
+        non-interactive shell sets SIGINT for background jobs), so SIGINT always stops.
+        """
+        self._read, self._write = socket.socketpair()
+        self._write.setblocking(False)
+        signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
+        for sig in self.SIGNALS:
+            signal.signal(sig, _ignore_handler)
+        threading.Thread(target=self._wait, name='signals', daemon=True).start()
+
+    def _next_signal(self):
+        while True:
+            data = self._read.recv(1)
+            if not data:
+                return None
+            if data[0] in self.SIGNALS:
+                return data[0]
+
+    def _wait(self):
+        self.received = self._next_signal()
+        if self.received is None:
+            return
+        self.stop.set_result(self.received)
+        again = self._next_signal()
+        if again is not None:
+            os._exit(128 + again)
+
+
 def run_node(factory, name, num_threads=4, args=None):
     """Init rclpy, build the node, spin it, and shut down quietly.
 
-    Ctrl-C and SIGTERM end with exit code 0 and no traceback; a :class:`ConfigError`
-    from the constructor is logged as one line and gives exit code 2.
+    Ctrl-C and SIGTERM end with exit code 0 and no traceback (see
+    :class:`SignalWatcher`); a :class:`ConfigError` from the constructor is logged as one
+    line and gives exit code 2.
 
     Parameters
     ----------
@@ -132,7 +230,8 @@ def run_node(factory, name, num_threads=4, args=None):
     name : str
         Logger name for start-up errors.
     num_threads : int
-        MultiThreadedExecutor threads.
+        Executor threads; 1 gives a SingleThreadedExecutor (the fastest for many small
+        callbacks: rclpy's MultiThreadedExecutor hands each one to a worker thread).
     args : list of str, optional
         Command line (default ``sys.argv``).
 
@@ -141,8 +240,11 @@ def run_node(factory, name, num_threads=4, args=None):
     int
         Exit code.
     """
+    signals = SignalWatcher()
+    signals.install()
     try:
-        rclpy.init(args=sys.argv if args is None else args)
+        rclpy.init(args=sys.argv if args is None else args,
+                   signal_handler_options=SignalHandlerOptions.NO)
     except RCLError as exc:
         print(f'{name}: bad command line: {exc}', file=sys.stderr)
         return 2
@@ -153,18 +255,19 @@ def run_node(factory, name, num_threads=4, args=None):
         except ConfigError as exc:
             rclpy.logging.get_logger(name).fatal(f'{exc}')
             return 2
-        executor = MultiThreadedExecutor(num_threads=num_threads)
+        executor = (SingleThreadedExecutor() if num_threads == 1 else
+                    MultiThreadedExecutor(num_threads=num_threads))
         executor.add_node(node)
         try:
-            executor.spin()
+            executor.spin_until_future_complete(signals.stop)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         except RCLError:
             if rclpy.ok():
-                raise   # a real error, not a publish racing the shutdown
+                raise   # a real error, not a publish racing a shutdown
         finally:
             if hasattr(node, 'stop'):
-                node.stop()
+                node.stop()   # stops the node's own threads, waits for running callbacks
             executor.shutdown(timeout_sec=5.0)
     except KeyboardInterrupt:
         pass

@@ -9,13 +9,12 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.node import Node
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
-from motor_id.card.protocol import (encode_command, FLAG_STARTUP, FrameParser, SequenceTracker,
-                                    SetPeriod, SetVoltage, StartProfile, Stop)
+from motor_id.card.protocol import (encode_command, FLAG_STARTUP, FrameParser, MAX_FRAME,
+                                    SequenceTracker, SetPeriod, SetVoltage, StartProfile, Stop)
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
 from motor_id.errors import ConfigError, MotorIdError, ProtocolError
 from motor_id.excitation import PROFILES
@@ -23,6 +22,10 @@ from motor_id.nodes import messages
 from motor_id.nodes.common import declare_parameters, ParamSpec, RCLError, run_node
 
 EXTERNAL = 'external'
+GARBLED_BYTES = 4 * MAX_FRAME
+"""Bytes in a row without one valid frame that mark the link garbled (wrong baud rate,
+wrong device, electrical noise): longer than any frame, so a torn or corrupt frame or
+a burst of line noise between good frames never does."""
 
 PARAMETERS = (
     ParamSpec('device', '/dev/ttyACM0', 'card device path or pyserial URL (loop://, '
@@ -83,6 +86,7 @@ class DriverNode(Node):
         self._stop = threading.Event()
         self._started_profile = False
         self._last_frame = None
+        self._bytes_since_frame = 0
         self._rate = (time.monotonic(), 0, 0.0)
         self.writer = None
         if s['record_path']:
@@ -96,14 +100,12 @@ class DriverNode(Node):
                                  for name in messages.CHANNEL_TOPICS}
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
-        group = MutuallyExclusiveCallbackGroup()
         if s['excitation'] == EXTERNAL:
             self.create_subscription(Float64, messages.VOLTAGE_COMMAND_TOPIC,
-                                     self._on_voltage_command, messages.CHANNEL_QOS,
-                                     callback_group=group)
-        self.create_service(Trigger, '~/start', self._on_start, callback_group=group)
-        self.create_service(Trigger, '~/stop', self._on_stop, callback_group=group)
-        self.create_timer(1.0, self._publish_diagnostics, callback_group=group)
+                                     self._on_voltage_command, messages.CHANNEL_QOS)
+        self.create_service(Trigger, '~/start', self._on_start)
+        self.create_service(Trigger, '~/stop', self._on_stop)
+        self.create_timer(1.0, self._publish_diagnostics)
         self._thread = threading.Thread(target=self._run, name='card-reader',
                                         daemon=True)
         self._thread.start()
@@ -223,6 +225,7 @@ class DriverNode(Node):
                     self._port = port
                 self.link = 'connected'
                 self._last_frame = time.monotonic()
+                self._bytes_since_frame = 0
                 try:
                     self._configure()
                 except MotorIdError as exc:
@@ -233,7 +236,9 @@ class DriverNode(Node):
                 self._lose_device(f'{exc}')
                 continue
             if data:
+                self._bytes_since_frame += len(data)
                 self._handle(self.parser.feed(data), batch)
+                self._check_garbled()
             now = time.monotonic()
             if batch and (len(batch) >= self.settings['batch_size'] or not data or
                           now - flush_at > 0.1):
@@ -247,6 +252,15 @@ class DriverNode(Node):
                 self.link = 'stalled'
         if batch:
             self._emit(batch)
+
+    def _check_garbled(self):
+        """Bytes keep coming but none of them is a frame: say so once, and what to check."""
+        if self._bytes_since_frame < GARBLED_BYTES or self.link == 'garbled':
+            return
+        self.link = 'garbled'
+        self._fault('garbled', f'no valid frame in {self._bytes_since_frame} bytes: check '
+                    f'the baud rate (the driver uses {self.settings["baud"]} bit/s) and the '
+                    'device')
 
     def _lose_device(self, text):
         self.link = 'disconnected'
@@ -266,7 +280,8 @@ class DriverNode(Node):
                 continue
             self.counts['frames_ok'] += 1
             self._last_frame = time.monotonic()
-            if self.link == 'stalled':
+            self._bytes_since_frame = 0
+            if self.link in ('stalled', 'garbled'):
                 self.link = 'connected'
             ev = self.tracker.update(item.seq, restart=bool(item.flags & FLAG_STARTUP))
             if ev.kind == 'gap':
@@ -410,7 +425,7 @@ class DriverNode(Node):
 
 def main(args=None):
     """Console script `driver`: spin the node until Ctrl-C / SIGTERM."""
-    return run_node(DriverNode, 'driver', num_threads=2, args=args)
+    return run_node(DriverNode, 'driver', num_threads=1, args=args)
 
 
 if __name__ == '__main__':

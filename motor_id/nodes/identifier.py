@@ -7,8 +7,10 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -17,7 +19,7 @@ from motor_id.card.protocol import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.identify import Identifier, METHODS
 from motor_id.nodes import messages
-from motor_id.nodes.common import declare_parameters, ParamSpec, run_node
+from motor_id.nodes.common import declare_parameters, InFlight, ParamSpec, run_node
 
 PARAMETERS = (
     ParamSpec('method', 'zoh', 'identification method: zoh (exact, recommended), euler, '
@@ -47,10 +49,14 @@ PARAMETERS = (
 class IdentifierNode(Node):
     """Subscribes `samples`, serves `~/identify`, publishes `~/estimate` and `~/report`.
 
-    The samples subscription and the fit run in different callback groups under a
-    MultiThreadedExecutor, so reception continues during a fit; the fit works on a
-    snapshot copied under the buffer's lock. Only one fit runs at a time: a second
-    request while one runs is answered at once with ``success=False``.
+    Reception and fitting never share a thread. This node (samples, diagnostics,
+    parameters, publishers) spins on a SingleThreadedExecutor, which keeps up with one
+    message per sample at 1 kHz where rclpy's MultiThreadedExecutor does not. The
+    ``~/identify`` service and the periodic timer live on a hidden helper node
+    (``_<name>_fit``, service name resolved through this node, so remaps apply) spun
+    by its own MultiThreadedExecutor in a second thread; a fit works on a snapshot
+    copied under the buffer's lock. Only one fit runs at a time: a second request
+    while one runs is answered at once with ``success=False``.
     """
 
     def __init__(self):
@@ -65,21 +71,33 @@ class IdentifierNode(Node):
         self._bad_messages = 0
         self._fits = {'ok': 0, 'failed': 0}
         self._last = 'no fit yet'
-        rx_group = MutuallyExclusiveCallbackGroup()
-        fit_group = ReentrantCallbackGroup()
+        self.in_flight = InFlight()
+        guard = self.in_flight.wrap
         self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC, self._on_samples,
-                                 messages.SAMPLES_QOS, callback_group=rx_group)
+                                 messages.SAMPLES_QOS)
         self.estimate_pub = self.create_publisher(DiagnosticArray, '~/estimate',
                                                   messages.LATCHED_QOS)
         self.report_pub = self.create_publisher(String, '~/report', messages.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
-        self.create_service(Trigger, '~/identify', self._on_identify, callback_group=fit_group)
-        self.create_timer(1.0, self._publish_diagnostics, callback_group=rx_group)
-        if self.settings['period_s'] > 0:
-            self.create_timer(self.settings['period_s'], self._on_period,
-                              callback_group=fit_group)
+        self.create_timer(1.0, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
+        self.fit_node = Node(f'_{self.get_name()}_fit', namespace=self.get_namespace(),
+                             context=self.context, use_global_arguments=False,
+                             start_parameter_services=False)
+        fit_group = ReentrantCallbackGroup()
+        self.fit_node.create_service(Trigger, self.resolve_service_name('~/identify'),
+                                     guard(self._on_identify), callback_group=fit_group)
+        if self.settings['period_s'] > 0:
+            self.fit_node.create_timer(self.settings['period_s'], guard(self._on_period),
+                                       callback_group=fit_group)
+        self._fit_executor = MultiThreadedExecutor(num_threads=2, context=self.context)
+        self._fit_executor.add_node(self.fit_node)
+        self._fit_done = Future()
+        self._fit_thread = threading.Thread(
+            target=self._fit_executor.spin_until_future_complete, args=(self._fit_done,),
+            name='fit-executor', daemon=True)
+        self._fit_thread.start()
         self.get_logger().info(
             f'identifier ready: method {self.settings["method"]}, window '
             f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm')
@@ -188,13 +206,19 @@ class IdentifierNode(Node):
         return self._stopping.is_set() or not self.context.ok()
 
     def stop(self):
-        """Ask a running fit to stop at its next generation (called on shutdown)."""
+        """Stop a running fit at its next generation, then the fit node's executor."""
         self._stopping.set()
+        if not self.in_flight.wait_idle(10.0):
+            self.get_logger().warning('a fit is still running at shutdown')
+        self._fit_done.set_result(True)
+        self._fit_thread.join(5.0)
+        self._fit_executor.shutdown(timeout_sec=1.0)
+        self.fit_node.destroy_node()
 
 
 def main(args=None):
     """Console script `identifier`: spin the node until Ctrl-C / SIGTERM."""
-    return run_node(IdentifierNode, 'identifier', num_threads=4, args=args)
+    return run_node(IdentifierNode, 'identifier', num_threads=1, args=args)
 
 
 if __name__ == '__main__':

@@ -17,7 +17,7 @@ VOLTAGE_COMMAND_TOPIC = 'voltage_command'
 DIAGNOSTICS_TOPIC = '/diagnostics'
 ROW_LABEL = ','.join(COLUMNS)
 
-SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 """Sample batches: reliable with a real depth, so a slow subscriber loses nothing."""
