@@ -448,6 +448,9 @@ def test_driver_accounts_for_every_frame_under_sustained_faults(client, launch, 
                                      'excitation:=prbs', 'duration:=1000.0',
                                      'publish_channels:=false'))
     drv.wait_for('cannot open')
+    # the client must be matched before the card starts: it compares its rows with
+    # what the driver published (discovery takes up to ~3.5 s on a loaded machine)
+    assert wait_until(lambda: client.node.count_publishers('/samples') >= 1, 20.0)
     time.sleep(1.5)   # the device is missing: retried with backoff, logged once
     assert drv.stderr().count('cannot open') == 1, drv.stderr()
     card = launch('card', card_args(link, '--speedup', '5', '--seed', '4',

@@ -233,6 +233,9 @@ class DriverNode(Node):
             try:
                 data = read_available(port)
             except TransportError as exc:
+                if batch:   # what was read before the loss goes out now, not after it
+                    self._emit(batch)
+                    batch = []
                 self._lose_device(f'{exc}')
                 continue
             if data:
