@@ -149,6 +149,8 @@ def start(args, tmp, env, domain):
 def run(args):
     """Run the soak; return the result dict (``passed`` and the checks)."""
     import psutil  # noqa: F401  (fail early with a clear message)
+    from motor_id.nodes.shm import clean_stale_shm
+    clean_stale_shm()
     domain = 1 + (os.getpid() * 7 + 53) % 101
     env = ros_env(domain)
     tmp = tempfile.mkdtemp(prefix='motor_id_soak_')

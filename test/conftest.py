@@ -20,6 +20,13 @@ def paper_recording(params=PAPER_MOTOR, speed_noise=0.0, current_noise=0.0, seed
                               with_current, method, seed)
 
 
+@pytest.fixture(scope='session', autouse=True)
+def clean_dds_shm():
+    """Start the run without Fast DDS shared-memory files left by killed processes."""
+    from motor_id.nodes.shm import clean_stale_shm
+    clean_stale_shm()
+
+
 @pytest.fixture(scope='session')
 def clean_paper():
     """Noise-free speed and current of the paper's motor."""

@@ -99,6 +99,8 @@ def run(args):
                ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
     env.pop('ROS_STATIC_PEERS', None)
     os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')})
+    from motor_id.nodes.shm import clean_stale_shm
+    cleaned = clean_stale_shm()   # Fast DDS files that killed processes left behind
     bag = os.path.join(out, 'demo.mcap')
     for stale in (bag, os.path.join(out, 'report.json')):
         if os.path.exists(stale):
@@ -115,7 +117,9 @@ def run(args):
     from motor_id.nodes.demo_client import DemoClient
     client = None
     try:
-        _say(f'demo: ROS_DOMAIN_ID={domain}, LOCALHOST discovery; logs in {out}')
+        _say(f'demo: ROS_DOMAIN_ID={domain}, LOCALHOST discovery; logs in {out}'
+             + (f'; removed {len(cleaned)} stale Fast DDS shared-memory file(s)'
+                if cleaned else ''))
         card = kids.start('card', ['-m', 'motor_id.cli', 'card-sim', '--params', params_file,
                                    '--link', link, '--speedup', speedup, '--noise', args.noise,
                                    '--seed', str(args.seed)])
