@@ -1,10 +1,12 @@
 """Identification: recovery, identifiability verdicts, error bars, reproducibility."""
 
+import re
+
 import numpy as np
 import pytest
 
 from motor_id.errors import ConfigError, DataError
-from motor_id.identify import Identifier
+from motor_id.identify import Identifier, parse_bounds, parse_fixed
 from motor_id.model import PAPER_MOTOR
 from motor_id.recording import Recording
 
@@ -159,3 +161,29 @@ def test_bootstrap_intervals_bracket_the_estimate():
         lo, hi = r.parameters[name].ci95
         assert lo < r.parameters[name].value < hi
         assert (hi - lo) < 10 * r.parameters[name].std
+
+
+@pytest.mark.parametrize('item, message', [
+    ('J', 'takes NAME=VALUE'), ('=1', 'takes NAME=VALUE'), ('Q=1', "unknown parameter 'Q'"),
+    ('J=abc', "'abc' is not a number"), ('J=-0.1', 'finite and > 0'), ('J=inf', 'finite'),
+])
+def test_parse_fixed_names_the_bad_item(item, message):
+    with pytest.raises(ConfigError, match=re.escape(message)) as exc:
+        parse_fixed([item], '--fix')
+    assert str(exc.value).startswith('--fix')
+
+
+@pytest.mark.parametrize('item, message', [
+    ('J=1', 'takes NAME=LOW:HIGH'), ('J=a:b', 'takes NAME=LOW:HIGH'),
+    ('J=1:0.1', 'LOW < HIGH'), ('B=0:1', 'LOW must be > 0'), ('J=1:nan', 'LOW < HIGH'),
+])
+def test_parse_bounds_names_the_bad_item(item, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        parse_bounds([item], 'bounds')
+
+
+def test_parse_fixed_and_bounds_read_good_items():
+    assert parse_fixed([' J = 0.052 ', 'L_m=0.0345']) == {'J': 0.052, 'L_m': 0.0345}
+    # effect parameters may span zero; the Identifier checks that they are fitted
+    assert parse_bounds(['J=1e-4:1', 'load_torque.T_L=-1:1']) == {
+        'J': (1e-4, 1.0), 'load_torque.T_L': (-1.0, 1.0)}

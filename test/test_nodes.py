@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import signal
 import time
 
@@ -11,7 +12,7 @@ import pytest
 from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from motor_id.bag import read_recording
+from motor_id.bag import read_recording, read_samples
 from motor_id.card.protocol import FLAG_PROFILE_END
 from motor_id.excitation import paper_steps
 from motor_id.model import MotorParams, Plant, transfer_coefficients
@@ -324,8 +325,27 @@ def test_identifier_fits_and_latches_estimate(client, launch):
     stop_cleanly(proc)
 
 
+def test_identifier_uses_fixed_values_and_bounds(client, launch):
+    """`fix` is an assumption the fit keeps; with J known and no tie the paper's motor
+    (K_T != K_b) is recovered exactly; `bounds` reach the GA."""
+    proc = launch('identifier', identifier_args(
+        'generations:=60', 'tie_kt_kb:=false', 'fix:=J=0.052',
+        'bounds:=K_T=0.1:2, K_b=0.1:2, B=1e-5:0.05, L_m=1e-3:0.1'))
+    publish(client, paper_rows())
+    assert wait_until(lambda: 'from 4000 samples' in identify(client).message, 20.0), \
+        proc.output()
+    reports = client.collect(String, '/identifier/report', messages.LATCHED_QOS)
+    assert wait_until(lambda: reports, 10.0)
+    params = json.loads(reports[-1].data)['parameters']
+    assert params['J']['value'] == 0.052 and params['J']['std'] in (0, 0.0, None)
+    for name, truth in (('K_T', 0.66), ('K_b', 0.64), ('B', 0.002), ('L_m', 0.0345)):
+        assert params[name]['determined']
+        assert params[name]['value'] == pytest.approx(truth, rel=1e-3), name
+    stop_cleanly(proc)
+
+
 def test_samples_flow_during_a_fit_and_second_call_is_refused(client, launch):
-    proc = launch('identifier', identifier_args('generations:=1500'))
+    proc = launch('identifier', identifier_args('generations:=5000'))
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
     rows = paper_rows()
     publish(client, rows[:3000])
@@ -349,6 +369,8 @@ def test_samples_flow_during_a_fit_and_second_call_is_refused(client, launch):
 @pytest.mark.parametrize('param, name', [
     ('R_m:=-1.0', 'R_m'), ('method:=newton', 'method'), ('window_s:=60', 'window_s'),
     ('tie_kt_kb:=maybe', 'tie_kt_kb'), ('population:=1', 'population'),
+    ('bounds:=J=1:0.1', 'bounds'), ('bounds:=B=0:1', 'bounds'), ('bounds:=R_m=1:3', 'bounds'),
+    ('fix:=J=-0.05', 'fix'), ('fix:=Q=1', 'fix'), ('fix:=R_m=2', 'fix'),
 ])
 def test_identifier_bad_parameter_stops_with_message(launch, param, name):
     proc = launch('identifier', identifier_args(param))
@@ -377,3 +399,44 @@ def test_identifier_sigint_during_fit_exits_cleanly(client, launch):
     stop_cleanly(proc)
     assert time.monotonic() - t0 < 10.0
     del fut
+
+
+PAPER_BAG = os.path.join(REPO, 'bags', 'sim_card_paper.mcap')
+
+
+def replay_args(rate):
+    return ['-m', 'motor_id.cli', 'replay', PAPER_BAG, '--rate', str(rate)]
+
+
+def test_replay_rate_feeds_a_live_identifier(client, launch):
+    """`motor-id replay BAG --rate X` republishes the bag; a live identifier fits it."""
+    rows = read_samples(PAPER_BAG)['seq'].size
+    proc = launch('identifier', identifier_args('generations:=60', 'window_s:=1000.0'))
+    proc.wait_for('identifier ready')
+    rep = launch('replay', replay_args(20))
+    assert rep.wait(90.0) == 0, rep.output()
+    assert f'published {rows} of {rows} samples on /samples' in rep.stdout()
+    assert 'Traceback' not in rep.stderr(), rep.stderr()
+    resp = identify(client)
+    assert resp.success, resp.message
+    # subscribers matched late would only shorten the record at its start, never gap it
+    fitted = int(re.search(r'identified from (\d+) samples', resp.message).group(1))
+    assert rows - 200 <= fitted <= rows, resp.message
+    stop_cleanly(proc)
+
+
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_replay_stops_cleanly_on_a_signal(client, launch, sig):
+    got = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    rep = launch('replay', replay_args(1))
+    rep.wait_for('replaying')
+    assert wait_until(lambda: got, 20.0), rep.output()   # replaying, at 1x: 87 s to go
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    code = rep.stop(sig)
+    assert time.monotonic() - t0 < 10.0
+    published = re.search(r'published (\d+) of (\d+) samples', rep.stdout())
+    assert published, rep.output()
+    assert 0 < int(published.group(1)) < int(published.group(2))
+    assert code == 1   # not everything was published, and it says how much
+    assert 'Traceback' not in rep.stderr(), rep.stderr()

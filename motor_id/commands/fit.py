@@ -5,8 +5,7 @@ import sys
 import time
 
 from motor_id.errors import ConfigError
-from motor_id.identify import Identifier, METHODS
-from motor_id.model import PARAM_NAMES
+from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.recording import read_csv
 from motor_id.report import plot_fit, write_json
 
@@ -17,35 +16,6 @@ def load_recording(path):
         from motor_id.bag import read_recording
         return read_recording(path)
     return read_csv(path)
-
-
-def parse_assignments(items, option):
-    """Parse ``NAME=VALUE`` items into a dict of floats."""
-    out = {}
-    for item in items or ():
-        name, sep, value = item.partition('=')
-        if not sep:
-            raise ConfigError(f'{option} takes NAME=VALUE, got {item!r}')
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise ConfigError(f'{option} {item!r}: {value!r} is not a number') from None
-    return out
-
-
-def parse_bounds(items):
-    """Parse ``NAME=LOW:HIGH`` items."""
-    out = {}
-    for item in items or ():
-        name, sep, rng = item.partition('=')
-        lo, sep2, hi = rng.partition(':')
-        try:
-            out[name.strip()] = (float(lo), float(hi))
-        except ValueError:
-            raise ConfigError(f'--bounds takes NAME=LOW:HIGH, got {item!r}') from None
-        if not (sep and sep2):
-            raise ConfigError(f'--bounds takes NAME=LOW:HIGH, got {item!r}')
-    return out
 
 
 def add_fit_arguments(parser):
@@ -109,11 +79,7 @@ def progress_printer(quiet, stream=None):
 
 def identify_and_report(rec, args, extra=None):
     """Run the identification on a recording and print / write what the options ask."""
-    fixed = parse_assignments(args.fix, '--fix')
-    unknown = set(fixed) - set(PARAM_NAMES)
-    if unknown:
-        raise ConfigError(f'--fix: unknown parameter(s) {sorted(unknown)}; '
-                          f'use {", ".join(PARAM_NAMES)}')
+    fixed = parse_fixed(args.fix, '--fix')
     r_m = args.resistance
     if 'R_m' in fixed:
         r_m = fixed.pop('R_m')

@@ -42,6 +42,11 @@ class ParamSpec:
         Accept any type (e.g. ``auto`` or a bool); ``choices`` then lists every
         allowed value.
     read_only : bool
+    syntax : str, optional
+        The allowed values in words, for values that ``validator`` checks.
+    validator : callable, optional
+        ``validator(value, name)`` raises :class:`ConfigError` (its message starting
+        with ``name``) when ``value`` is not allowed.
     """
 
     name: str
@@ -52,9 +57,13 @@ class ParamSpec:
     choices: tuple = None
     dynamic: bool = False
     read_only: bool = False
+    syntax: str = None
+    validator: object = None
 
     def allowed(self):
         """The allowed values, in words."""
+        if self.syntax is not None:
+            return self.syntax
         if self.choices is not None:
             return 'one of ' + ', '.join(str(c).lower() if isinstance(c, bool) else str(c)
                                          for c in self.choices)
@@ -80,6 +89,11 @@ class ParamSpec:
                 value == c and type(value) is type(c) for c in self.choices):
             raise ConfigError(f'parameter {self.name}: got {value!r}; allowed: '
                               f'{self.allowed()}')
+        if self.validator is not None:
+            try:
+                self.validator(value, self.name)
+            except ConfigError as exc:
+                raise ConfigError(f'parameter {exc}; allowed: {self.allowed()}') from None
 
 
 def declare_parameters(node, specs):

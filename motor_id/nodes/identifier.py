@@ -17,9 +17,36 @@ from std_srvs.srv import Trigger
 from motor_id.buffer import SampleBuffer
 from motor_id.card.protocol import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import ConfigError, DataError, MotorIdError
-from motor_id.identify import Identifier, METHODS
+from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
+from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
 from motor_id.nodes.common import declare_parameters, InFlight, ParamSpec, run_node
+
+FITTED = tuple(n for n in PARAM_NAMES if n != 'R_m')
+
+
+def _items(text):
+    """The comma-separated items of a string parameter."""
+    return [x for x in text.split(',') if x.strip()]
+
+
+def fixed_values(text, name='fix'):
+    """``fix`` parameter -> {NAME: value}; raises ConfigError starting with ``name``."""
+    fixed = parse_fixed(_items(text), name)
+    if 'R_m' in fixed:
+        raise ConfigError(f'{name}: R_m is set by the parameter R_m')
+    return fixed
+
+
+def bound_values(text, name='bounds'):
+    """``bounds`` parameter -> {NAME: (low, high)}; raises ConfigError starting with ``name``."""
+    bounds = parse_bounds(_items(text), name)
+    unknown = sorted(set(bounds) - set(FITTED))
+    if unknown:
+        raise ConfigError(f'{name}: {", ".join(unknown)} is not fitted; use '
+                          f'{", ".join(FITTED)}')
+    return bounds
+
 
 PARAMETERS = (
     ParamSpec('method', 'zoh', 'identification method: zoh (exact, recommended), euler, '
@@ -38,6 +65,14 @@ PARAMETERS = (
     ParamSpec('min_samples', 200, 'fewest rows a fit accepts', low=20, high=10000000),
     ParamSpec('allow_gaps', False, 'fit the latest gap-free segment instead of refusing a '
               'window with gaps'),
+    ParamSpec('fix', '', 'parameters known in advance, e.g. "J=0.052": individual values '
+              'from speed-only data need one (empty: none)',
+              syntax='comma-separated NAME=VALUE, NAME in ' + ', '.join(FITTED)
+              + ', VALUE > 0', validator=fixed_values),
+    ParamSpec('bounds', '', 'search ranges replacing the defaults, e.g. "J=1e-4:1, '
+              'B=1e-6:0.1" (empty: the defaults)',
+              syntax='comma-separated NAME=LOW:HIGH, NAME in ' + ', '.join(FITTED)
+              + ', 0 < LOW < HIGH', validator=bound_values),
     ParamSpec('population', 20, 'GA population', low=4, high=10000),
     ParamSpec('generations', 160, 'GA generations', low=1, high=1000000),
     ParamSpec('seed', 0, 'GA random seed', low=0, high=2 ** 31 - 1),
@@ -164,7 +199,8 @@ class IdentifierNode(Node):
             tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])
             est = Identifier(method=p['method'], R_m=p['R_m'], tie=tie,
                              population=p['population'], generations=p['generations'],
-                             random_state=p['seed'])
+                             random_state=p['seed'], fixed=fixed_values(p['fix']) or None,
+                             bounds=bound_values(p['bounds']) or None)
             self.get_logger().info(
                 f'fitting {len(rec)} samples ({rec.time[-1] - rec.time[0]:.2f} s of card '
                 f'time, seq {rec.meta["seq_first"]}..{rec.meta["seq_last"]})')

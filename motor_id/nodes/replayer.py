@@ -5,9 +5,11 @@ import time
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from motor_id.nodes import messages
+from motor_id.nodes.common import SignalWatcher
 
 
 class Replayer(Node):
@@ -52,20 +54,33 @@ class Replayer(Node):
             self.next = end
         if self.next >= len(self.rows):
             self.get_logger().info(f'replayed {len(self.rows)} samples')
-            self.done.set_result(len(self.rows))
+            self.stop()
+
+    def stop(self):
+        """End the replay (at the end of the rows, or early on a signal)."""
+        if not self.done.done():
+            self.done.set_result(self.next)
 
 
 def replay(rows, rate, batch=10):
-    """Publish every row, paced, then return the number published (Ctrl-C stops early)."""
-    rclpy.init(args=[])
+    """Publish every row, paced, then return the number published.
+
+    Ctrl-C or SIGTERM stops early and cleanly (see :class:`SignalWatcher`); call from
+    the main thread.
+    """
+    signals = SignalWatcher()
+    signals.install()
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
     node = Replayer(rows, rate, batch)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
+    signals.stop.add_done_callback(lambda _f: node.stop())
     try:
         executor.spin_until_future_complete(node.done)
-        time.sleep(0.5)  # let reliable transport deliver the last batches
-        executor.spin_once(timeout_sec=0.1)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        if signals.received is None:
+            time.sleep(0.5)  # let reliable transport deliver the last batches
+            executor.spin_once(timeout_sec=0.1)
+    except ExternalShutdownException:
         pass
     finally:
         sent = node.next
