@@ -23,6 +23,8 @@ import sys
 import time
 import traceback
 
+import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 for _p in (REPO, HERE):  # the repository's motor_id before any installed copy
@@ -76,7 +78,9 @@ def machine_info():
             platform.python_implementation(), 'platform': platform.platform(),
             'versions': {m: _version(m) for m in
                          ('numpy', 'scipy', 'numba', 'pygad', 'cma', 'psutil')},
-            'blas': None}
+            'blas': None,
+            'blas_threads_env': {v: os.environ.get(v) for v in ('OPENBLAS_NUM_THREADS',
+                                                                'MKL_NUM_THREADS')}}
     try:
         from threadpoolctl import threadpool_info
         info['blas'] = [{k: d.get(k) for k in ('internal_api', 'num_threads', 'version')}
