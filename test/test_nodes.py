@@ -404,8 +404,8 @@ def test_identifier_sigint_during_fit_exits_cleanly(client, launch):
 PAPER_BAG = os.path.join(REPO, 'bags', 'sim_card_paper.mcap')
 
 
-def replay_args(rate):
-    return ['-m', 'motor_id.cli', 'replay', PAPER_BAG, '--rate', str(rate)]
+def replay_args(rate, *extra):
+    return ['-m', 'motor_id.cli', 'replay', PAPER_BAG, '--rate', str(rate)] + list(extra)
 
 
 def test_replay_rate_feeds_a_live_identifier(client, launch):
@@ -413,7 +413,13 @@ def test_replay_rate_feeds_a_live_identifier(client, launch):
     rows = read_samples(PAPER_BAG)['seq'].size
     proc = launch('identifier', identifier_args('generations:=60', 'window_s:=1000.0'))
     proc.wait_for('identifier ready')
-    rep = launch('replay', replay_args(20))
+    # this client's own samples subscriptions (earlier tests) count as subscribers too:
+    # the replay waits until the identifier is matched as well
+    assert wait_until(lambda: any(i.node_name == 'identifier' for i in
+                                  client.node.get_subscriptions_info_by_topic('/samples')),
+                      20.0)
+    subs = client.node.count_subscribers('/samples')
+    rep = launch('replay', replay_args(20, '--subscribers', str(subs)))
     assert rep.wait(90.0) == 0, rep.output()
     assert f'published {rows} of {rows} samples on /samples' in rep.stdout()
     assert 'Traceback' not in rep.stderr(), rep.stderr()

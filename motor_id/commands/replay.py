@@ -15,6 +15,9 @@ def add_arguments(parser):
                            '(the default)')
     mode.add_argument('--rate', type=float, metavar='X',
                       help='republish /samples into the graph at X times recorded speed')
+    parser.add_argument('--subscribers', type=int, default=None, metavar='N',
+                        help='--rate: wait (up to 30 s) for N matched subscribers before '
+                             'publishing (default: up to 5 s for the first one)')
     parser.add_argument('--profile', action='store_true',
                         help='offline: fit only the last complete excitation profile')
     add_fit_arguments(parser)
@@ -26,12 +29,14 @@ def run(args):
     if args.rate is not None:
         if not args.rate > 0:
             raise ConfigError(f'--rate must be > 0, got {args.rate}')
+        if args.subscribers is not None and args.subscribers < 1:
+            raise ConfigError(f'--subscribers must be >= 1, got {args.subscribers}')
         s = read_samples(args.bag)
         rows = np.column_stack([s[c] for c in ('seq', 't', 'voltage', 'speed', 'current',
                                                'flags')])
         from motor_id.nodes.replayer import replay
         print(f'replaying {len(rows)} samples from {args.bag} at {args.rate:g}x')
-        sent = replay(rows, args.rate)
+        sent = replay(rows, args.rate, subscribers=args.subscribers)
         print(f'published {sent} of {len(rows)} samples on /samples')
         return 0 if sent == len(rows) else 1
     rec = read_recording(args.bag)

@@ -174,6 +174,35 @@ class InFlight:
             return self._cond.wait_for(lambda: self._count == 0, timeout)
 
 
+def _callback_key(callback):
+    """What makes two done-callbacks the same: their code and what their closure holds."""
+    code = getattr(callback, '__code__', None)
+    if code is None:
+        return id(callback)
+    return code, tuple(id(cell.cell_contents) for cell in callback.__closure__ or ())
+
+
+class StopFuture(Future):
+    """A future to spin on for as long as a node lives.
+
+    Jazzy's ``Executor.spin_until_future_complete`` adds a new ``lambda x: self.wake()``
+    done-callback to the future on every spin, so a future that lives as long as the
+    node gains one callback per callback the executor runs (measured: +1.5 MiB per
+    minute in the identifier at 100 messages/s). Here a callback that repeats one
+    already added (the same code with the same closure, i.e. the same executor's wake)
+    replaces it; other callbacks are kept.
+    """
+
+    def add_done_callback(self, callback):
+        with self._lock:
+            if self._pending():
+                key = _callback_key(callback)
+                self._callbacks = [c for c in self._callbacks if _callback_key(c) != key]
+                self._callbacks.append(callback)
+                return
+        super().add_done_callback(callback)
+
+
 def _ignore_handler(signum, frame):
     """Python-level handler: a no-op; the signal number reaches the wakeup fd."""
 
@@ -196,7 +225,7 @@ class SignalWatcher:
 
     def __init__(self):
         self.received = None
-        self.stop = Future()
+        self.stop = StopFuture()
         self._read = self._write = None
 
     def install(self):

@@ -10,7 +10,6 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.task import Future
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -20,7 +19,8 @@ from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
-from motor_id.nodes.common import declare_parameters, InFlight, ParamSpec, run_node
+from motor_id.nodes.common import (declare_parameters, InFlight, ParamSpec, run_node,
+                                   StopFuture)
 
 FITTED = tuple(n for n in PARAM_NAMES if n != 'R_m')
 
@@ -128,7 +128,7 @@ class IdentifierNode(Node):
                                        callback_group=fit_group)
         self._fit_executor = MultiThreadedExecutor(num_threads=2, context=self.context)
         self._fit_executor.add_node(self.fit_node)
-        self._fit_done = Future()
+        self._fit_done = StopFuture()
         self._fit_thread = threading.Thread(
             target=self._fit_executor.spin_until_future_complete, args=(self._fit_done,),
             name='fit-executor', daemon=True)

@@ -6,10 +6,9 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
-from rclpy.task import Future
 
 from motor_id.nodes import messages
-from motor_id.nodes.common import SignalWatcher
+from motor_id.nodes.common import SignalWatcher, StopFuture
 
 
 class Replayer(Node):
@@ -23,9 +22,12 @@ class Replayer(Node):
         Playback speed relative to the recorded time (2.0 = twice as fast).
     batch : int
         Rows per message.
+    subscribers : int, optional
+        Wait up to 30 s for this many matched subscribers before the first rows
+        (default: up to 5 s for one).
     """
 
-    def __init__(self, rows, rate=1.0, batch=10):
+    def __init__(self, rows, rate=1.0, batch=10, subscribers=None):
         super().__init__('replayer')
         self.rows = rows
         self.rate = rate
@@ -34,16 +36,18 @@ class Replayer(Node):
                                          messages.SAMPLES_QOS)
         self.next = 0
         self.t0_wall = None
-        self.done = Future()
-        self._wait_until = time.monotonic() + 5.0
+        self.done = StopFuture()
+        self.subscribers = subscribers or 1
+        self._wait_until = time.monotonic() + (5.0 if subscribers is None else 30.0)
         self.timer = self.create_timer(0.005, self._tick)
 
     def _tick(self):
         if self.done.done():
             return
         if self.t0_wall is None:
-            if self.pub.get_subscription_count() == 0 and time.monotonic() < self._wait_until:
-                return  # give subscribers up to 5 s to match before the first rows
+            if self.pub.get_subscription_count() < self.subscribers and \
+                    time.monotonic() < self._wait_until:
+                return  # give subscribers time to match before the first rows
             self.t0_wall = time.monotonic()
         t_card = self.rows[:, 1]
         elapsed = (time.monotonic() - self.t0_wall) * self.rate
@@ -62,7 +66,7 @@ class Replayer(Node):
             self.done.set_result(self.next)
 
 
-def replay(rows, rate, batch=10):
+def replay(rows, rate, batch=10, subscribers=None):
     """Publish every row, paced, then return the number published.
 
     Ctrl-C or SIGTERM stops early and cleanly (see :class:`SignalWatcher`); call from
@@ -71,7 +75,7 @@ def replay(rows, rate, batch=10):
     signals = SignalWatcher()
     signals.install()
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)
-    node = Replayer(rows, rate, batch)
+    node = Replayer(rows, rate, batch, subscribers)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     signals.stop.add_done_callback(lambda _f: node.stop())
