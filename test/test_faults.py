@@ -475,7 +475,10 @@ def test_driver_accounts_for_every_frame_under_sustained_faults(client, launch, 
     assert np.all(np.diff(seq) >= 1)               # no duplicate, nothing out of order
     assert np.all(np.diff(rows[:, 1]) > 0)
     missing = int(seq[-1] - seq[0] + 1 - seq.size)  # gaps in what was published...
-    assert missing == int(st_['lost']) + int(st_['late']), (seq[:5], drv.stderr())
+    # every late frame is dropped; one older than the first published frame (the card
+    # swapped it with that one) is late but was never missing from the published range
+    accounted = int(st_['lost']) + int(st_['late'])
+    assert accounted - 1 <= missing <= accounted, (missing, accounted, seq[:5], drv.stderr())
     assert int(st_['lost']) > 100 and int(st_['duplicates']) > 20
     assert int(st_['garbage_bytes']) > 1000
     assert int(st_['opens']) == int(st_['device_lost'])   # the last loss: the card stopped
