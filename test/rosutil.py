@@ -10,6 +10,8 @@ import threading
 import time
 import zlib
 
+import numpy as np
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _LIVE = set()
 
@@ -212,3 +214,28 @@ def wait_until(predicate, timeout=20.0, interval=0.05):
             return True
         time.sleep(interval)
     return bool(predicate())
+
+
+def stop_cleanly(proc, sig=signal.SIGINT):
+    code = proc.stop(sig)
+    err = proc.stderr()
+    assert 'Traceback' not in err, err
+    assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
+
+
+def rows_of(msgs):
+    """All rows of the collected samples messages."""
+    from motor_id.nodes import messages
+    msgs = list(msgs)
+    if not msgs:
+        return np.zeros((0, 6))
+    return np.vstack([messages.msg_to_rows(m) for m in msgs])
+
+
+def latest_status(diags, name):
+    """Key/values of the latest /diagnostics status named ``name`` (or {})."""
+    for d in reversed(list(diags)):
+        for st_ in d.status:
+            if st_.name == name:
+                return {kv.key: kv.value for kv in st_.values}
+    return {}

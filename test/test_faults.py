@@ -11,7 +11,6 @@ fault, and the identifier answers misuse with a reason and keeps serving.
 import os
 import re
 import select
-import signal
 import subprocess
 import sys
 import threading
@@ -31,7 +30,8 @@ from motor_id.excitation import make_excitation
 from motor_id.model import MotorParams, Plant
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from rosutil import Client, domain_id, Process, REPO, ros_env, wait_until
+from rosutil import (Client, domain_id, latest_status, Process, REPO, ros_env, rows_of,
+                     stop_cleanly, wait_until)
 
 DOMAIN = domain_id(__name__)
 SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
@@ -72,30 +72,6 @@ def node_args(module, *params):
 
 def card_args(link, *extra):
     return ['-m', 'motor_id.cli', 'card-sim', '--link', str(link)] + list(extra)
-
-
-def stop_cleanly(proc, sig=signal.SIGINT):
-    code = proc.stop(sig)
-    err = proc.stderr()
-    assert 'Traceback' not in err, err
-    assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
-
-
-def rows_of(msgs):
-    """All rows of the collected samples messages."""
-    msgs = list(msgs)
-    if not msgs:
-        return np.zeros((0, 6))
-    return np.vstack([messages.msg_to_rows(m) for m in msgs])
-
-
-def latest_status(diags, name):
-    """Key/values of the latest /diagnostics status named ``name`` (or {})."""
-    for d in reversed(list(diags)):
-        for st_ in d.status:
-            if st_.name == name:
-                return {kv.key: kv.value for kv in st_.values}
-    return {}
 
 
 def warnings_of(proc):

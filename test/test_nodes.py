@@ -18,7 +18,8 @@ from motor_id.excitation import paper_steps
 from motor_id.model import MotorParams, Plant, transfer_coefficients
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from rosutil import Client, domain_id, Process, REPO, ros_env, wait_until
+from rosutil import (Client, domain_id, latest_status, Process, REPO, ros_env, rows_of,
+                     stop_cleanly, wait_until)
 
 DOMAIN = domain_id(__name__)
 T = np.arange(4000) * 0.01
@@ -79,13 +80,6 @@ def identify(client, node='identifier', timeout=60.0):
     return client.call(Trigger, f'/{node}/identify', timeout=timeout)
 
 
-def stop_cleanly(proc, sig=signal.SIGINT):
-    code = proc.stop(sig)
-    err = proc.stderr()
-    assert 'Traceback' not in err, err
-    assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
-
-
 def driver_args(*params):
     args = ['-m', 'motor_id.nodes.driver', '--ros-args']
     for p in params:
@@ -95,22 +89,6 @@ def driver_args(*params):
 
 def card_args(link, *extra):
     return ['-m', 'motor_id.cli', 'card-sim', '--link', str(link)] + list(extra)
-
-
-def rows_of(msgs):
-    """All rows of the collected samples messages."""
-    if not msgs:
-        return np.zeros((0, 6))
-    return np.vstack([messages.msg_to_rows(m) for m in list(msgs)])
-
-
-def latest_status(diags, name):
-    """Key/values of the latest /diagnostics status named ``name`` (or {})."""
-    for d in reversed(list(diags)):
-        for st in d.status:
-            if st.name == name:
-                return {kv.key: kv.value for kv in st.values}
-    return {}
 
 
 def test_driver_streams_contiguous_samples_and_records(client, launch, tmp_path):
