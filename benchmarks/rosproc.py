@@ -152,6 +152,15 @@ class RosClient:
         self.thread.join(5.0)
 
 
+def close_all(client, procs):
+    """End a run: close the client (if any), stop every process still alive."""
+    if client is not None:
+        client.close()
+    for p in procs.values():
+        if p.alive():
+            p.stop(5.0)
+
+
 def cpu_times(procs):
     """Cumulative CPU seconds (user + system) of each process, and the wall clock."""
     import psutil

@@ -41,7 +41,7 @@ import numpy as np
 from common import render_table, to_jsonable
 from motor_id.errors import MotorIdError
 from motor_id.model import MotorParams, PAPER_MOTOR
-from rosproc import num, Proc, ros_env, RosClient, wait_for
+from rosproc import close_all, num, Proc, ros_env, RosClient, wait_for
 
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
                     R_m=PAPER_MOTOR.R_m)
@@ -215,11 +215,7 @@ def run(args):
         except MotorIdError as exc:
             bag_rows, bag_error = None, str(exc)
     finally:
-        if client is not None:
-            client.close()
-        for p in procs.values():
-            if p.alive():
-                p.stop(5.0)
+        close_all(client, procs)
         if not args.keep:
             shutil.rmtree(tmp, ignore_errors=True)
     return evaluate(args, duration, fill_s, memory, calls, crashed, drv, idn, client_rows,

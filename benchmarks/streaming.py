@@ -17,7 +17,8 @@ import numpy as np
 
 from common import Skip, target
 from motor_id.model import MotorParams, PAPER_MOTOR
-from rosproc import cpu_percent, cpu_times, num, Proc, ros_env, RosClient, wait_for
+from rosproc import (close_all, cpu_percent, cpu_times, num, Proc, ros_env, RosClient,
+                     wait_for)
 
 TITLE = 'Streaming: card-sim -> driver -> identifier at 1 kHz'
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
@@ -131,11 +132,7 @@ def run(quick=False):
             seq = (client.seq_first, client.seq_last, client.seq_gaps)
         exit_codes = {name: procs[name].stop() for name in ('driver', 'identifier')}
     finally:
-        if client is not None:
-            client.close()
-        for p in procs.values():
-            if p.alive():
-                p.stop(5.0)
+        close_all(client, procs)
         logs = {name: p.output()[-3000:] for name, p in procs.items()}
         shutil.rmtree(tmp, ignore_errors=True)
 
