@@ -92,7 +92,7 @@ def run_config(cfg, runs, n, generations, seed0=1000):
         std.append([ps[p].std for p in free])
     est = np.array(est, dtype=float)
     std = np.array(std, dtype=float)
-    bound_rel = crlb(cfg['params'], free, cfg['tie'], rec.time, rec.voltage,
+    bound_rel = crlb(cfg['params'], free, cfg['tie'], rec.time, rec.input,
                      rec.meta['noise_std'])
     bound = bound_rel * truth
     emp = np.std(est, axis=0, ddof=1)

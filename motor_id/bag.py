@@ -53,17 +53,17 @@ import numpy as np
 import zstandard
 
 from motor_id import __version__
+from motor_id.contracts import (BAG_ESTIMATE_TOPIC, BAG_META_TOPIC, BAG_SAMPLES_TOPIC,
+                                CHANNEL_TOPICS, SAMPLE_COLUMNS,
+                                SAMPLES_LABEL)
 from motor_id.errors import BagError, ConfigError
 from motor_id.recording import Recording
 
 MAGIC = b'\x89MCAP0\r\n'
-SAMPLES_TOPIC = '/samples'
-META_TOPIC = '/motor_id/meta'
-ESTIMATE_TOPIC = '/identifier/estimate'
-DIAGNOSTICS_TOPIC = '/diagnostics'
-CHANNEL_NAMES = ('voltage', 'speed', 'current')
-SAMPLE_COLUMNS = ('seq', 't', 'voltage', 'speed', 'current', 'flags')
-SAMPLES_LABEL = ','.join(SAMPLE_COLUMNS)
+SAMPLES_TOPIC = BAG_SAMPLES_TOPIC
+META_TOPIC = BAG_META_TOPIC
+ESTIMATE_TOPIC = BAG_ESTIMATE_TOPIC
+CHANNEL_NAMES = CHANNEL_TOPICS
 
 FLOAT64_MULTI_ARRAY = 'std_msgs/msg/Float64MultiArray'
 FLOAT64 = 'std_msgs/msg/Float64'
@@ -747,7 +747,7 @@ def write_recording(rec, path, meta=None, batch=50, start_ns=0, channels=False, 
     if n == 0:
         raise ConfigError('the recording is empty')
     current = rec.current if rec.has_current else np.full(n, np.nan)
-    rows = np.column_stack([np.arange(n, dtype=float), rec.time, rec.voltage, rec.speed,
+    rows = np.column_stack([np.arange(n, dtype=float), rec.time, rec.input, rec.speed,
                             current, np.zeros(n)])
     log_ns = int(start_ns) + np.rint((rec.time - rec.time[0]) * 1e9).astype(np.int64)
     info = {k: v for k, v in rec.meta.items() if k not in ('bag', 'gaps')}
@@ -761,7 +761,7 @@ def write_recording(rec, path, meta=None, batch=50, start_ns=0, channels=False, 
             bag.write_samples(rows[k0:k1], int(log_ns[k1 - 1]))
             if channels:
                 for k in range(k0, k1):
-                    bag.write_channel('voltage', rec.voltage[k], int(log_ns[k]))
+                    bag.write_channel('voltage', rec.input[k], int(log_ns[k]))
                     bag.write_channel('speed', rec.speed[k], int(log_ns[k]))
                     if rec.has_current:
                         bag.write_channel('current', rec.current[k], int(log_ns[k]))

@@ -19,7 +19,6 @@ import contextlib
 import dataclasses
 from dataclasses import dataclass, field
 import math
-import sys
 import time
 
 import numpy as np
@@ -196,7 +195,7 @@ def steady_state_map(rec, min_len=None):
         ``{'start', 'stop', 'input', 'speed'[, 'current']}`` per point; start/stop are
         the averaged sample range.
     """
-    u = rec.voltage
+    u = rec.input
     n = u.size
     min_len = int(min_len or max(10, n // 100))
     scale = float(np.max(np.abs(u))) or 1.0
@@ -287,7 +286,7 @@ def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None
     cutoff = float(cutoff or 0.05 / dt)
     wn = min(cutoff * 2 * dt, 0.99)
     b, a = butter(4, wn)
-    u = rec.voltage
+    u = rec.input
     if delay > 0:
         u = np.concatenate([np.full(delay, u[0]), u[:-delay]])
     w = filtfilt(b, a, rec.speed)
@@ -622,7 +621,7 @@ class DiscrepancyAnalysis:
 
     # ------------------------------------------------------------- grids
     def _scales_for_grid(self, base):
-        u = self._rec.voltage
+        u = self._rec.input
         u_max = float(np.max(np.abs(u))) or 1.0
         w_max = float(np.max(np.abs(self._rec.speed))) or 1.0
         if self._kind == 'voltage':
@@ -675,7 +674,7 @@ class DiscrepancyAnalysis:
         phys = {k: v for k, v in base_fit.physical.items()}
         x0 = np.array(list(base_fit.x0.values())) if base_fit.x0 else None
         with np.errstate(all='ignore'):
-            out = simulate_batch(phys, self._rec.time, self._rec.voltage, self._kind, 'zoh',
+            out = simulate_batch(phys, self._rec.time, self._rec.input, self._kind, 'zoh',
                                  effects, x0)
         cost = np.zeros(P)
         with np.errstate(all='ignore'):
@@ -1011,13 +1010,13 @@ class DiscrepancyAnalysis:
         # ---- diagnostics of the linear model's residuals
         bres = full_base.result_
         diag = {'residual': {}, 'binned': {}, 'noise_floor': self._floor}
-        variables = {'speed': rec.speed, 'input': rec.voltage,
-                     'sign(speed)': rec.speed, 'sign(input)': rec.voltage}
+        variables = {'speed': rec.speed, 'input': rec.input,
+                     'sign(speed)': rec.speed, 'sign(input)': rec.input}
         if rec.has_current:
             variables.update({'current': rec.current, 'sign(current)': rec.current})
         for c in self._channels:
             r = np.asarray(bres.prediction[c + '_measured']) - np.asarray(bres.prediction[c])
-            dd = residual_diagnostics(r, rec.voltage)
+            dd = residual_diagnostics(r, rec.input)
             diag['residual'][c] = {k: dd[k] for k in (
                 'autocorrelation_outside', 'cross_correlation_outside', 'white',
                 'independent', 'band', 'autocorrelation', 'cross_correlation')}
@@ -1040,7 +1039,7 @@ class DiscrepancyAnalysis:
                     r = np.asarray(fres.prediction[c + '_measured']) - _quantize(
                         np.asarray(fres.prediction[c]),
                         chosen.effects['speed_quantization']['q'])
-                dd = residual_diagnostics(r, rec.voltage)
+                dd = residual_diagnostics(r, rec.input)
                 after[c] = {k: dd[k] for k in ('autocorrelation_outside',
                                                'cross_correlation_outside', 'white',
                                                'independent')}
@@ -1165,58 +1164,3 @@ def plot_report(report, path, title=None):
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
-
-
-# --------------------------------------------------------------------------- CLI
-def add_arguments(parser):
-    """CLI arguments of `motor-id analyze`."""
-    parser.add_argument('data', metavar='DATA', help='CSV (time,voltage,speed[,current]) '
-                                                     'or MCAP bag')
-    parser.add_argument('--resistance', '-R', type=float, metavar='R',
-                        help='known armature resistance R_m [Ohm] (voltage plants)')
-    parser.add_argument('--json', metavar='OUT', help='write the report as JSON')
-    parser.add_argument('--plot', metavar='OUT.png', help='write the plots')
-    parser.add_argument('--seed', type=int, default=0, help='GA seed of the linear fit')
-    parser.add_argument('--candidates', metavar='NAMES',
-                        help='comma-separated effects to try (default: all that apply)')
-    parser.add_argument('--min-gain', type=float, default=0.05,
-                        help='smallest held-out gain that counts (default 0.05)')
-    parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
-
-
-def run(args):
-    """Analyse the recording, print the report, write JSON / plots."""
-    import os
-
-    from motor_id.commands.fit import load_recording
-
-    rec = load_recording(args.data)
-    cands = None
-    if args.candidates:
-        cands = [c.strip() for c in args.candidates.split(',') if c.strip()]
-    if rec.input_kind == 'voltage' and args.resistance is None:
-        raise ConfigError('--resistance R (the known armature resistance in Ohm) is required '
-                          'for voltage-input data')
-
-    def progress(msg):
-        if not args.quiet:
-            print(msg, file=sys.stderr, flush=True)
-
-    progress(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
-             f'{rec.input_kind} input, {"regular" if rec.is_regular else "irregular"} '
-             f'sampling (median {rec.sample_period * 1e3:.3g} ms)')
-    ana = DiscrepancyAnalysis(R_m=args.resistance, candidates=cands, random_state=args.seed,
-                              min_gain=args.min_gain)
-    ana.fit(rec, progress=progress)
-    rep = ana.report_
-    print(rep.summary())
-    if args.json:
-        from motor_id.report import write_json
-        out = rep.to_dict()
-        out['data'] = {'source': rec.meta.get('source', str(args.data)), 'samples': len(rec)}
-        write_json(out, args.json)
-        print(f'wrote {args.json}')
-    if args.plot:
-        plot_report(rep, args.plot, title=f'motor-id analyze: {os.path.basename(args.data)}')
-        print(f'wrote {args.plot}')
-    return 0

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from motor_id.errors import ConfigError, IdentificationError
+from motor_id.errors import ConfigError
 from motor_id.ga import Bounds, GeneticAlgorithm
 from motor_id.metrics import channel_metrics
 from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
@@ -482,7 +482,7 @@ class Identifier:
         rec.validate()
         self._setup(rec)
         self._t = rec.time
-        self._u = rec.voltage
+        self._u = rec.input
         x0 = [rec.speed[0]]
         if self._kind == 'voltage':
             x0.append(rec.current[0] if rec.has_current else 0.0)
@@ -685,7 +685,7 @@ class Identifier:
             i += n
         fit['cost'] = float(np.mean(((pred_full - self._y) * self._w) ** 2))
         fit['initial_state'] = {n: float(x_best[names.index(n)]) for n in state_names}
-        prediction = {'time': rec.time, 'input': rec.voltage}
+        prediction = {'time': rec.time, 'input': rec.input}
         i = 0
         for ch, n in zip(self._channels, n_per):
             prediction[ch] = pred_full[i:i + n]

@@ -16,6 +16,7 @@ simulator (card), the fitter and the discrepancy analysis all use this one catal
 """
 
 from dataclasses import asdict, dataclass, field
+import json
 import math
 
 import numpy as np
@@ -204,6 +205,35 @@ class Plant:
         """JSON-ready description."""
         return {'params': self.params.to_dict(), 'input_kind': self.input_kind,
                 'effects': self.effects}
+
+    @classmethod
+    def from_json(cls, path):
+        """Read a plant from a JSON file.
+
+        The file holds ``{"J": ..., "K_T": ..., "K_b": ..., "B": ..., "L_m": ...,
+        "R_m": ...}`` (missing ones take the paper's values) and optionally
+        ``"effects": {...}`` and ``"input_kind"``; a ``"truth"`` key is ignored.
+
+        Raises
+        ------
+        ConfigError
+            The file cannot be read, is not a JSON object, or holds a bad value.
+        """
+        try:
+            with open(path) as fh:
+                data = json.load(fh)
+        except OSError as exc:
+            raise ConfigError(f'{path}: cannot read ({exc.strerror})') from None
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f'{path}: not valid JSON ({exc.msg} at line {exc.lineno})') \
+                from None
+        if not isinstance(data, dict):
+            raise ConfigError(f'{path}: expected a JSON object of parameters')
+        effects = data.pop('effects', {})
+        kind = data.pop('input_kind', 'voltage')
+        data.pop('truth', None)
+        params = MotorParams.from_dict({**MotorParams().to_dict(), **data})
+        return cls(params, kind, effects)
 
 
 def n_states(input_kind, resonance=False):

@@ -21,7 +21,7 @@ class Recording:
     ----------
     time : ndarray
         Sample times [s], strictly increasing (may be irregular).
-    voltage : ndarray
+    input : ndarray
         The plant input: armature voltage [V] for a voltage plant, or applied torque
         [N m] (force [N] for a linear axis) when ``input_kind == 'torque'``.
     speed : ndarray
@@ -34,7 +34,7 @@ class Recording:
     """
 
     time: np.ndarray
-    voltage: np.ndarray
+    input: np.ndarray
     speed: np.ndarray
     current: np.ndarray = None
     input_kind: str = 'voltage'
@@ -42,7 +42,7 @@ class Recording:
 
     def __post_init__(self):
         self.time = np.asarray(self.time, dtype=float)
-        self.voltage = np.asarray(self.voltage, dtype=float)
+        self.input = np.asarray(self.input, dtype=float)
         self.speed = np.asarray(self.speed, dtype=float)
         if self.current is not None:
             self.current = np.asarray(self.current, dtype=float)
@@ -73,7 +73,7 @@ class Recording:
     def slice(self, start, stop):
         """A new recording with samples ``start:stop``."""
         cur = None if self.current is None else self.current[start:stop]
-        return Recording(self.time[start:stop], self.voltage[start:stop],
+        return Recording(self.time[start:stop], self.input[start:stop],
                          self.speed[start:stop], cur, self.input_kind, dict(self.meta))
 
     def validate(self, min_samples=MIN_SAMPLES):
@@ -83,13 +83,13 @@ class Recording:
         an input that actually varies.
         """
         n = self.time.size
-        for name in ('voltage', 'speed') + (('current',) if self.has_current else ()):
+        for name in ('input', 'speed') + (('current',) if self.has_current else ()):
             arr = getattr(self, name)
             if arr.shape != self.time.shape:
                 raise DataError(f'channel {name!r} has {arr.size} samples but time has {n}')
         if n < min_samples:
             raise DataError(f'too few samples: {n} (need at least {min_samples})')
-        for name in ('time', 'voltage', 'speed') + (('current',) if self.has_current else ()):
+        for name in ('time', 'input', 'speed') + (('current',) if self.has_current else ()):
             arr = getattr(self, name)
             bad = np.flatnonzero(~np.isfinite(arr))
             if bad.size:
@@ -101,14 +101,14 @@ class Recording:
             k = bad[0] + 1
             raise DataError(f'time is not strictly increasing at sample {k} '
                             f'(t = {self.time[k - 1]:g} then {self.time[k]:g})')
-        if np.ptp(self.voltage) <= 1e-12 * max(1.0, np.max(np.abs(self.voltage))):
+        if np.ptp(self.input) <= 1e-12 * max(1.0, np.max(np.abs(self.input))):
             raise DataError('no excitation: the input is constant '
-                            f'({self.voltage[0]:g} throughout); use a varying input')
+                            f'({self.input[0]:g} throughout); use a varying input')
         return self
 
     def to_dict(self):
         """Plain lists for JSON."""
-        d = {'time': self.time.tolist(), 'voltage': self.voltage.tolist(),
+        d = {'time': self.time.tolist(), 'input': self.input.tolist(),
              'speed': self.speed.tolist(), 'input_kind': self.input_kind, 'meta': self.meta}
         if self.has_current:
             d['current'] = self.current.tolist()
@@ -200,7 +200,8 @@ def read_csv(path, min_samples=MIN_SAMPLES):
 def write_csv(rec, path, comments=None):
     """Write a recording as CSV (``time,voltage,speed[,current]``) with ``#`` comments."""
     cols = ['time', 'voltage', 'speed'] + (['current'] if rec.has_current else [])
-    arr = np.column_stack([getattr(rec, c) for c in cols])
+    arr = np.column_stack([rec.time, rec.input, rec.speed]
+                          + ([rec.current] if rec.has_current else []))
     with open(path, 'w', newline='') as fh:
         if rec.input_kind != 'voltage':
             fh.write(f'# input_kind: {rec.input_kind}\n')

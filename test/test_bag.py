@@ -81,7 +81,7 @@ def test_round_trip_is_exact(tmp_path):
     res = write_recording(rec, path, batch=37)
     assert res['samples'] == len(rec)
     back = read_recording(path)
-    for name in ('time', 'voltage', 'speed', 'current'):
+    for name in ('time', 'input', 'speed', 'current'):
         np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
     assert back.input_kind == 'voltage'
     assert back.meta['truth'] == {'J': 0.052}
@@ -102,7 +102,7 @@ def test_round_trip_torque_without_current(tmp_path):
     assert back.current is None
     assert back.input_kind == 'torque'
     assert back.meta['units']['voltage'] == 'N m'
-    np.testing.assert_array_equal(back.voltage, rec.voltage)
+    np.testing.assert_array_equal(back.input, rec.input)
     counts = {t['topic']: t['count'] for t in bag_info(path)['topics']}
     assert counts == {'/motor_id/meta': 1, '/samples': 3, '/voltage': 120, '/speed': 120}
 
@@ -115,7 +115,7 @@ def test_second_reader_rosbags_decodes_the_same_values(tmp_path):
     path = tmp_path / 'two.mcap'
     with BagWriter(path, chunk_size=2048) as writer:
         writer.write_meta({'input_kind': 'voltage', 'provenance': 'second reader'})
-        rows = np.column_stack([np.arange(250), rec.time, rec.voltage, rec.speed,
+        rows = np.column_stack([np.arange(250), rec.time, rec.input, rec.speed,
                                 rec.current, np.zeros(250)])
         for k in range(0, 250, 10):
             writer.write_samples(rows[k:k + 10], 1_000_000 * (k + 10))
@@ -230,7 +230,7 @@ def test_gaps_are_kept_not_filled_and_reported(tmp_path):
     rec = read_recording(path)
     assert len(rec) == 15
     np.testing.assert_array_equal(rec.time, seq * 0.01)
-    np.testing.assert_array_equal(rec.voltage, seq)
+    np.testing.assert_array_equal(rec.input, seq)
     assert rec.current is None
     assert rec.input_kind == 'torque'
     assert rec.meta['gaps'] == [{'after_seq': 9, 'missing': 5, 't_before': 0.09,

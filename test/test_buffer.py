@@ -5,7 +5,7 @@ import threading
 import numpy as np
 import pytest
 
-from motor_id.buffer import COLUMNS, SampleBuffer
+from motor_id.data.buffer import COLUMNS, SampleBuffer
 from motor_id.errors import ConfigError, DataError
 
 
@@ -190,7 +190,7 @@ def test_concurrent_writes_and_snapshots():
     np.testing.assert_array_equal(buf.snapshot().rows, rows[-5000:])
 
 
-def test_flagged_segment_is_the_latest_complete_profile():
+def test_profile_segment_is_the_latest_complete_profile():
     buf = SampleBuffer()
     rows = make_rows(300)
     rows[50:150, 5] = 2
@@ -198,30 +198,30 @@ def test_flagged_segment_is_the_latest_complete_profile():
     rows[200:280, 5] = 2
     rows[279, 5] = 6          # end of the second run
     buf.extend(rows[:290])
-    seg = buf.snapshot().flagged_segment(2, 4)
+    seg = buf.snapshot().profile_segment()
     np.testing.assert_array_equal(seg.rows, rows[200:280])
     buf.extend(rows[290:])
     buf.clear()
     buf.extend(rows[:260])
-    seg = buf.snapshot().flagged_segment(2, 4)
+    seg = buf.snapshot().profile_segment()
     np.testing.assert_array_equal(seg.rows, rows[50:150])
 
 
-def test_flagged_segment_reasons_and_gaps():
+def test_profile_segment_reasons_and_gaps():
     buf = SampleBuffer()
     rows = make_rows(200)
     rows[20:120, 5] = 2
     buf.extend(rows[:100])
     with pytest.raises(DataError, match='no complete excitation profile'):
-        buf.snapshot().flagged_segment(2, 4)
+        buf.snapshot().profile_segment()
     rows[119, 5] = 6
     buf.clear()
     buf.extend(np.delete(rows, [60], axis=0))
-    seg = buf.snapshot().flagged_segment(2, 4)
+    seg = buf.snapshot().profile_segment()
     assert len(seg) == 99 and [g.index for g in seg.gaps] == [40]
     with pytest.raises(DataError, match='gap'):
         seg.recording()
     small = SampleBuffer(capacity=50)
     small.extend(rows[:150])
     with pytest.raises(DataError, match='started before the window'):
-        small.snapshot().flagged_segment(2, 4)
+        small.snapshot().profile_segment()

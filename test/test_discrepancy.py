@@ -35,7 +35,7 @@ def _sim(effects, u, seed=1, noise=(0.005, 0.01)):
 
 @pytest.fixture(scope='module')
 def emps_report():
-    from motor_id.importers import load_emps
+    from motor_id.data.importers import load_emps
     if not EMPS.exists():
         pytest.skip(f'{EMPS} not present')
     return DiscrepancyAnalysis().fit(load_emps(EMPS)).report_
@@ -180,7 +180,7 @@ def test_emps_linear_model_fails_and_friction_with_offset_explains_it(emps_repor
 
 
 def test_dunker_shows_coulomb_friction():
-    from motor_id.importers import load_dunker
+    from motor_id.data.importers import load_dunker
     if not DUNKER.exists():
         pytest.skip(f'{DUNKER} not present')
     rec = load_dunker(DUNKER, motor=1)
@@ -199,7 +199,7 @@ def test_clean_torque_plant_gives_none():
     u = 40 * multisine(t, 1.0, 0.5, 20.0, random_state=5)
     rec = simulate_recording(Plant(MotorParams(J=1.0, B=20.0), 'torque'), t, u, 0.005,
                              random_state=5)
-    rep = DiscrepancyAnalysis().fit(Recording(rec.time, rec.voltage, rec.speed, None,
+    rep = DiscrepancyAnalysis().fit(Recording(rec.time, rec.input, rec.speed, None,
                                               'torque')).report_
     assert rep.verdict == 'none' and not rep.unexplained
     assert rep.parameters['J']['value'] == pytest.approx(1.0, rel=0.02)

@@ -477,7 +477,7 @@ def prbs_rows(n, period=0.01, seed=0):
     t = np.arange(n) * period
     u = make_excitation('prbs', t, 9.0, seed)
     rec = simulate_recording(Plant(SI_MOTOR), t, u)
-    return np.column_stack([np.arange(n), t, rec.voltage, rec.speed, rec.current,
+    return np.column_stack([np.arange(n), t, rec.input, rec.speed, rec.current,
                             np.zeros(n)])
 
 

@@ -148,7 +148,7 @@ def test_bad_requests_say_what_to_do():
         Identifier(method='magic', R_m=2.3).fit(rec)
     with pytest.raises(ConfigError, match="channel 'current' is not in the recording"):
         Identifier(R_m=2.3, channels=('speed', 'current')).fit(rec.slice(0, 4000).__class__(
-            rec.time, rec.voltage, rec.speed))
+            rec.time, rec.input, rec.speed))
     flat = Recording(rec.time, np.full(rec.time.size, 3.0), rec.speed)
     with pytest.raises(DataError, match='no excitation'):
         Identifier(R_m=2.3).fit(flat)

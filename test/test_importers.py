@@ -1,4 +1,4 @@
-"""Tests of motor_id.importers: EMPS and Dunker loaders, wrong files, `motor-id import`."""
+"""Tests of motor_id.data.importers: EMPS and Dunker loaders, wrong files, `motor-id import`."""
 
 from pathlib import Path
 
@@ -9,7 +9,7 @@ from scipy.io import loadmat, savemat
 from motor_id.bag import bag_info, read_recording
 from motor_id.cli import main
 from motor_id.errors import ConfigError, DataError
-from motor_id.importers import DUNKER_K_T, load_csv, load_dunker, load_emps
+from motor_id.data.importers import DUNKER_K_T, load_csv, load_dunker, load_emps
 from motor_id.recording import Recording, write_csv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +38,7 @@ def test_emps_loads_the_benchmark(emps):
     np.testing.assert_allclose(np.diff(emps.time), 1e-3, rtol=0, atol=1e-14)
     assert emps.is_regular
     assert emps.time[-1] == pytest.approx(24.84, abs=1e-12)
-    peak = np.max(np.abs(emps.voltage))
+    peak = np.max(np.abs(emps.input))
     assert 140.0 < peak <= 35.1507 * 4.33
     assert np.max(np.abs(emps.speed)) == pytest.approx(0.128, abs=0.002)
     assert emps.meta['reference']['M'] == 95.1089
@@ -51,7 +51,7 @@ def test_emps_loads_the_benchmark(emps):
 def test_emps_force_and_speed_come_from_the_file(emps):
     mat = loadmat(EMPS)
     qm = mat['qm'].ravel()
-    np.testing.assert_allclose(emps.voltage, mat['gtau'].item() * mat['vir'].ravel(),
+    np.testing.assert_allclose(emps.input, mat['gtau'].item() * mat['vir'].ravel(),
                                rtol=1e-15, atol=0)
     central = (qm[2:] - qm[:-2]) / 2e-3
     np.testing.assert_allclose(emps.speed[1:-1], central, rtol=1e-12, atol=1e-15)
@@ -79,21 +79,21 @@ def test_dunker_torque_magnitude_and_sign_rule():
     for motor in (1, 2, 3):
         rec = load_dunker(DUNKER_VAL, motor=motor)
         setvel, vel, cur = raw[:, motor], raw[:, 6 + motor], raw[:, 9 + motor]
-        np.testing.assert_allclose(np.abs(rec.voltage), DUNKER_K_T * cur, rtol=1e-15)
+        np.testing.assert_allclose(np.abs(rec.input), DUNKER_K_T * cur, rtol=1e-15)
         on = cur > 0
         moving = on & (vel != 0)
-        assert np.all(np.sign(rec.voltage[moving]) == np.sign(vel[moving]))
+        assert np.all(np.sign(rec.input[moving]) == np.sign(vel[moving]))
         starting = on & (vel == 0) & (setvel != 0)
-        assert np.all(np.sign(rec.voltage[starting]) == np.sign(setvel[starting]))
+        assert np.all(np.sign(rec.input[starting]) == np.sign(setvel[starting]))
         trailing = np.flatnonzero(on & (vel == 0) & (setvel == 0))
         assert trailing.size == rec.meta['sign_held'] > 0
         for k in trailing:
             last = vel[:k][vel[:k] != 0][-1]
-            assert np.sign(rec.voltage[k]) == np.sign(last)
+            assert np.sign(rec.input[k]) == np.sign(last)
         assert rec.meta['motor'] == motor
         assert 'sign' in rec.meta['sign_rule'] and f'm{motor}vel' in rec.meta['sign_rule']
     one, two = load_dunker(DUNKER_ID, 1), load_dunker(DUNKER_ID, 2)
-    assert not np.array_equal(one.voltage, two.voltage)
+    assert not np.array_equal(one.input, two.input)
     with pytest.raises(ConfigError, match='motor must be 1, 2 or 3'):
         load_dunker(DUNKER_ID, motor=4)
 
@@ -129,7 +129,7 @@ def test_import_cli_writes_a_bag_that_reads_back(tmp_path, capsys):
     assert main(['import', 'dunker', str(DUNKER_VAL), str(out), '--motor', '2']) == 0
     assert '1238 samples' in capsys.readouterr().out
     rec, back = load_dunker(DUNKER_VAL, 2), read_recording(out)
-    for name in ('time', 'voltage', 'speed'):
+    for name in ('time', 'input', 'speed'):
         np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
     assert back.input_kind == 'torque' and back.current is None
     assert back.meta['sign_rule'] == rec.meta['sign_rule']
@@ -150,13 +150,13 @@ def test_import_cli_writes_a_bag_that_reads_back(tmp_path, capsys):
 
 def test_committed_bags_hold_the_converted_data(emps):
     back = read_recording(ROOT / 'bags' / 'emps.mcap')
-    for name in ('time', 'voltage', 'speed'):
+    for name in ('time', 'input', 'speed'):
         np.testing.assert_array_equal(getattr(back, name), getattr(emps, name))
     assert back.meta['reference'] == emps.meta['reference']
     for kind, src in (('ident', DUNKER_ID), ('valid', DUNKER_VAL)):
         for motor in (1, 2, 3):
             path = ROOT / 'bags' / f'dunker_{kind}_m{motor}.mcap'
             back, rec = read_recording(path), load_dunker(src, motor)
-            np.testing.assert_array_equal(back.voltage, rec.voltage)
+            np.testing.assert_array_equal(back.input, rec.input)
             np.testing.assert_array_equal(back.time, rec.time)
             assert bag_info(path)['topics'][1]['count'] == -(-len(rec) // 50)

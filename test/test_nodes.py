@@ -29,7 +29,7 @@ def paper_rows(n=4000, seq0=0):
     """Rows of the paper's noise-free experiment (first ``n`` samples)."""
     rec = simulate_recording(Plant(), T, paper_steps(T))
     seq = seq0 + np.arange(4000)
-    rows = np.column_stack([seq, rec.time, rec.voltage, rec.speed, rec.current,
+    rows = np.column_stack([seq, rec.time, rec.input, rec.speed, rec.current,
                             np.zeros(4000)])
     return rows[:n]
 

@@ -26,7 +26,7 @@ def test_round_trip_is_exact(tmp_path):
     rec = paper_recording(speed_noise=0.01, current_noise=0.01, seed=1)
     write_csv(rec, tmp_path / 'r.csv', {'note': 'x'})
     back = read_csv(tmp_path / 'r.csv')
-    for ch in ('time', 'voltage', 'speed', 'current'):
+    for ch in ('time', 'input', 'speed', 'current'):
         np.testing.assert_array_equal(getattr(back, ch), getattr(rec, ch))
     assert back.meta['note'] == 'x'
 
@@ -36,7 +36,7 @@ def test_optional_current_and_extra_columns(tmp_path):
         f'{0.01 * k},{0.1 * k},{1.0 + (k > 3)},20\n' for k in range(30)))
     rec = read_csv(p)
     assert not rec.has_current and rec.channels() == ('speed',)
-    assert rec.voltage[5] == 2.0
+    assert rec.input[5] == 2.0
 
 
 @pytest.mark.parametrize('text, message', [

@@ -36,6 +36,9 @@ import struct
 import zlib
 
 from motor_id.card.transport import open_transport, TransportError  # noqa: F401
+from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
+    FLAG_CURRENT, FLAG_LIMIT, FLAG_NAMES, FLAG_OVERRUN, FLAG_PROFILE, FLAG_PROFILE_END,
+    FLAG_STARTUP)
 from motor_id.errors import ConfigError, ProtocolError
 
 SYNC = b'\xa5\x5a'
@@ -69,22 +72,8 @@ TYPE_STOP = 0x12
 TYPE_SET_PERIOD = 0x13
 TYPE_PING = 0x14
 
-# Sample status flags (uint16).
-FLAG_CURRENT = 0x0001
-"""A current value is present (set by :func:`encode_sample` from ``current``)."""
-FLAG_PROFILE = 0x0002
-"""The voltage comes from a running excitation profile."""
-FLAG_PROFILE_END = 0x0004
-"""Last sample of an excitation profile."""
-FLAG_STARTUP = 0x0008
-"""First sample after the card (re)started; its sequence restarts at this frame."""
-FLAG_OVERRUN = 0x0010
-"""The card missed a sampling deadline before this sample (its time stamp is still exact)."""
-
-FLAG_NAMES = {FLAG_CURRENT: 'current', FLAG_PROFILE: 'profile',
-              FLAG_PROFILE_END: 'profile_end', FLAG_STARTUP: 'startup',
-              FLAG_OVERRUN: 'overrun'}
-
+# Sample status flags (uint16): the samples carry them bit for bit, so they live in
+# motor_id.contracts.
 STATUS_CODES = {0: 'ok', 1: 'bad_value', 2: 'unknown_profile', 3: 'busy', 4: 'unsupported'}
 """Reply status on the wire -> name."""
 STATUS_NAMES = {v: k for k, v in STATUS_CODES.items()}

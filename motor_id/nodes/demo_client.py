@@ -11,7 +11,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from motor_id.card.protocol import FLAG_PROFILE_END
+from motor_id.contracts import FLAG_PROFILE_END
 from motor_id.errors import MotorIdError
 from motor_id.nodes import messages
 

@@ -13,8 +13,7 @@ from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
-from motor_id.buffer import SampleBuffer
-from motor_id.card.protocol import FLAG_PROFILE, FLAG_PROFILE_END
+from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
@@ -193,7 +192,7 @@ class IdentifierNode(Node):
         try:
             snap = self.buffer.snapshot()
             if p['select'] == 'profile' and len(snap):
-                snap = snap.flagged_segment(FLAG_PROFILE, FLAG_PROFILE_END)
+                snap = snap.profile_segment()
             rec = snap.recording(p['min_samples'], p['allow_gaps'], p['input_kind'],
                                  {'source': 'identifier node'})
             tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])

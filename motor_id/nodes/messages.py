@@ -8,31 +8,28 @@ import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
 
-from motor_id.buffer import COLUMNS
+from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the nodes)
+    CHANNEL_DEPTH, CHANNEL_TOPICS, DIAGNOSTICS_DEPTH, DIAGNOSTICS_TOPIC, LATCHED_DEPTH,
+    SAMPLE_COLUMNS as COLUMNS, SAMPLES_DEPTH, SAMPLES_LABEL as ROW_LABEL, SAMPLES_TOPIC,
+    VOLTAGE_COMMAND_TOPIC)
 from motor_id.errors import DataError
 
-SAMPLES_TOPIC = 'samples'
-CHANNEL_TOPICS = ('voltage', 'speed', 'current')
-VOLTAGE_COMMAND_TOPIC = 'voltage_command'
-DIAGNOSTICS_TOPIC = '/diagnostics'
-ROW_LABEL = ','.join(COLUMNS)
-
-SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10000,
+SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLES_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 """Sample batches: reliable with a real depth, so a slow subscriber loses nothing."""
 
-CHANNEL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+CHANNEL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=CHANNEL_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.VOLATILE)
 """Per-channel Float64 topics (for plotting tools) and the voltage command."""
 
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LATCHED_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Results (estimate, report): a late subscriber still gets the last one."""
 
-DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DIAGNOSTICS_DEPTH,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.VOLATILE)
 

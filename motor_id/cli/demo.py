@@ -8,8 +8,9 @@ import subprocess
 import sys
 import time
 
+from motor_id.contracts import profile_span
 from motor_id.errors import ConfigError, MotorIdError
-from motor_id.model import MotorParams, PARAM_NAMES
+from motor_id.model import MotorParams, PARAM_NAMES, Plant
 
 DEMO_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
 """The paper's motor with K_b = K_T = 0.66 (SI units; the paper lists K_b = 0.64)."""
@@ -87,8 +88,7 @@ def run(args):
     os.makedirs(out, exist_ok=True)
     truth = DEMO_MOTOR
     if args.params:
-        from motor_id.commands.simulate import load_params
-        truth = load_params(args.params).params
+        truth = Plant.from_json(args.params).params
     params_file = os.path.join(out, 'truth.json')
     with open(params_file, 'w') as fh:
         json.dump(truth.to_dict(), fh, indent=2)
@@ -193,31 +193,10 @@ def _finish(report, truth, bag, out):
              f'{100 * (p["value"] - t) / t:>8.2f}%')
     rec = read_recording(bag)
     _say(f'\nbag: {bag} ({len(rec)} samples on /samples)')
-    start, end = profile_span(read_samples(bag)['flags'])
+    start, end = profile_span(read_samples(bag)['flags']) or (0, len(rec))
     ident = Identifier(R_m=truth.R_m, random_state=0).fit(rec.slice(start, end))
     plot = os.path.join(out, 'fit.png')
     plot_fit(ident.result_, plot, title='motor-id demo: simulated card, paper excitation')
     path = os.path.join(out, 'report.json')
     write_json(report, path)
     _say(f'wrote {path} and {plot} ({report["demo"]["seconds"]:.1f} s in all)')
-
-
-def profile_span(flags):
-    """Sample range ``(start, end)`` of the last complete excitation profile.
-
-    Parameters
-    ----------
-    flags : array_like
-        The card's status flags per sample; the whole range when no profile ended.
-    """
-    import numpy as np
-    from motor_id.card.protocol import FLAG_PROFILE, FLAG_PROFILE_END
-    flags = np.asarray(flags).astype(int)
-    ends = np.flatnonzero(flags & FLAG_PROFILE_END)
-    if ends.size == 0:
-        return 0, flags.size
-    end = ends[-1] + 1
-    start = end
-    while start > 0 and flags[start - 1] & FLAG_PROFILE:
-        start -= 1
-    return start, end

@@ -6,32 +6,9 @@ import numpy as np
 
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
-from motor_id.model import MotorParams, parse_effect_args, Plant
+from motor_id.model import parse_effect_args, Plant
 from motor_id.recording import write_csv
 from motor_id.simulate import simulate_recording
-
-
-def load_params(path):
-    """Read motor parameters (and optional effects) from a JSON file.
-
-    The file holds ``{"J": ..., "K_T": ..., "K_b": ..., "B": ..., "L_m": ..., "R_m": ...}``
-    (missing ones take the paper's values) and optionally ``"effects": {...}`` and
-    ``"input_kind"``.
-    """
-    try:
-        with open(path) as fh:
-            data = json.load(fh)
-    except OSError as exc:
-        raise ConfigError(f'{path}: cannot read ({exc.strerror})') from None
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f'{path}: not valid JSON ({exc.msg} at line {exc.lineno})') from None
-    if not isinstance(data, dict):
-        raise ConfigError(f'{path}: expected a JSON object of parameters')
-    effects = data.pop('effects', {})
-    kind = data.pop('input_kind', 'voltage')
-    data.pop('truth', None)
-    params = MotorParams.from_dict({**MotorParams().to_dict(), **data})
-    return Plant(params, kind, effects)
 
 
 def add_arguments(parser):
@@ -54,7 +31,7 @@ def add_arguments(parser):
 
 def run(args):
     """Simulate and write the CSV."""
-    plant = load_params(args.params) if args.params else Plant()
+    plant = Plant.from_json(args.params) if args.params else Plant()
     if args.effect:
         plant = Plant(plant.params, plant.input_kind,
                       {**plant.effects, **parse_effect_args(args.effect)})

@@ -1,6 +1,6 @@
 """`motor-id` command line: parse, dispatch to the module that owns the subcommand, print.
 
-Each subcommand lives in the module that does the work; that module exposes
+Each subcommand has its own module in this package (parse, call the core, print); it exposes
 ``add_arguments(parser)`` and ``run(args) -> int``. Library errors (MotorIdError)
 become one line on stderr and exit code 2, never a traceback.
 """
@@ -13,14 +13,14 @@ import sys
 from motor_id.errors import MotorIdError
 
 COMMANDS = {
-    'fit': ('motor_id.commands.fit', 'identify motor parameters from a CSV or MCAP recording'),
-    'simulate': ('motor_id.commands.simulate', 'write simulated motor data to CSV'),
-    'analyze': ('motor_id.discrepancy', 'find what the linear model misses and extend it'),
-    'card-sim': ('motor_id.card.simulator', 'run a simulated serial card on a pseudo-terminal'),
-    'import': ('motor_id.importers', 'convert measured data (emps, dunker, csv) to MCAP'),
-    'replay': ('motor_id.commands.replay', 'identify from a bag offline or republish it'),
-    'bag': ('motor_id.commands.bag', 'inspect or recover an MCAP recording'),
-    'demo': ('motor_id.commands.demo', 'simulated card + driver + identifier, end to end'),
+    'fit': ('motor_id.cli.fit', 'identify motor parameters from a CSV or MCAP recording'),
+    'simulate': ('motor_id.cli.simulate', 'write simulated motor data to CSV'),
+    'analyze': ('motor_id.cli.analyze', 'find what the linear model misses and extend it'),
+    'card-sim': ('motor_id.cli.card_sim', 'run a simulated serial card on a pseudo-terminal'),
+    'import': ('motor_id.cli.import_data', 'convert measured data (emps, dunker, csv) to MCAP'),
+    'replay': ('motor_id.cli.replay', 'identify from a bag offline or republish it'),
+    'bag': ('motor_id.cli.bag', 'inspect or recover an MCAP recording'),
+    'demo': ('motor_id.cli.demo', 'simulated card + driver + identifier, end to end'),
 }
 
 
@@ -56,6 +56,3 @@ def main(argv=None):
     parser.parse_args(argv[:1])
     return 2
 
-
-if __name__ == '__main__':
-    sys.exit(main())

@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from motor_id.commands.fit import add_fit_arguments, identify_and_report
+from motor_id.cli.fit import add_fit_arguments, identify_and_report
+from motor_id.contracts import profile_span
 from motor_id.errors import ConfigError
 
 
@@ -41,8 +42,7 @@ def run(args):
         return 0 if sent == len(rows) else 1
     rec = read_recording(args.bag)
     if args.profile:
-        from motor_id.commands.demo import profile_span
-        start, end = profile_span(read_samples(args.bag)['flags'])
+        start, end = profile_span(read_samples(args.bag)['flags']) or (0, len(rec))
         rec = rec.slice(start, end)
     if rec.meta.get('gaps'):
         print(f'note: the bag has {len(rec.meta["gaps"])} gap(s) in its sequence numbers; '

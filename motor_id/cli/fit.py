@@ -4,18 +4,10 @@ import os
 import sys
 import time
 
+from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
-from motor_id.recording import read_csv
 from motor_id.report import plot_fit, write_json
-
-
-def load_recording(path):
-    """Read a recording from a CSV file or an MCAP bag (by extension)."""
-    if str(path).endswith('.mcap'):
-        from motor_id.bag import read_recording
-        return read_recording(path)
-    return read_csv(path)
 
 
 def add_fit_arguments(parser):
@@ -105,7 +97,7 @@ def identify_and_report(rec, args, extra=None):
     print(res.summary())
     if getattr(args, 'order_selection', False):
         from motor_id.elman import FreeElmanOrderSelection
-        sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.voltage, rec.speed)
+        sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.input, rec.speed)
         report['order_selection'] = sel.to_dict()
         print('minimum linear Elman order (speed): ' + str(sel.order_))
         for e in sel.evidence_:

@@ -5,13 +5,12 @@ import threading
 
 import numpy as np
 
+from motor_id.contracts import (CURRENT, FLAGS, INPUT, profile_span, SAMPLE_COLUMNS, SEQ,
+                                SPEED, T)
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import MIN_SAMPLES, Recording
 
-COLUMNS = ('seq', 't', 'voltage', 'speed', 'current', 'flags')
-"""Row layout shared with the ``samples`` topic (see docs/CONTRACTS.md)."""
-
-SEQ, T, VOLTAGE, SPEED, CURRENT, FLAGS = range(len(COLUMNS))
+COLUMNS = SAMPLE_COLUMNS
 
 
 @dataclass(frozen=True)
@@ -84,15 +83,10 @@ class Snapshot:
         start = self.gaps[-1].index if self.gaps else 0
         return Snapshot(self.rows[start:], (), self.received, self.duplicates)
 
-    def flagged_segment(self, flag, end_flag):
-        """The latest complete run of rows marked by a flag bit (an excitation profile).
+    def profile_segment(self):
+        """The latest complete excitation profile (rows flagged by the card).
 
-        Parameters
-        ----------
-        flag : int
-            Bit set on every row of the run (the card's "profile running" flag).
-        end_flag : int
-            Bit set on the run's last row.
+        See :func:`motor_id.contracts.profile_span` for the flags.
 
         Returns
         -------
@@ -104,14 +98,11 @@ class Snapshot:
         DataError
             No run has ended in the window, or the latest one started before it.
         """
-        flags = self.rows[:, FLAGS].astype(np.int64)
-        ends = np.flatnonzero(flags & int(end_flag))
-        if ends.size == 0:
+        span = profile_span(self.rows[:, FLAGS])
+        if span is None:
             raise DataError('no complete excitation profile in the window (none has ended '
                             'yet, or the window is too short)')
-        end = int(ends[-1])
-        off = np.flatnonzero((flags[:end] & int(flag)) == 0)
-        start = int(off[-1]) + 1 if off.size else 0
+        start, end = span[0], span[1] - 1
         if start == 0:
             raise DataError(f'the latest excitation profile started before the window '
                             f'({len(self)} rows, {self.span:.3g} s); make the window longer')
@@ -133,7 +124,7 @@ class Snapshot:
         if len(self):
             info.update(seq_first=int(r[0, SEQ]), seq_last=int(r[-1, SEQ]))
         info.update(meta or {})
-        return Recording(r[:, T].copy(), r[:, VOLTAGE].copy(), r[:, SPEED].copy(),
+        return Recording(r[:, T].copy(), r[:, INPUT].copy(), r[:, SPEED].copy(),
                          None if current is None else current.copy(), input_kind, info)
 
     def recording(self, min_samples=MIN_SAMPLES, allow_gaps=False, input_kind='voltage',

@@ -1,0 +1,81 @@
+"""`motor-id card-sim`: run a simulated serial card on a pseudo-terminal."""
+
+import json
+import signal
+import threading
+
+from motor_id.card.simulator import CardSimulator, FaultConfig
+from motor_id.errors import ConfigError
+from motor_id.model import METHODS, parse_effect_args, Plant
+
+def add_arguments(parser):
+    """CLI arguments of `motor-id card-sim`."""
+    parser.add_argument('--params', metavar='FILE',
+                        help='JSON motor parameters {J, K_T, K_b, B, L_m, R_m} and optional '
+                             '"effects" (default: the paper\'s motor)')
+    parser.add_argument('--effect', action='append', default=[], metavar='NAME[=VALUE]',
+                        help='add a named effect (repeatable), e.g. coulomb_friction=0.2')
+    parser.add_argument('--noise', default='0,0', metavar='SPEED[,CURRENT]',
+                        help='measurement noise std in rad/s and A (absolute), e.g. 0.05,0.01')
+    parser.add_argument('--no-current', action='store_true', help='send no current')
+    parser.add_argument('--fault', action='append', default=[], metavar='NAME=VALUE',
+                        help='inject faults (repeatable): garbage=P[:MAX], drop=P, '
+                             'bad_crc=P, duplicate=P, reorder=P (per frame), '
+                             'disconnect=EVERY[:DOWN] (seconds; needs --link)')
+    parser.add_argument('--period', type=float, default=0.01, help='sample period [s]')
+    parser.add_argument('--speedup', type=float, default=1.0,
+                        help='card seconds per wall second; 0 = as fast as read')
+    parser.add_argument('--link', metavar='PATH',
+                        help='keep a symlink to the pty here (stable across disconnects)')
+    parser.add_argument('--method', choices=METHODS, default='zoh',
+                        help='discretisation of the true plant')
+    parser.add_argument('--seed', type=int, default=0, help='seed of noise and faults')
+    parser.add_argument('--truth-out', metavar='FILE',
+                        help='write the true parameters and settings as JSON')
+
+
+def simulator_from_args(args):
+    """Build a (not yet started) :class:`CardSimulator` from parsed CLI arguments."""
+    plant = Plant.from_json(args.params) if args.params else Plant()
+    if args.effect:
+        plant = Plant(plant.params, plant.input_kind,
+                      {**plant.effects, **parse_effect_args(args.effect)})
+    try:
+        parts = [float(x) for x in args.noise.split(',')]
+    except ValueError:
+        raise ConfigError(f'--noise takes SPEED[,CURRENT] std values, got {args.noise!r}') \
+            from None
+    speed_noise, current_noise = (parts + [0.0])[:2]
+    faults = FaultConfig.parse(args.fault)
+    if faults.disconnect_every and not args.link:
+        raise ConfigError('--fault disconnect needs --link PATH so that the device comes '
+                          'back at the same path')
+    return CardSimulator(plant, args.period, args.speedup, not args.no_current, speed_noise,
+                         current_noise, args.method, faults, args.link, args.seed)
+
+
+def run(args):
+    """Serve the simulated card until SIGINT or SIGTERM; print the device path first."""
+    sim = simulator_from_args(args)
+    done = threading.Event()
+
+    def _handler(signum, frame):
+        done.set()
+
+    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        sim.start()
+        if args.truth_out:
+            with open(args.truth_out, 'w') as fh:
+                json.dump(sim.truth(), fh, indent=2)
+        print(sim.path, flush=True)
+        while not done.wait(0.2):
+            if not sim.running:
+                break
+    finally:
+        sim.stop()
+        for s, h in previous.items():
+            signal.signal(s, h)
+    if sim.error is not None:
+        raise sim.error
+    return 0

@@ -1,1 +1,0 @@
-"""Subcommands of the `motor-id` CLI: thin wrappers around the core."""

@@ -1,0 +1,93 @@
+"""The one home of the contracts between modules: sample rows, flags, topics, units, QoS.
+
+The driver, the identifier, the bag writer and reader, the ring buffer and the serial
+protocol all read these names from here; none of them writes its own copy.
+
+Sample rows
+    Every sample travels as one row of :data:`SAMPLE_COLUMNS`: card sequence number, card
+    time [s], plant input (armature voltage [V], or torque [N m] / force [N] for a
+    torque-input plant), speed [rad/s] (or [m/s]), current [A] (NaN when the card has
+    none) and the status flags. On the ``samples`` topic and in bags a batch of rows is a
+    row-major ``std_msgs/msg/Float64MultiArray`` with ``layout.dim[0] = ('samples', n,
+    6 n)``, ``layout.dim[1] = (SAMPLES_LABEL, 6, 6)`` and ``data_offset = 0``.
+"""
+
+import numpy as np
+
+SAMPLE_COLUMNS = ('seq', 't', 'voltage', 'speed', 'current', 'flags')
+"""Columns of a sample row (the wire and bag name of the input column stays 'voltage')."""
+SEQ, T, INPUT, SPEED, CURRENT, FLAGS = range(len(SAMPLE_COLUMNS))
+"""Column indices of :data:`SAMPLE_COLUMNS`."""
+SAMPLES_LABEL = ','.join(SAMPLE_COLUMNS)
+"""``layout.dim[1].label`` of a sample batch."""
+BATCH_LABEL = 'samples'
+"""``layout.dim[0].label`` of a sample batch."""
+
+# Status flags as the samples carry them (the card's frame flags, bit for bit).
+FLAG_CURRENT = 0x0001
+"""A current value is present."""
+FLAG_PROFILE = 0x0002
+"""The input comes from a running excitation profile."""
+FLAG_PROFILE_END = 0x0004
+"""Last sample of an excitation profile."""
+FLAG_STARTUP = 0x0008
+"""First sample after the card (re)started; its sequence restarts here."""
+FLAG_OVERRUN = 0x0010
+"""The card missed a sampling deadline before this sample (its time stamp is exact)."""
+FLAG_LIMIT = 0x0020
+"""A safety limit (voltage, speed, current, watchdog) forced the output to 0 V."""
+FLAG_NAMES = {FLAG_CURRENT: 'current', FLAG_PROFILE: 'profile',
+              FLAG_PROFILE_END: 'profile_end', FLAG_STARTUP: 'startup',
+              FLAG_OVERRUN: 'overrun', FLAG_LIMIT: 'limit'}
+
+# Topics (relative names: they land under the node's namespace).
+SAMPLES_TOPIC = 'samples'
+CHANNEL_TOPICS = ('voltage', 'speed', 'current')
+JOINT_STATES_TOPIC = 'joint_states'
+VOLTAGE_COMMAND_TOPIC = 'voltage_command'
+DIAGNOSTICS_TOPIC = '/diagnostics'
+ESTIMATE_TOPIC = 'estimate'
+REPORT_TOPIC = 'report'
+# The same topics as a bag records them (absolute names).
+BAG_SAMPLES_TOPIC = '/samples'
+BAG_META_TOPIC = '/motor_id/meta'
+BAG_ESTIMATE_TOPIC = '/identifier/estimate'
+
+# QoS depths, in one place: a slow subscriber of samples loses nothing within this depth.
+SAMPLES_DEPTH = 10000
+CHANNEL_DEPTH = 100
+DIAGNOSTICS_DEPTH = 10
+LATCHED_DEPTH = 1
+
+UNITS = {
+    'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad', 'L_m': 'H',
+    'R_m': 'Ohm', 'time': 's', 'input': 'V', 'speed': 'rad/s', 'current': 'A',
+    'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad',
+}
+"""SI units of the parameters and channels of a voltage plant."""
+TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N m (or N)'}
+"""Units that differ for a torque- (or force-) input plant."""
+
+
+def profile_span(flags):
+    """Sample range ``(start, end)`` of the last complete excitation profile.
+
+    Parameters
+    ----------
+    flags : array_like of int
+        Status flags per sample (:data:`FLAG_PROFILE`, :data:`FLAG_PROFILE_END`).
+
+    Returns
+    -------
+    (int, int) or None
+        ``flags[start:end]`` is the profile; ``start == 0`` means it may have begun
+        before the first sample. None when no profile has ended.
+    """
+    flags = np.asarray(flags).astype(np.int64)
+    ends = np.flatnonzero(flags & FLAG_PROFILE_END)
+    if ends.size == 0:
+        return None
+    end = int(ends[-1])
+    off = np.flatnonzero((flags[:end] & FLAG_PROFILE) == 0)
+    start = int(off[-1]) + 1 if off.size else 0
+    return start, end + 1

@@ -1,0 +1,691 @@
+"""Controller-ready results from an identified DC motor: feedforward constants and PI gains."""
+
+from dataclasses import dataclass, field
+import math
+
+import numpy as np
+
+from motor_id.errors import ConfigError
+
+VOLTAGE_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
+TORQUE_NAMES = ('J', 'B')
+INPUT_KINDS = ('voltage', 'torque')
+CONVENTION = 'WPILib SysId: V = kS sgn(w) + kV w + kA dw/dt'
+KS_SOURCES = ('coulomb_friction', 'brush_drop', 'coulomb_friction+brush_drop', 'measured',
+              'user')
+
+# Default bandwidth rule: a loop's crossover a decade above the open-loop pole it speeds
+# up (1/tau_e for the current loop, 1/tau_m for a torque plant's speed loop), and a
+# decade between the current and the speed loop of a cascade.
+BANDWIDTH_RATIO = 10.0
+# With a sample period T the loop sees about 1.5 T of delay (half a sample of ZOH plus one
+# sample of computation); a default crossover at most f_s / 20 costs 27 deg at crossover.
+SAMPLE_FRACTION = 1.0 / 20.0
+DELAY_SAMPLES = 1.5
+# Speed PI zero a factor below crossover when no inner loop sets the symmetric-optimum
+# ratio (torque plants): a = 4 makes the loop on an integrating plant critically damped.
+TORQUE_ZERO_RATIO = 4.0
+FD_RELATIVE_STEP = 1e-5
+
+_OUTPUTS = ('kV', 'kA', 'tau_e', 'tau_m', 'current_kp', 'current_ki', 'speed_kp', 'speed_ki')
+
+
+@dataclass
+class ControllerDesign:
+    """Feedforward constants, time constants and cascaded PI gains, each with an error bar.
+
+    Every number is ``{'value': float|None, 'std': float|None}``; ``None`` value means the
+    parameters it needs are unknown, ``None`` std means no covariance was given.
+    """
+
+    input_kind: str
+    feedforward: dict
+    time_constants: dict
+    pi: dict
+    notes: list = field(default_factory=list)
+
+    def to_dict(self):
+        """JSON-ready dict: keys ``feedforward, time_constants, pi, notes`` (the contract)."""
+        return {'feedforward': self.feedforward, 'time_constants': self.time_constants,
+                'pi': self.pi, 'notes': list(self.notes)}
+
+    def summary(self):
+        """A plain-text table for people (one string, lines separated by newlines)."""
+        ff, tc = self.feedforward, self.time_constants
+        lines = [f'controller design ({self.input_kind} plant; {ff["convention"]})',
+                 f'{"quantity":<14}{"value":>13}{"std":>12}  units']
+        for k in ('kS', 'kV', 'kA'):
+            lines.append(_row(k, ff[k], ff['units'][k]))
+        lines.append(_row('tau_e', tc['electrical'], 's'))
+        lines.append(_row('tau_m', tc['mechanical'], 's'))
+        for loop in ('current', 'speed'):
+            d = self.pi[loop]
+            if d is None:
+                lines.append(f'{loop + " PI":<14}{"-":>13}{"-":>12}  (no {loop} loop)')
+                continue
+            lines.append(_row(f'{loop} kp', d['kp'], d['units']['kp']))
+            lines.append(_row(f'{loop} ki', d['ki'], d['units']['ki']))
+            lines.append(f'{"":<14}designed {_fmt(d["bandwidth_hz"])} Hz; checked: crossover '
+                         f'{_fmt(d["crossover_hz"])} Hz, phase margin '
+                         f'{_fmt(d["phase_margin_deg"])} deg')
+        lines.append('notes:')
+        lines.extend(f'- {n}' for n in self.notes)
+        return '\n'.join(lines)
+
+
+def _fmt(x):
+    return '-' if x is None else f'{x:.4g}'
+
+
+def _row(name, entry, unit):
+    return f'{name:<14}{_fmt(entry["value"]):>13}{_fmt(entry["std"]):>12}  {unit}'
+
+
+def _entry(value, std=None):
+    """``{'value', 'std'}`` with NaN (unknown) mapped to None and numpy scalars to float."""
+    if value is None or not np.isfinite(value):
+        return {'value': None, 'std': None}
+    if std is not None and not np.isfinite(std):
+        std = None
+    return {'value': float(value), 'std': None if std is None else float(std)}
+
+
+# --- validation --------------------------------------------------------------------------
+
+def _check_kind(input_kind):
+    if input_kind not in INPUT_KINDS:
+        raise ConfigError(f'input_kind must be one of {INPUT_KINDS}, got {input_kind!r}')
+    return VOLTAGE_NAMES if input_kind == 'voltage' else TORQUE_NAMES
+
+
+def _check_values(values, input_kind):
+    """Return ``{name: float}`` with NaN for an unknown (None) parameter."""
+    names = _check_kind(input_kind)
+    if not isinstance(values, dict):
+        raise ConfigError(f'values must be a dict {{name: float}} with {", ".join(names)}')
+    missing = [n for n in names if n not in values]
+    if missing:
+        raise ConfigError(f'values lacks {", ".join(missing)}: a {input_kind} plant needs '
+                          f'{", ".join(names)} (None marks an unknown one)')
+    extra = [n for n in values if n not in VOLTAGE_NAMES]
+    if extra:
+        raise ConfigError(f'unknown parameter(s) {", ".join(map(str, extra))}: use the '
+                          f'model symbols {", ".join(VOLTAGE_NAMES)}')
+    out = {}
+    for n in names:
+        v = values[n]
+        if v is None:
+            out[n] = math.nan
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(v):
+            raise ConfigError(f'parameter {n} must be a finite number or None, got {v!r}')
+        if v < 0 or (v == 0 and n != 'B'):
+            raise ConfigError(f'parameter {n} must be > 0{" (B >= 0)" if n == "B" else ""}, '
+                              f'got {v}')
+        out[n] = float(v)
+    return out
+
+
+def _check_covariance(covariance, values):
+    """Return ``(names, matrix)`` or ``([], None)``; only known parameters may appear."""
+    if covariance is None:
+        return [], None
+    if not isinstance(covariance, dict) or set(covariance) != {'names', 'matrix'}:
+        raise ConfigError("covariance must be {'names': [...], 'matrix': [[...]]}")
+    names = list(covariance['names'])
+    if len(set(names)) != len(names):
+        raise ConfigError(f'covariance names repeat: {names}')
+    for n in names:
+        if n not in values:
+            raise ConfigError(f'covariance names {n!r}, which is not a parameter of this '
+                              f'plant ({", ".join(values)})')
+        if math.isnan(values[n]):
+            raise ConfigError(f'covariance names {n!r}, whose value is unknown (None): drop '
+                              'its row and column')
+    try:
+        m = np.array(covariance['matrix'], dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f'covariance matrix is not numeric: {exc}') from None
+    k = len(names)
+    if m.shape != (k, k):
+        raise ConfigError(f'covariance matrix must be {k}x{k} for names {names}, got shape '
+                          f'{m.shape}')
+    if not np.all(np.isfinite(m)):
+        raise ConfigError('covariance matrix has NaN or inf entries')
+    if not np.allclose(m, m.T, rtol=1e-8, atol=1e-14 * max(np.abs(m).max(), 1e-300)):
+        raise ConfigError('covariance matrix must be symmetric')
+    if k and np.linalg.eigvalsh(m).min() < -1e-9 * max(np.abs(m).max(), 1e-300):
+        raise ConfigError('covariance matrix must be positive semi-definite')
+    return names, m
+
+
+def _check_kS(kS):
+    """Return ``(value, std, source)``; the default is 0 V with no error bar."""
+    if kS is None:
+        return 0.0, None, None
+    if not isinstance(kS, dict) or 'value' not in kS or set(kS) - {'value', 'std', 'source'}:
+        raise ConfigError("kS must be {'value': float, 'std': float|None, 'source': str}")
+    v, s = kS['value'], kS.get('std')
+    for name, x in (('value', v), ('std', s)):
+        if name == 'std' and x is None:
+            continue
+        if isinstance(x, bool) or not isinstance(x, (int, float, np.floating)) \
+                or not math.isfinite(x) or x < 0:
+            raise ConfigError(f'kS {name} must be a finite number >= 0, got {x!r}')
+    source = kS.get('source', 'user')
+    if source not in KS_SOURCES:
+        raise ConfigError(f'kS source must be one of {KS_SOURCES}, got {source!r}')
+    return float(v), None if s is None else float(s), source
+
+
+def _check_positive(x, name, allow_none=True):
+    if x is None and allow_none:
+        return None
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating)) \
+            or not math.isfinite(x) or x <= 0:
+        raise ConfigError(f'{name} must be a finite number > 0, got {x!r}')
+    return float(x)
+
+
+# --- the design equations ----------------------------------------------------------------
+
+def time_constants(values, input_kind='voltage'):
+    """Electrical and mechanical time constants [s] (works element-wise on arrays).
+
+    Parameters
+    ----------
+    values : dict
+        ``J, K_T, K_b, B, L_m, R_m`` (voltage plant) or ``J, B`` (torque plant), SI units.
+    input_kind : {'voltage', 'torque'}
+
+    Returns
+    -------
+    tau_e, tau_m : float or ndarray
+        ``tau_e = L_m / R_m`` (NaN for a torque plant) and
+        ``tau_m = J R_m / (K_T K_b + R_m B)`` (voltage plant: the speed time constant with
+        the back-EMF damping, L_m neglected) or ``J / B`` (torque plant).
+    """
+    v = values
+    if input_kind == 'torque':
+        with np.errstate(divide='ignore'):
+            return math.nan, np.divide(v['J'], v['B'])
+    return (np.divide(v['L_m'], v['R_m']),
+            np.divide(v['J'] * v['R_m'], v['K_T'] * v['K_b'] + v['R_m'] * v['B']))
+
+
+def controller_constants(values, input_kind, current_bandwidth_hz, speed_bandwidth_hz):
+    """Feedforward constants, time constants and PI gains (element-wise on arrays).
+
+    Parameters
+    ----------
+    values : dict
+        Plant parameters in SI units (floats or equally shaped arrays).
+    input_kind : {'voltage', 'torque'}
+    current_bandwidth_hz, speed_bandwidth_hz : float
+        Designed loop crossover frequencies [Hz] (the current one is ignored for torque
+        plants).
+
+    Returns
+    -------
+    dict
+        ``kV, kA, tau_e, tau_m, current_kp, current_ki, speed_kp, speed_ki`` (NaN where
+        not applicable). Units: see :func:`design_controller`.
+
+    Notes
+    -----
+    Current loop (voltage plant), pole-zero cancellation on ``1 / (L_m s + R_m)``:
+    ``kp = L_m w_ci``, ``ki = R_m w_ci`` so the loop is ``w_ci / s``.
+
+    Speed loop, symmetric-optimum style on ``K / (J s + B)`` times the closed current loop
+    ``1 / (1 + s / w_ci)``: the PI zero sits at ``w_cs / a`` with ``a = w_ci / w_cs``
+    (voltage plant; the zero and the inner-loop pole lie symmetric about the crossover,
+    which puts the phase maximum at crossover) or ``a = 4`` (torque plant, no inner loop),
+    and ``kp`` makes ``|C P| = 1`` at ``w_cs`` on that design plant exactly.
+    """
+    v = values
+    tau_e, tau_m = time_constants(v, input_kind)
+    ws = 2 * np.pi * speed_bandwidth_hz
+    if input_kind == 'voltage':
+        wi = 2 * np.pi * current_bandwidth_hz
+        kV = v['K_b'] + v['R_m'] * v['B'] / v['K_T']
+        kA = v['R_m'] * v['J'] / v['K_T']
+        current_kp, current_ki = v['L_m'] * wi, v['R_m'] * wi
+        gain, a, lag = v['K_T'], wi / ws, np.hypot(1.0, ws / wi)
+    else:
+        kV, kA = v['B'], v['J']
+        current_kp = current_ki = math.nan
+        gain, a, lag = 1.0, TORQUE_ZERO_RATIO, 1.0
+    zero = ws / a
+    speed_kp = ws * np.hypot(v['J'] * ws, v['B']) * lag / (gain * np.hypot(ws, zero))
+    return {'kV': kV, 'kA': kA, 'tau_e': tau_e, 'tau_m': tau_m,
+            'current_kp': current_kp, 'current_ki': current_ki,
+            'speed_kp': speed_kp, 'speed_ki': speed_kp * zero}
+
+
+def _choose_bandwidths(vals, input_kind, current_hz, speed_hz, sample_period, notes):
+    """Default (or check) the loop bandwidths [Hz] from the nominal parameters."""
+    cap = None if sample_period is None else SAMPLE_FRACTION / sample_period
+    nyquist = None if sample_period is None else 0.5 / sample_period
+    tau_e, tau_m = time_constants(vals, input_kind)
+    if input_kind == 'voltage' and current_hz is None:
+        current_hz = BANDWIDTH_RATIO / (2 * np.pi * tau_e)
+        rule = f'{BANDWIDTH_RATIO:g} / (2 pi tau_e)'
+        if cap is not None and current_hz > cap:
+            current_hz, rule = cap, f'capped at f_s/{1 / SAMPLE_FRACTION:g}'
+        notes.append(f'current bandwidth {_fmt(current_hz)} Hz by default ({rule}); '
+                     'pass current_bandwidth_hz to choose it')
+    if speed_hz is None:
+        if input_kind == 'voltage':
+            speed_hz = current_hz / BANDWIDTH_RATIO
+            rule = 'a decade below the current loop'
+        else:
+            if vals['B'] == 0:
+                raise ConfigError('tau_m = J/B is infinite (B = 0): pass speed_bandwidth_hz')
+            speed_hz = BANDWIDTH_RATIO / (2 * np.pi * tau_m)
+            rule = f'{BANDWIDTH_RATIO:g} / (2 pi tau_m)'
+        if cap is not None and speed_hz > cap:
+            speed_hz, rule = cap, f'capped at f_s/{1 / SAMPLE_FRACTION:g}'
+        notes.append(f'speed bandwidth {_fmt(speed_hz)} Hz by default ({rule}); '
+                     'pass speed_bandwidth_hz to choose it')
+    for name, f in (('current_bandwidth_hz', current_hz), ('speed_bandwidth_hz', speed_hz)):
+        if nyquist is not None and f is not None and np.isfinite(f) and f >= nyquist:
+            raise ConfigError(f'{name} {f:.4g} Hz is at or above the Nyquist frequency '
+                              f'{nyquist:.4g} Hz of sample_period {sample_period:g} s: '
+                              f'choose at most f_s/{1 / SAMPLE_FRACTION:g} = {cap:.4g} Hz')
+    if input_kind == 'voltage' and speed_hz >= current_hz:
+        raise ConfigError(f'speed bandwidth {speed_hz:.4g} Hz must be below the current '
+                          f'bandwidth {current_hz:.4g} Hz (a cascade needs a faster inner '
+                          'loop; a decade below is the default)')
+    return current_hz, speed_hz
+
+
+def _propagate(vals, input_kind, bandwidths, names, cov):
+    """Delta-method std of every output: sqrt(g' C g), g by central differences."""
+    if cov is None:
+        return {k: None for k in _OUTPUTS}
+    grads = np.zeros((len(_OUTPUTS), len(names)))
+    for j, n in enumerate(names):
+        h = FD_RELATIVE_STEP * (abs(vals[n]) or math.sqrt(cov[j, j]) or 1.0)
+        up, down = dict(vals), dict(vals)
+        up[n] += h
+        down[n] -= h
+        hi = controller_constants(up, input_kind, *bandwidths)
+        lo = controller_constants(down, input_kind, *bandwidths)
+        grads[:, j] = [(hi[k] - lo[k]) / (2 * h) for k in _OUTPUTS]
+    grads = np.where(np.isfinite(grads), grads, 0.0)  # NaN outputs stay None below
+    var = np.einsum('kj,jl,kl->k', grads, cov, grads)
+    return {k: math.sqrt(max(var[i], 0.0)) for i, k in enumerate(_OUTPUTS)}
+
+
+# --- verification with python-control ----------------------------------------------------
+
+def _margins(ct, loop):
+    """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts."""
+    gm, pm, _, _, wgc, _ = ct.stability_margins(loop)
+    closed = ct.feedback(loop, 1)
+    poles = ct.poles(closed)
+    stable = bool(np.all(np.real(poles) < 0))
+    bw = ct.bandwidth(closed) if stable else math.nan
+    fin = (lambda x: float(x) if x is not None and np.isfinite(x) else None)
+    return {'phase_margin_deg': fin(pm), 'crossover_hz': fin(wgc / (2 * np.pi)),
+            'gain_margin_db': fin(20 * np.log10(gm)) if gm and np.isfinite(gm) else None,
+            'closed_loop_stable': stable,
+            'closed_loop_bandwidth_hz': fin(bw / (2 * np.pi)) if stable else None}
+
+
+def loop_transfer_functions(values, input_kind, gains, sample_period=None):
+    """Loop transfer functions of the cascade on the full identified model.
+
+    Parameters
+    ----------
+    values : dict
+        Plant parameters in SI units.
+    input_kind : {'voltage', 'torque'}
+    gains : dict
+        ``current_kp, current_ki, speed_kp, speed_ki`` as from :func:`controller_constants`.
+    sample_period : float, optional
+        If given, each loop includes a delay of 1.5 sample periods (3rd-order Pade).
+
+    Returns
+    -------
+    dict of control.TransferFunction
+        ``'current'`` (V -> i with the PI, voltage plant only) and ``'speed'`` (i_ref or
+        torque command -> w with the PI; for a voltage plant the inner current loop is
+        closed around the full two-state model, back-EMF included).
+    """
+    import control as ct  # lazy: keep `import motor_id.controller` cheap
+    from motor_id.model import continuous_matrices  # the one model; lazy for the same reason
+
+    s = ct.tf('s')
+    delay = 1
+    if sample_period is not None:
+        num, den = ct.pade(DELAY_SAMPLES * sample_period, 3)
+        delay = ct.tf(num, den)
+    F, G = continuous_matrices({k: [x] for k, x in values.items()}, input_kind)
+    F, g = F[0], G[0][:, :1]
+
+    def plant(row):  # SISO input -> state[row] of the model
+        c = np.zeros((1, F.shape[0]))
+        c[0, row] = 1.0
+        return ct.tf(ct.ss(F, g, c, 0.0))
+
+    c_speed = gains['speed_kp'] + gains['speed_ki'] / s
+    if input_kind == 'torque':
+        return {'speed': ct.minreal(c_speed * delay * plant(0), verbose=False)}
+    p_speed, p_current = plant(0), plant(1)
+    c_current = (gains['current_kp'] + gains['current_ki'] / s) * delay
+    inner = ct.minreal(p_speed * ct.feedback(c_current, p_current), verbose=False)
+    return {'current': ct.minreal(c_current * p_current, verbose=False),
+            'speed': ct.minreal(c_speed * delay * inner, verbose=False)}
+
+
+def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
+    """Margins of each loop on the full model; notes for low margins or instability."""
+    known = all(np.isfinite(nominal[k]) for k in ('speed_kp', 'speed_ki')) and \
+        all(np.isfinite(x) for x in vals.values())
+    if input_kind == 'voltage':
+        known = known and np.isfinite(nominal['current_kp'])
+    if not known:
+        notes.append('loops not verified: some parameters are unknown')
+        return {}
+    import control as ct  # lazy: keep `import motor_id.controller` cheap
+
+    loops = loop_transfer_functions(vals, input_kind, nominal, sample_period)
+    out = {}
+    for name, loop in loops.items():
+        m = _margins(ct, loop)
+        out[name] = m
+        pm = m['phase_margin_deg']
+        if not m['closed_loop_stable']:
+            notes.append(f'{name} loop: UNSTABLE on the identified model: lower its '
+                         'bandwidth')
+        elif pm is None or pm < pm_min:
+            notes.append(f'{name} loop: phase margin {_fmt(pm)} deg is below the required '
+                         f'{pm_min:g} deg: lower its bandwidth')
+    return out
+
+
+# --- the public entry points -------------------------------------------------------------
+
+def design_controller(values, covariance=None, input_kind='voltage', kS=None,
+                      current_bandwidth_hz=None, speed_bandwidth_hz=None,
+                      phase_margin_min_deg=45.0, sample_period=None):
+    """Feedforward constants and cascaded PI gains from identified motor parameters.
+
+    Parameters
+    ----------
+    values : dict
+        Voltage plant: ``J`` [kg m^2], ``K_T`` [N m/A], ``K_b`` [V s/rad], ``B``
+        [N m s/rad], ``L_m`` [H], ``R_m`` [Ohm]; torque plant: ``J``, ``B`` (a mass [kg] and
+        N s/m for a linear axis). ``None`` marks an unknown parameter: every entry that
+        needs it comes out null.
+    covariance : dict, optional
+        ``{'names': [...], 'matrix': [[...]]}`` in linear units over any subset of the
+        parameters; the others are taken as exact (for example an assumed R_m).
+    input_kind : {'voltage', 'torque'}
+        Armature-voltage plant ``J dw/dt = K_T i - B w``, ``L_m di/dt = V - R_m i - K_b w``,
+        or current-controlled (torque) drive ``J dw/dt = u - B w``.
+    kS : dict, optional
+        ``{'value': float, 'std': float|None, 'source': str}``: the input needed to break
+        static friction, in input units (voltage plant: volts, e.g. ``T_c R_m / K_T`` or a
+        brush drop ``V_b``). Default 0 (stated in the notes).
+    current_bandwidth_hz, speed_bandwidth_hz : float, optional
+        Loop crossover frequencies [Hz]. A chosen bandwidth is exact (no error bar).
+        Defaults: current ``10 / (2 pi tau_e)``; speed a decade below the current loop
+        (voltage plant) or ``10 / (2 pi tau_m)`` (torque plant); both at most f_s / 20
+        when ``sample_period`` is given. A torque plant takes no current bandwidth.
+    phase_margin_min_deg : float
+        Phase margin [deg] a loop must reach on the identified model; below it the notes
+        say so.
+    sample_period : float, optional
+        Controller sample period [s]: caps the default bandwidths and adds 1.5 samples of
+        delay to each loop's check.
+
+    Returns
+    -------
+    ControllerDesign
+
+    Notes
+    -----
+    Feedforward (WPILib SysId convention ``V = kS sgn(w) + kV w + kA dw/dt``), voltage
+    plant with L_m neglected (its time constant is much shorter than a speed
+    trajectory's). At constant speed ``dw/dt = 0`` so ``i = B w / K_T`` and
+    ``V = R_m i + K_b w = (K_b + R_m B / K_T) w``, hence ``kV = K_b + R_m B / K_T``
+    [V s/rad]. To accelerate, the extra current ``J (dw/dt) / K_T`` costs the extra
+    voltage ``R_m J / K_T dw/dt``, hence ``kA = R_m J / K_T`` [V s^2/rad]. A torque plant
+    gives ``u = B w + J dw/dt``: ``kV = B``, ``kA = J`` in input units (N m or N) per
+    rad/s (or m/s) and per rad/s^2.
+
+    Current loop: PI ``V = kp e + ki int(e)`` designed on the electrical plant
+    ``1 / (L_m s + R_m)`` with the back-EMF ``K_b w`` as a disturbance. The back-EMF
+    couples only near the mechanical frequencies (``1 / tau_m``), far below the current
+    crossover, where the integrator rejects it; designing on the full two-state
+    ``i / V`` would tie the gains to J and B for no benefit. The PI zero cancels the
+    electrical pole (``ki / kp = R_m / L_m``) so the loop is ``w_ci / s``: a first-order
+    closed loop with exactly the designed bandwidth. kp [V/A], ki [V/(A s)].
+
+    Speed loop: PI from the speed error to the current (torque) command, designed on
+    ``K_T / (J s + B)`` with the closed current loop as ``1 / (1 + s / w_ci)``, in the
+    symmetric-optimum style (the zero at ``w_cs / a``, ``a = w_ci / w_cs``), not by
+    cancelling the mechanical pole ``B / J``: that pole is often very slow, and
+    cancelling it would leave a load-torque error decaying with ``J / B``. kp [A s/rad],
+    ki [A/rad] (torque plant: input units s/rad and /rad).
+
+    Both loops are then checked with python-control on the full identified model (the
+    speed loop with the closed current loop, PI on the two-state model, as its inner
+    dynamics): the achieved phase margin, crossover, gain margin and closed-loop -3 dB
+    bandwidth are reported. Error bars: the delta method (central-difference gradients)
+    on ``covariance``, the bandwidths held at their chosen values.
+    """
+    vals = _check_values(values, input_kind)
+    names, cov = _check_covariance(covariance, vals)
+    kS_value, kS_std, kS_source = _check_kS(kS)
+    current_hz = _check_positive(current_bandwidth_hz, 'current_bandwidth_hz')
+    speed_hz = _check_positive(speed_bandwidth_hz, 'speed_bandwidth_hz')
+    sample_period = _check_positive(sample_period, 'sample_period')
+    pm_min = _check_positive(phase_margin_min_deg, 'phase_margin_min_deg', False)
+    if pm_min >= 90:
+        raise ConfigError(f'phase_margin_min_deg must be below 90 deg, got {pm_min}')
+    if input_kind == 'torque' and current_hz is not None:
+        raise ConfigError('a torque plant has no current loop: drop current_bandwidth_hz')
+    notes = []
+    current_hz, speed_hz = _choose_bandwidths(vals, input_kind, current_hz, speed_hz,
+                                              sample_period, notes)
+    bandwidths = (current_hz, speed_hz)
+    nominal = controller_constants(vals, input_kind, *bandwidths)
+    std = _propagate(vals, input_kind, bandwidths, names, cov)
+    unknown = [n for n, x in vals.items() if math.isnan(x)]
+    if unknown:
+        notes.append(f'{", ".join(unknown)} unknown: entries that need them are null')
+    checks = _verify(vals, input_kind, nominal, sample_period, pm_min, notes)
+    if checks and sample_period is not None:
+        notes.append(f'loops checked with {DELAY_SAMPLES:g} samples of delay '
+                     f'({DELAY_SAMPLES * sample_period:.3g} s, 3rd-order Pade)')
+    return _assemble(input_kind, nominal, std, (kS_value, kS_std, kS_source), bandwidths,
+                     checks, cov is not None, notes)
+
+
+def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
+    """Build the ControllerDesign in the contract's shape."""
+    e = {k: _entry(nominal[k], std[k]) for k in _OUTPUTS}
+    kS_value, kS_std, kS_source = kS
+    if kS_source is None:
+        notes.insert(0, 'kS = 0: no static friction given (pass kS from a coulomb_friction '
+                        'fit as T_c R_m / K_T, or a brush_drop V_b)')
+    if not has_cov:
+        notes.append('no covariance given: std is null')
+    if input_kind == 'voltage':
+        units = {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
+        speed_units = {'kp': 'A s/rad', 'ki': 'A/rad'}
+        zero_ratio = bandwidths[0] / bandwidths[1]
+    else:
+        units = {'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'}
+        speed_units = {'kp': 'N m s/rad', 'ki': 'N m/rad'}
+        zero_ratio = TORQUE_ZERO_RATIO
+        notes.append('torque plant: kV = B and kA = J in input units per rad/s and per '
+                     'rad/s^2 (N per m/s and per m/s^2 for a linear axis); no current loop '
+                     '(the drive closes it)')
+    pi = {'current': None, 'speed': None}
+    if input_kind == 'voltage':
+        pi['current'] = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],
+                                    checks.get('current', {}), {'kp': 'V/A', 'ki': 'V/(A s)'},
+                                    'pole-zero cancellation of R_m/L_m on 1/(L_m s + R_m)')
+    pi['speed'] = _loop_entry(e['speed_kp'], e['speed_ki'], bandwidths[1],
+                              checks.get('speed', {}), speed_units,
+                              f'symmetric-optimum style: PI zero at crossover/{zero_ratio:.3g}')
+    return ControllerDesign(
+        input_kind=input_kind,
+        feedforward={'kS': {'value': kS_value, 'std': kS_std}, 'kV': e['kV'], 'kA': e['kA'],
+                     'units': units, 'convention': CONVENTION},
+        time_constants={'electrical': e['tau_e'], 'mechanical': e['tau_m']},
+        pi=pi, notes=notes)
+
+
+def _loop_entry(kp, ki, bandwidth_hz, check, units, design):
+    if kp['value'] is None or not np.isfinite(bandwidth_hz):
+        bandwidth_hz = None
+    out = {'kp': kp, 'ki': ki,
+           'bandwidth_hz': None if bandwidth_hz is None else float(bandwidth_hz),
+           'phase_margin_deg': check.get('phase_margin_deg'),
+           'crossover_hz': check.get('crossover_hz'),
+           'gain_margin_db': check.get('gain_margin_db'),
+           'closed_loop_bandwidth_hz': check.get('closed_loop_bandwidth_hz'),
+           'closed_loop_stable': check.get('closed_loop_stable'),
+           'units': units, 'design': design,
+           'form': 'u = kp e + ki integral(e dt)'}
+    return out
+
+
+def _kS_from_effects(effects, vals, input_kind):
+    """kS from fitted coulomb_friction T_c and/or brush_drop V_b (or None if neither)."""
+    def val_std(entry):
+        if isinstance(entry, dict):
+            return entry.get('value'), entry.get('std') or 0.0
+        return entry, 0.0
+
+    value, var, sources = 0.0, 0.0, []
+    tc = (effects.get('coulomb_friction') or {}).get('T_c')
+    if tc is not None:
+        t, ts = val_std(tc)
+        if t is None:
+            return None
+        scale = 1.0 if input_kind == 'torque' else vals['R_m'] / vals['K_T']
+        if not np.isfinite(scale):
+            return None
+        value, var = value + abs(t) * scale, var + (ts * scale) ** 2
+        sources.append('coulomb_friction')
+    vb = (effects.get('brush_drop') or {}).get('V_b')
+    if vb is not None and input_kind == 'voltage':
+        b, bs = val_std(vb)
+        if b is None:
+            return None
+        value, var = value + abs(b), var + bs ** 2
+        sources.append('brush_drop')
+    if not sources:
+        return None
+    return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
+
+
+def from_identification(result_dict, **kw):
+    """Design a controller from the fit JSON of ``motor-id fit --json``.
+
+    Parameters
+    ----------
+    result_dict : dict
+        ``{'parameters': {name: {'value', 'std', 'determined'}}, ...}``; an optional
+        top-level ``'parameter_covariance': {'names', 'matrix'}`` (linear units) is used
+        as the covariance, else the stds form a diagonal one (correlations ignored, said
+        in the notes). ``'input_kind'`` and fitted ``'effects'`` (coulomb_friction T_c,
+        brush_drop V_b, for kS) are used when present.
+    **kw
+        Passed to :func:`design_controller` (``covariance`` and ``values`` are taken from
+        the dict; ``input_kind`` and ``kS`` override what the dict says).
+
+    Returns
+    -------
+    ControllerDesign
+        Entries that need an undetermined parameter are null, with a note naming the
+        assumption that would determine it.
+    """
+    if not isinstance(result_dict, dict) or not isinstance(result_dict.get('parameters'),
+                                                           dict):
+        raise ConfigError("result_dict must be the fit JSON with a 'parameters' dict "
+                          '(motor-id fit --json OUT)')
+    for k in ('values', 'covariance'):
+        if k in kw:
+            raise ConfigError(f'{k} comes from result_dict; do not pass it')
+    input_kind = kw.pop('input_kind', result_dict.get('input_kind', 'voltage'))
+    names = _check_kind(input_kind)
+    params = result_dict['parameters']
+    missing = [n for n in names if n not in params]
+    if missing:
+        raise ConfigError(f'the fit JSON lacks parameters {", ".join(missing)} for a '
+                          f'{input_kind} plant')
+    values = {n: params[n].get('value') for n in names}
+    undetermined = [n for n in names if values[n] is None]
+    notes = []
+    covariance = result_dict.get('parameter_covariance')
+    if covariance is not None:
+        keep = [j for j, n in enumerate(covariance['names']) if n in names
+                and values[n] is not None]
+        m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
+        covariance = {'names': [covariance['names'][j] for j in keep], 'matrix': m.tolist()}
+    else:
+        with_std = [n for n in names if values[n] is not None
+                    and params[n].get('std') is not None]
+        if with_std:
+            covariance = {'names': with_std,
+                          'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
+            notes.append('the fit JSON has no parameter_covariance: stds are combined as '
+                         'independent (correlations ignored), so error bars of ratios such '
+                         'as kA = R_m J / K_T can be far too large or too small')
+    if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
+        vals = {n: math.nan if values[n] is None else values[n] for n in names}
+        kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
+    design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
+    if undetermined:
+        how = ('state one with --fix NAME=VALUE (e.g. --fix J=...)' if input_kind == 'torque'
+               else 'record the current channel (with the K_T = K_b tie, on by default) or '
+                    'state one with --fix NAME=VALUE (e.g. --fix J=...)')
+        notes.append(f'{", ".join(undetermined)} not determined by the data, so the entries '
+                     f'that need them are null: {how} to determine them')
+    design.notes.extend(notes)
+    return design
+
+
+def to_ros_parameters(design, node_name='/**'):
+    """The design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (a params file).
+
+    Parameters
+    ----------
+    design : ControllerDesign or dict
+        A design or its ``to_dict()``.
+    node_name : str
+        The node the parameters are for; ``'/**'`` applies to every node.
+
+    Returns
+    -------
+    dict
+        ``{node_name: {'ros__parameters': {'controller.kS': float, ...}}}`` with plain
+        floats; null (unknown) entries are left out, since ROS parameters have no null.
+        Keys: ``controller.{kS,kV,kA,tau_e,tau_m}``,
+        ``controller.{current,speed}.{kp,ki,bandwidth_hz}``.
+    """
+    if not isinstance(node_name, str) or not node_name:
+        raise ConfigError(f'node_name must be a non-empty string, got {node_name!r}')
+    d = design.to_dict() if isinstance(design, ControllerDesign) else design
+    if not isinstance(d, dict) or set(d) != {'feedforward', 'time_constants', 'pi', 'notes'}:
+        raise ConfigError('design must be a ControllerDesign or its to_dict()')
+    flat = {}
+    for k in ('kS', 'kV', 'kA'):
+        flat[f'controller.{k}'] = d['feedforward'][k]['value']
+    flat['controller.tau_e'] = d['time_constants']['electrical']['value']
+    flat['controller.tau_m'] = d['time_constants']['mechanical']['value']
+    for loop in ('current', 'speed'):
+        entry = d['pi'][loop] or {}
+        for k in ('kp', 'ki'):
+            flat[f'controller.{loop}.{k}'] = (entry.get(k) or {}).get('value')
+        flat[f'controller.{loop}.bandwidth_hz'] = entry.get('bandwidth_hz')
+    params = {k: float(v) for k, v in flat.items() if v is not None}
+    return {node_name: {'ros__parameters': params}}
