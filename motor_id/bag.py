@@ -53,7 +53,7 @@ import numpy as np
 import zstandard
 
 from motor_id import __version__
-from motor_id.contracts import (BAG_ESTIMATE_TOPIC, BAG_META_TOPIC, BAG_SAMPLES_TOPIC,
+from motor_id.contracts import (batch_rows, BAG_ESTIMATE_TOPIC, BAG_META_TOPIC, BAG_SAMPLES_TOPIC,
                                 CHANNEL_TOPICS, SAMPLE_COLUMNS,
                                 SAMPLES_LABEL)
 from motor_id.errors import BagError, ConfigError
@@ -985,15 +985,15 @@ def _samples_from_scan(scan, topic=SAMPLES_TOPIC):
             dims = list(decoded.layout.dim)
             values = np.asarray(decoded.data, dtype=float)
             offset = decoded.layout.data_offset
-            labels = [(d.label, d.size) for d in dims]
         except _FIELD_ERRORS as exc:
             raise BagError(f'{scan.path}: {topic} message {i} (log time {msg.log_time} ns) '
                            f'is not a valid {FLOAT64_MULTI_ARRAY}: {exc}') from None
-        if (len(dims) != 2 or dims[1].size != 6 or dims[1].label != SAMPLES_LABEL
-                or values.size != dims[0].size * 6 or offset != 0):
-            raise BagError(f'{scan.path}: {topic} message {i} has layout {labels} with '
-                           f'{values.size} values; expected rows of {SAMPLES_LABEL}')
-        blocks.append(values.reshape(-1, 6))
+        try:
+            rows_i = batch_rows([d.label for d in dims], [d.size for d in dims], offset,
+                                values)
+        except ValueError as exc:
+            raise BagError(f'{scan.path}: {topic} message {i}: {exc}') from None
+        blocks.append(rows_i)
         log_times.append(np.full(dims[0].size, msg.log_time, dtype=np.int64))
     if not blocks or sum(b.shape[0] for b in blocks) == 0:
         raise BagError(f'{scan.path}: {_topic_name(topic)} holds no sample rows')

@@ -91,3 +91,44 @@ def profile_span(flags):
     off = np.flatnonzero((flags[:end] & FLAG_PROFILE) == 0)
     start = int(off[-1]) + 1 if off.size else 0
     return start, end + 1
+
+
+def batch_rows(labels, sizes, data_offset, values):
+    """Rows of a sample batch from its ``Float64MultiArray`` parts, checked against the contract.
+
+    Both the live subscriber and the bag reader apply this one rule: two dimensions,
+    the second labelled :data:`SAMPLES_LABEL` with size 6, ``data_offset`` 0 and
+    exactly ``size0 * 6`` values.
+
+    Parameters
+    ----------
+    labels : sequence of str
+        ``layout.dim[k].label``.
+    sizes : sequence of int
+        ``layout.dim[k].size``.
+    data_offset : int
+    values : array_like of float
+        ``data``.
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+
+    Raises
+    ------
+    ValueError
+        With a one-line reason naming what differs from the contract (callers re-raise
+        it as their own domain error).
+    """
+    width = len(SAMPLE_COLUMNS)
+    values = np.asarray(values, dtype=float)
+    found = list(zip(labels, sizes))
+    if len(found) != 2 or sizes[1] != width or labels[1] != SAMPLES_LABEL:
+        raise ValueError(f'layout {found} is not (n, {width}) rows of {SAMPLES_LABEL}')
+    if data_offset != 0:
+        raise ValueError(f'data_offset is {data_offset}; sample batches use 0')
+    n = int(sizes[0])
+    if values.size != n * width:
+        raise ValueError(f'layout declares {n} rows but data holds {values.size} values '
+                         f'(need {n * width})')
+    return values.reshape(n, width)

@@ -511,8 +511,9 @@ def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
     e = {k: _entry(nominal[k], std[k]) for k in _OUTPUTS}
     kS_value, kS_std, kS_source = kS
     if kS_source is None:
-        notes.insert(0, 'kS = 0: no static friction given (pass kS from a coulomb_friction '
-                        'fit as T_c R_m / K_T, or a brush_drop V_b)')
+        how = ('T_c R_m / K_T from a coulomb_friction fit, or a brush_drop V_b'
+               if input_kind == 'voltage' else 'T_c from a coulomb_friction fit')
+        notes.insert(0, f'kS = 0: no static friction given (pass kS = {how})')
     if not has_cov:
         notes.append('no covariance given: std is null')
     if input_kind == 'voltage':
@@ -525,7 +526,7 @@ def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
         zero_ratio = TORQUE_ZERO_RATIO
         notes.append('torque plant: kV = B and kA = J in input units per rad/s and per '
                      'rad/s^2 (N per m/s and per m/s^2 for a linear axis); no current loop '
-                     '(the drive closes it)')
+                     'and no tau_e (the drive closes the current loop): both null')
     pi = {'current': None, 'speed': None}
     if input_kind == 'voltage':
         pi['current'] = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],

@@ -282,7 +282,7 @@ def test_wrong_or_undecodable_samples_type(tmp_path):
                      {'layout': {'dim': [{'label': 'x', 'size': 2, 'stride': 10},
                                          {'label': 'a,b,c,d,e', 'size': 5, 'stride': 5}]},
                       'data': [0.0] * 10}, 0)
-    with pytest.raises(BagError, match='expected rows of seq,t,voltage'):
+    with pytest.raises(BagError, match=r'is not \(n, 6\) rows of seq,t,voltage'):
         read_recording(path)
 
 

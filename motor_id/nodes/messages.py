@@ -12,6 +12,7 @@ from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the
     CHANNEL_DEPTH, CHANNEL_TOPICS, DIAGNOSTICS_DEPTH, DIAGNOSTICS_TOPIC, LATCHED_DEPTH,
     SAMPLE_COLUMNS as COLUMNS, SAMPLES_DEPTH, SAMPLES_LABEL as ROW_LABEL, SAMPLES_TOPIC,
     VOLTAGE_COMMAND_TOPIC)
+from motor_id.contracts import batch_rows
 from motor_id.errors import DataError
 
 SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLES_DEPTH,
@@ -58,20 +59,16 @@ def rows_to_msg(rows):
 
 
 def msg_to_rows(msg):
-    """``Float64MultiArray`` -> ndarray (n, 6); :class:`DataError` if the layout is wrong."""
+    """``Float64MultiArray`` -> ndarray (n, 6); :class:`DataError` if the layout is wrong.
+
+    The rule is :func:`motor_id.contracts.batch_rows`, the same the bag reader applies.
+    """
     dims = msg.layout.dim
-    width = len(COLUMNS)
-    if len(dims) != 2 or dims[1].size != width:
-        found = [(d.label, d.size) for d in dims]
-        raise DataError(f'samples message layout must be (samples, {width}) with columns '
-                        f'{ROW_LABEL}; got dims {found}')
-    n = dims[0].size
-    data = np.asarray(msg.data, dtype=float)
-    offset = msg.layout.data_offset
-    if data.size < offset + n * width:
-        raise DataError(f'samples message declares {n} rows but carries '
-                        f'{data.size - offset} values (need {n * width})')
-    return data[offset:offset + n * width].reshape(n, width)
+    try:
+        return batch_rows([d.label for d in dims], [d.size for d in dims],
+                          msg.layout.data_offset, msg.data)
+    except ValueError as exc:
+        raise DataError(f'samples message: {exc}') from None
 
 
 def float_msg(value):
