@@ -15,7 +15,7 @@ setup(
         ('share/' + package_name + '/bags', glob('bags/*.mcap') + glob('bags/*.md')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
-                      'mcap', 'mcap-ros2-support'],
+                      'mcap', 'mcap-ros2-support', 'control'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions', 'pygad', 'cma',
                  'psutil'],

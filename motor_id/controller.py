@@ -50,7 +50,7 @@ class ControllerDesign:
                 'pi': self.pi, 'notes': list(self.notes)}
 
     def summary(self):
-        """A plain-text table for people (one string, lines separated by newlines)."""
+        """Return a plain-text table for people (one string, lines separated by newlines)."""
         ff, tc = self.feedforward, self.time_constants
         lines = [f'controller design ({self.input_kind} plant; {ff["convention"]})',
                  f'{"quantity":<14}{"value":>13}{"std":>12}  units']
@@ -198,6 +198,7 @@ def time_constants(values, input_kind='voltage'):
     values : dict
         ``J, K_T, K_b, B, L_m, R_m`` (voltage plant) or ``J, B`` (torque plant), SI units.
     input_kind : {'voltage', 'torque'}
+        The plant kind (see :func:`design_controller`).
 
     Returns
     -------
@@ -222,6 +223,7 @@ def controller_constants(values, input_kind, current_bandwidth_hz, speed_bandwid
     values : dict
         Plant parameters in SI units (floats or equally shaped arrays).
     input_kind : {'voltage', 'torque'}
+        The plant kind (see :func:`design_controller`).
     current_bandwidth_hz, speed_bandwidth_hz : float
         Designed loop crossover frequencies [Hz] (the current one is ignored for torque
         plants).
@@ -327,7 +329,9 @@ def _margins(ct, loop):
     poles = ct.poles(closed)
     stable = bool(np.all(np.real(poles) < 0))
     bw = ct.bandwidth(closed) if stable else math.nan
-    fin = (lambda x: float(x) if x is not None and np.isfinite(x) else None)
+    def fin(x):
+        return float(x) if x is not None and np.isfinite(x) else None
+
     return {'phase_margin_deg': fin(pm), 'crossover_hz': fin(wgc / (2 * np.pi)),
             'gain_margin_db': fin(20 * np.log10(gm)) if gm and np.isfinite(gm) else None,
             'closed_loop_stable': stable,
@@ -342,6 +346,7 @@ def loop_transfer_functions(values, input_kind, gains, sample_period=None):
     values : dict
         Plant parameters in SI units.
     input_kind : {'voltage', 'torque'}
+        The plant kind (see :func:`design_controller`).
     gains : dict
         ``current_kp, current_ki, speed_kp, speed_ki`` as from :func:`controller_constants`.
     sample_period : float, optional
@@ -355,6 +360,7 @@ def loop_transfer_functions(values, input_kind, gains, sample_period=None):
         closed around the full two-state model, back-EMF included).
     """
     import control as ct  # lazy: keep `import motor_id.controller` cheap
+
     from motor_id.model import continuous_matrices  # the one model; lazy for the same reason
 
     s = ct.tf('s')
@@ -559,7 +565,10 @@ def _loop_entry(kp, ki, bandwidth_hz, check, units, design):
 
 
 def _kS_from_effects(effects, vals, input_kind):
-    """kS from fitted coulomb_friction T_c and/or brush_drop V_b (or None if neither)."""
+    """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
+
+    The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.
+    """
     def val_std(entry):
         if isinstance(entry, dict):
             return entry.get('value'), entry.get('std') or 0.0
@@ -586,6 +595,31 @@ def _kS_from_effects(effects, vals, input_kind):
     if not sources:
         return None
     return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
+
+
+def _covariance_from_fit(result_dict, params, values, notes):
+    """The fit's parameter_covariance over the known parameters, else a diagonal one."""
+    covariance = result_dict.get('parameter_covariance')
+    if covariance is not None:
+        if not isinstance(covariance, dict) or set(covariance) != {'names', 'matrix'}:
+            raise ConfigError("parameter_covariance must be {'names': [...], "
+                              "'matrix': [[...]]}")
+        cov_names = list(covariance['names'])
+        keep = [j for j, n in enumerate(cov_names) if values.get(n) is not None]
+        try:
+            m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f'parameter_covariance matrix is unusable: {exc}') from None
+        return {'names': [cov_names[j] for j in keep], 'matrix': m.tolist()}
+    with_std = [n for n, v in values.items() if v is not None
+                and params[n].get('std') is not None]
+    if not with_std:
+        return None
+    notes.append('the fit JSON has no parameter_covariance: stds are combined as '
+                 'independent (correlations ignored), so error bars of ratios such '
+                 'as kA = R_m J / K_T can be far too large or too small')
+    return {'names': with_std,
+            'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
 
 
 def from_identification(result_dict, **kw):
@@ -623,24 +657,12 @@ def from_identification(result_dict, **kw):
     if missing:
         raise ConfigError(f'the fit JSON lacks parameters {", ".join(missing)} for a '
                           f'{input_kind} plant')
+    if not all(isinstance(params[n], dict) for n in names):
+        raise ConfigError("each fit parameter must be {'value', 'std', 'determined'}")
     values = {n: params[n].get('value') for n in names}
     undetermined = [n for n in names if values[n] is None]
     notes = []
-    covariance = result_dict.get('parameter_covariance')
-    if covariance is not None:
-        keep = [j for j, n in enumerate(covariance['names']) if n in names
-                and values[n] is not None]
-        m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
-        covariance = {'names': [covariance['names'][j] for j in keep], 'matrix': m.tolist()}
-    else:
-        with_std = [n for n in names if values[n] is not None
-                    and params[n].get('std') is not None]
-        if with_std:
-            covariance = {'names': with_std,
-                          'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
-            notes.append('the fit JSON has no parameter_covariance: stds are combined as '
-                         'independent (correlations ignored), so error bars of ratios such '
-                         'as kA = R_m J / K_T can be far too large or too small')
+    covariance = _covariance_from_fit(result_dict, params, values, notes)
     if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
         vals = {n: math.nan if values[n] is None else values[n] for n in names}
         kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
@@ -656,7 +678,7 @@ def from_identification(result_dict, **kw):
 
 
 def to_ros_parameters(design, node_name='/**'):
-    """The design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (a params file).
+    """Return the design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (params file).
 
     Parameters
     ----------
