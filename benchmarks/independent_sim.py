@@ -17,14 +17,22 @@ Continuous model (one mass, or two masses with ``resonance``)::
 Friction is stick-slip: at w = 0 the shaft stays stuck while the drive torque
 ``|K i - T_L - spring|`` is at most the break-away torque T_s; moving, T_f = T_c sgn(w)
 with T_c <= T_s. The brush drop is treated the same way: at i = 0 no current flows while
-``|V - K w| <= V_b``. Zero crossings of w and i are located inside each RK4 sub-step
-(linear interpolation of the crossing, re-integration to it, then a stick/slip decision),
-so nothing chatters. The amplifier holds each sample's command (zero-order hold), delays
-it by ``d`` whole samples, clips it at +-V_max and only then applies its dead zone V_dz.
+``|V - K w| <= V_b``. The events (w or i crossing zero, the stuck shaft breaking away,
+the blocked brushes starting to conduct) are located inside each RK4 sub-step by regula
+falsi with re-integration from the sub-step's start; the modes are then decided anew, so
+nothing chatters and the integrator keeps its fourth order through the events. The
+amplifier holds each sample's command (zero-order hold), delays it by ``d`` whole samples,
+clips it at +-V_max and only then applies its dead zone V_dz. With ``resonance`` the
+motor (J_m = J / (1 + r), with B and friction) drives the load (J_l = J r / (1 + r), with
+the load torques) through a spring k_s = J_l (2 pi f_r)^2 and damper
+c_s = 2 zeta sqrt(k_s J_l); the motor-side speed is measured. Samples are the states at
+the sample instants, before that sample's command acts. The encoder speed is the count
+difference over the past period, i.e. the mean speed of that period on a grid of
+q = 2 pi / (cpr T).
 
 Detectable ranges drawn by :func:`make_case`, relative to the case's motor and excitation
 (A: excitation amplitude, stall = K A / R0, w_nl = K A / (R0 B + K^2),
-tau_m = J R0 / K^2, T: sample period):
+tau_m = J R0 / (R0 B + K^2), T: sample period):
 
 =====================  ===============================================================
 coulomb_friction       T_c in [0.01, 0.05] x stall, break-away T_s = T_c x [1.1, 1.6]
@@ -36,7 +44,7 @@ voltage_saturation     V_max in [0.5, 0.85] x max |command|
 input_delay            d = round([0.05, 0.3] x tau_m / T), 2 .. 40 samples
 sensor_lag             tau_s in [0.1, 0.4] x tau_m, at least 1.5 T
 speed_quantization     q = 2 pi / (cpr T) in about [0.02, 0.06] x w_nl (cpr an integer)
-current_quantization   q_i in [0.05, 0.25] x std of the true current
+current_quantization   q_i in [0.1, 0.4] x std of the true current
 resistance_drift       R rises by [0.10, 0.40] x R0 over the record; thermal time
                        constant R_th C_th in [0.2, 0.6] x record length, alpha 0.0039 /K
 resonance              r in [0.3, 3], zeta in [0.02, 0.1], f_r log-uniform in
@@ -45,7 +53,8 @@ resonance              r in [0.3, 3], zeta in [0.02, 0.1], f_r log-uniform in
 
 Excitations that cannot reveal an effect are not drawn with it: the binary PRBS makes a
 static input map (dead zone, saturation) a pure gain, and the unipolar staircase never
-reverses the current, so a brush drop and a dead zone look alike on it.
+reverses the voltage (the current only briefly, when braking), so a brush drop and a dead
+zone look alike on it.
 """
 
 from dataclasses import asdict, dataclass, field
@@ -134,6 +143,11 @@ class Motor:
         d = asdict(self)
         d.update(K_T=self.K, K_b=self.K, L_m=self.L, R_m=self.R)
         return d
+
+    @classmethod
+    def from_dict(cls, d):
+        """Inverse of :meth:`to_dict` (the analysis' duplicate symbols are ignored)."""
+        return cls(**{k: d[k] for k in ('J', 'K', 'R', 'L', 'B', 'V_supply', 'motor_class')})
 
 
 @dataclass
@@ -283,60 +297,123 @@ def _sign(a):
 
 
 @_jit
+def _shaft_drive(x, p):
+    """Torque that would accelerate the motor at w = 0, friction excluded [N m]."""
+    if p[_P_RES] > 0.0:
+        load = p[_P_KS] * x[_PHI] - p[_P_CS] * x[_WL]
+    else:
+        load = p[_P_TL]
+    return p[_P_K] * x[_I] - load
+
+
+@_jit
+def _event_value(kind, x, v, sw, si, p):
+    """Positive before the event, negative after: 0 w crosses zero, 1 i crosses zero,
+    2 the stuck shaft breaks away, 3 the blocked brushes start to conduct."""
+    if kind == 0:
+        return x[_W] * sw
+    if kind == 1:
+        return x[_I] * si
+    if kind == 2:
+        return p[_P_TS] - abs(_shaft_drive(x, p))
+    return p[_P_VB] - abs(v - p[_P_K] * x[_W])
+
+
+@_jit
+def _modes(x, v, p, force_w, force_i):
+    """Modes of the next piece: (w stuck, sign of w's motion, i stuck, sign of i)."""
+    w_stuck = False
+    sw = _sign(x[_W])
+    if (p[_P_TS] > 0.0 or p[_P_TC] > 0.0) and x[_W] == 0.0:
+        drive = _shaft_drive(x, p)
+        if force_w != 0.0:
+            sw = force_w
+        elif abs(drive) <= p[_P_TS]:
+            w_stuck = True
+            sw = 0.0
+        else:
+            sw = _sign(drive)
+    i_stuck = False
+    si = _sign(x[_I])
+    if p[_P_VB] > 0.0 and x[_I] == 0.0:
+        drive_v = v - p[_P_K] * x[_W]
+        if force_i != 0.0:
+            si = force_i
+        elif abs(drive_v) <= p[_P_VB]:
+            i_stuck = True
+            si = 0.0
+        else:
+            si = _sign(drive_v)
+    return w_stuck, sw, i_stuck, si
+
+
+@_jit
+def _first_event(x, xn, v, w_stuck, sw, i_stuck, si, p):
+    """The earliest event between x and xn: (linear estimate of its fraction, kind or -1)."""
+    armed = ((p[_P_TS] > 0.0 or p[_P_TC] > 0.0) and not w_stuck,
+             p[_P_VB] > 0.0 and not i_stuck, w_stuck, i_stuck)
+    frac = 2.0
+    kind = -1
+    for kk in range(4):
+        if not armed[kk]:
+            continue
+        g1 = _event_value(kk, xn, v, sw, si, p)
+        if g1 < 0.0:
+            g0 = _event_value(kk, x, v, sw, si, p)
+            f = g0 / (g0 - g1) if g0 > 0.0 else 0.0
+            if f < frac:
+                frac = f
+                kind = kk
+    return frac, kind
+
+
+@_jit
 def _substep(x, v, h, p, xn, k1, k2, k3, k4, xt):
-    """Advance x by h in place, locating zero crossings of w (friction) and i (brushes)."""
-    friction = p[_P_TS] > 0.0 or p[_P_TC] > 0.0
-    brushes = p[_P_VB] > 0.0
+    """Advance x by h in place, locating the events of friction and brushes inside it.
+
+    Each piece runs with fixed modes up to the earliest event (regula falsi on the event
+    function, re-integrating from the piece's start), then the modes are decided anew.
+    """
     remaining = h
+    force_w = 0.0   # direction of a break-away located at the end of the previous piece
+    force_i = 0.0
     for event in range(_MAX_EVENTS + 1):
-        # modes for this piece: stuck at zero, or the sign of the motion
-        w_stuck = False
-        sw = _sign(x[_W])
-        if friction and x[_W] == 0.0:
-            if p[_P_RES] > 0.0:
-                load = p[_P_KS] * x[_PHI] - p[_P_CS] * x[_WL]
-            else:
-                load = p[_P_TL]
-            drive = p[_P_K] * x[_I] - load
-            if abs(drive) <= p[_P_TS]:
-                w_stuck = True
-                sw = 0.0
-            else:
-                sw = _sign(drive)
-        i_stuck = False
-        si = _sign(x[_I])
-        if brushes and x[_I] == 0.0:
-            drive_v = v - p[_P_K] * x[_W]
-            if abs(drive_v) <= p[_P_VB]:
-                i_stuck = True
-                si = 0.0
-            else:
-                si = _sign(drive_v)
+        w_stuck, sw, i_stuck, si = _modes(x, v, p, force_w, force_i)
+        force_w = 0.0
+        force_i = 0.0
         _rk4(x, v, remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
-        frac = 2.0
-        which = -1
-        if friction and not w_stuck and xn[_W] * sw < 0.0:
-            frac = x[_W] / (x[_W] - xn[_W])
-            which = _W
-        if brushes and not i_stuck and xn[_I] * si < 0.0:
-            fi = x[_I] / (x[_I] - xn[_I])
-            if fi < frac:
-                frac = fi
-                which = _I
-        if which < 0 or event == _MAX_EVENTS:
+        frac, kind = _first_event(x, xn, v, w_stuck, sw, i_stuck, si, p)
+        if kind < 0 or event == _MAX_EVENTS:
             for j in range(_NX):
                 x[j] = xn[j]
-            if which >= 0:
-                x[which] = 0.0
+            if kind == 0 or kind == 1:
+                x[kind] = 0.0
             return
-        hc = frac * remaining
-        _rk4(x, v, hc, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
+        f_lo, g_lo = 0.0, _event_value(kind, x, v, sw, si, p)
+        f_hi, g_hi = 1.0, _event_value(kind, xn, v, sw, si, p)
+        f = frac
+        for _ in range(3):
+            _rk4(x, v, f * remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
+            g = _event_value(kind, xn, v, sw, si, p)
+            if g > 0.0:
+                f_lo, g_lo = f, g
+            else:
+                f_hi, g_hi = f, g
+            if g_lo - g_hi <= 0.0:
+                break
+            f = f_lo + (f_hi - f_lo) * g_lo / (g_lo - g_hi)
+        _rk4(x, v, f * remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
         for j in range(_NX):
             x[j] = xn[j]
-        x[which] = 0.0
-        if which == _W and p[_P_TAUS] <= 0.0:
-            x[_Y] = 0.0
-        remaining -= hc
+        if kind == 0 or kind == 1:
+            x[kind] = 0.0
+            if kind == 0 and p[_P_TAUS] <= 0.0:
+                x[_Y] = 0.0
+        elif kind == 2:
+            force_w = _sign(_shaft_drive(x, p))
+        else:
+            force_i = _sign(v - p[_P_K] * x[_W])
+        remaining -= f * remaining
         if remaining <= 0.0:
             return
 
@@ -397,9 +474,10 @@ def _param_vector(motor, effects):
 
 
 def default_n_sub(motor, sample_period, effects=None):
-    """Sub-steps per sample so that each RK4 step is at most half the fastest time scale."""
+    """Sub-steps per sample: each RK4 step at most 0.7 x the fastest time scale."""
     effects = effects or {}
-    scales = [motor.tau_e / 1.5, motor.tau_m]  # /1.5: the resistance may rise when heating
+    # heating may raise R by up to ~1.5 x, shortening L/R
+    scales = [motor.tau_e / (1.5 if 'resistance_drift' in effects else 1.0), motor.tau_m]
     res = effects.get('resonance')
     if res is not None:
         J_m, _, k_s, c_s = _resonance_masses(motor.J, float(res['r']), float(res['f_r']),
@@ -410,7 +488,7 @@ def default_n_sub(motor, sample_period, effects=None):
         scales.append(motor.J / (1.0 + float(res['r'])) * motor.R / motor.K ** 2)
     if 'sensor_lag' in effects:
         scales.append(float(effects['sensor_lag']['tau_s']))
-    return max(2, int(math.ceil(sample_period / (0.5 * min(scales)))))
+    return max(2, int(math.ceil(sample_period / (0.7 * min(scales)))))
 
 
 def _check_effects(effects):
@@ -566,7 +644,8 @@ def make_excitation(kind, n_samples, sample_period, amplitude, tau_m, rng):
         'steps': steps of random height in [0.3, 1] A alternating +, rest, -, rest, each
         held 3 to 10 tau_m; 'prbs': +-A, one bit per ~tau_m / 2; 'multisine': 12
         log-spaced sines with random phases between ~1 / record and ~1 / tau_m, peak A;
-        'staircase': unipolar 0 -> A in 5 levels and back down.
+        'staircase': unipolar 0 -> A in 5 levels and back down, each held 5 to 15 tau_m,
+        repeated.
     n_samples : int
     sample_period : float
         [s]
@@ -607,8 +686,9 @@ def make_excitation(kind, n_samples, sample_period, amplitude, tau_m, rng):
         u = np.sin(2.0 * math.pi * np.outer(t, cycles / (n * T)) + phases).sum(axis=1)
         return A * u / np.max(np.abs(u))
     if kind == 'staircase':
-        levels = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 0.75, 0.5, 0.25, 0.0]) * A
-        return levels[np.minimum(np.arange(n) * levels.size // n, levels.size - 1)]
+        levels = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 0.75, 0.5, 0.25]) * A
+        hold = int(np.clip(rng.uniform(5, 15) * tau_n, 10, max(n // 16, 10)))
+        return levels[(np.arange(n) // hold) % levels.size]
     raise ValueError(f'unknown excitation {kind!r}; choose from {EXCITATIONS}')
 
 
@@ -616,11 +696,9 @@ def make_excitation(kind, n_samples, sample_period, amplitude, tau_m, rng):
 
 def _draw_effect(name, rng, motor, amplitude, command, T, n_sub):
     """Return (simulator parameters, analysis parameters) of effect ``name``."""
-    K, R, B, J = motor.K, motor.R, motor.B, motor.J
-    stall = K * amplitude / R
+    stall = motor.K * amplitude / motor.R
     w_nl = motor.no_load_speed(amplitude)
     tau_m = motor.tau_m
-    n = command.size
     if name == 'coulomb_friction':
         T_c = _loguniform(rng, 0.01, 0.05) * stall
         T_s = T_c * float(rng.uniform(1.1, 1.6))
@@ -653,7 +731,7 @@ def _draw_effect(name, rng, motor, amplitude, command, T, n_sub):
         return {'cpr': cpr}, {'q': q, 'cpr': cpr}
     if name == 'current_quantization':
         clean = integrate(motor, command, T, {}, n_sub)
-        q_i = _loguniform(rng, 0.05, 0.25) * float(np.std(clean['current']))
+        q_i = _loguniform(rng, 0.1, 0.4) * float(np.std(clean['current']))
         return {'q_i': q_i}, {'q_i': q_i}
     if name == 'resistance_drift':
         return _draw_heating(rng, motor, command, T, n_sub)
@@ -669,19 +747,20 @@ def _draw_effect(name, rng, motor, amplitude, command, T, n_sub):
 def _draw_heating(rng, motor, command, T, n_sub):
     """Thermal R_th, C_th giving a drawn resistance rise over the record (two passes)."""
     rise = float(rng.uniform(0.10, 0.40))
+    n_sub = default_n_sub(motor, T, {'resistance_drift': {}})  # the final run's sub-steps
     length = command.size * T
     tau_th = float(rng.uniform(0.2, 0.6)) * length
     clean = integrate(motor, command, T, {}, n_sub)
     power = max(float(np.mean(clean['current'] ** 2)) * motor.R, 1e-300)
     R_th = rise / (ALPHA_COPPER * power * (1.0 - math.exp(-length / tau_th)))
     sim = {'alpha': ALPHA_COPPER, 'R_th': R_th, 'C_th': tau_th / R_th}
-    for _ in range(3):  # correct for the feedback of R on the power
+    for attempt in range(4):  # correct for the feedback of R on the power
         got = float(integrate(motor, command, T, {'resistance_drift': sim},
                               n_sub)['resistance'][-1]) / motor.R - 1.0
+        if abs(got - rise) <= 0.005 * rise or attempt == 3:
+            break
         sim['R_th'] *= rise / max(got, 1e-12)
         sim['C_th'] = tau_th / sim['R_th']
-    got = float(integrate(motor, command, T, {'resistance_drift': sim},
-                          n_sub)['resistance'][-1]) / motor.R - 1.0
     analysis = {'k_h': ALPHA_COPPER * motor.R ** 2 / sim['C_th'], 'tau_th': tau_th,
                 'rise_target': rise, 'rise': got,
                 'T_rise_K': got / ALPHA_COPPER}
@@ -718,6 +797,14 @@ def make_case(seed, effect=None, motor_class=None, sample_period=None, n_samples
         ``'input_kind': 'voltage'`` and ``'known': {'R_m': R0 (1 + r_m_error)}``.
     truth : CaseTruth
     """
+    if sample_period is not None and not 0.0 < sample_period <= 1.0:
+        raise ValueError(f'sample_period must be in (0, 1] s, got {sample_period}')
+    if n_samples is not None and int(n_samples) < 2:
+        raise ValueError(f'n_samples must be >= 2, got {n_samples}')
+    if np.any(np.asarray(noise) < 0):
+        raise ValueError(f'noise fractions must be >= 0, got {noise}')
+    if motor_class is not None and motor_class not in MOTOR_CLASSES:
+        raise ValueError(f'unknown motor class {motor_class!r}; choose from {MOTOR_CLASSES}')
     rng = np.random.default_rng(seed)
     if effect is None:
         effect = str(rng.choice(EFFECTS))
@@ -767,3 +854,23 @@ def to_recording(data):
     meta = {'source': 'benchmarks.independent_sim', 'known': dict(data['known'])}
     return Recording(data['time'], data['input'], data['speed'], data['current'],
                      data['input_kind'], meta)
+
+
+def main():
+    """Print a timing table: one 25,000-sample simulation per class and sample period."""
+    import time
+    make_case(0, effect='none', n_samples=2000)  # compile the kernel first
+    print(f'{"class":<11}{"T [ms]":>7}{"n_sub":>7}{"simulate [s]":>14}')
+    for motor_class in MOTOR_CLASSES:
+        for T in (1e-3, 5e-3, 20e-3):
+            data, truth = make_case(0, effect='coulomb_friction', motor_class=motor_class,
+                                    sample_period=T, n_samples=25000)
+            motor = Motor.from_dict(truth.motor)
+            t0 = time.perf_counter()
+            simulate(motor, data['input'], T, truth.sim_effects, rng=0, n_sub=truth.n_sub)
+            elapsed = time.perf_counter() - t0
+            print(f'{motor_class:<11}{T * 1e3:>7.0f}{truth.n_sub:>7d}{elapsed:>14.3f}')
+
+
+if __name__ == '__main__':
+    main()
