@@ -12,10 +12,11 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
         ('share/' + package_name + '/bags', glob('bags/*.mcap') + glob('bags/*.md')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
-                      'mcap', 'mcap-ros2-support', 'control'],
+                      'mcap', 'mcap-ros2-support', 'control', 'PyYAML', 'rosbags'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions', 'pygad', 'cma',
                  'psutil'],

@@ -6,14 +6,25 @@ import math
 import numpy as np
 
 
-def _clean(obj):
-    """Make an object JSON-safe: numpy to Python, NaN/inf to None."""
+def to_jsonable(obj):
+    """Make an object JSON-safe: numpy to Python, tuples to lists, NaN/inf to None.
+
+    Parameters
+    ----------
+    obj : object
+        Nested dicts, lists, tuples, numpy arrays and scalars, Python scalars.
+
+    Returns
+    -------
+    object
+        The same structure with plain JSON types only (dict keys become str).
+    """
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [to_jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return to_jsonable(obj.tolist())
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -27,7 +38,7 @@ def _clean(obj):
 def write_json(data, path):
     """Write a report dict as indented JSON (NaN/inf become null)."""
     with open(path, 'w') as fh:
-        json.dump(_clean(data), fh, indent=2)
+        json.dump(to_jsonable(data), fh, indent=2)
         fh.write('\n')
 
 

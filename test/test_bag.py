@@ -1,6 +1,5 @@
 """Tests of motor_id.bag: round trips, a second reader, errors, truncation and recovery."""
 
-import io
 import json
 import os
 from pathlib import Path
@@ -14,11 +13,13 @@ from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 import numpy as np
 import pytest
+from ruamel.yaml import YAML
 
 from motor_id import bag
 from motor_id.bag import (bag_info, BagWriter, message_definition, read_recording,
-                          read_samples, recover, write_recording)
+                          read_samples, recover, schemas, write_recording)
 from motor_id.cli import main
+from motor_id.contracts import LATCHED_DEPTH, SAMPLES_DEPTH
 from motor_id.errors import BagError, ConfigError
 from motor_id.recording import Recording
 
@@ -42,37 +43,71 @@ def chunk_layout(path):
             for c in summary.chunk_indexes], summary
 
 
-def test_message_definitions_are_the_installed_msg_files():
+JAZZY_HASHES = {
+    'std_msgs/msg/Float64MultiArray':
+        'RIHS01_1025ddc6b9552d191f89ef1a8d2f60f3d373e28b283d8891ddcc974e8c55397f',
+    'std_msgs/msg/Float64':
+        'RIHS01_705ba9c3d1a09df43737eb67095534de36fd426c0587779bda2bc51fe790182a',
+    'std_msgs/msg/String':
+        'RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18',
+    'diagnostic_msgs/msg/DiagnosticArray':
+        'RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e',
+}
+"""Type description hashes of ROS 2 Jazzy (``ros2 topic info -v``), written down once."""
+
+
+def definition_sections(msgtype):
+    """{type: section text} of a full ros2msg definition (the top type first)."""
+    parts = message_definition(msgtype).split('=' * 80 + '\n')
+    out = {msgtype: parts[0]}
+    for part in parts[1:]:
+        head, body = part.split('\n', 1)
+        assert head.startswith('MSG: ')
+        pkg, name = head[5:].split('/')
+        assert f'{pkg}/msg/{name}' not in out, f'{head} appears twice'
+        out[f'{pkg}/msg/{name}'] = body
+    return out
+
+
+def test_message_definitions_match_the_installed_msg_files():
+    from rosbags.typesys import get_types_from_msg
     share = Path(sys.prefix) / 'share'
-    for name, text in bag.MSG_TEXT.items():
-        pkg, _, typ = name.split('/')
-        path = share / pkg / 'msg' / f'{typ}.msg'
-        assert path.is_file(), f'{path} not installed'
-        assert path.read_text() == text, name
+    for msgtype in JAZZY_HASHES:
+        sections = definition_sections(msgtype)
+        for name, text in sections.items():
+            pkg, _, typ = name.split('/')
+            installed = (share / pkg / 'msg' / f'{typ}.msg').read_text()
+            assert get_types_from_msg(text, name) == get_types_from_msg(installed, name), name
 
 
-def test_full_definition_follows_rosbag2_order():
-    full = message_definition('diagnostic_msgs/msg/DiagnosticArray')
-    parts = full.split('\n' + '=' * 80 + '\n')
-    assert parts[0] == bag.MSG_TEXT['diagnostic_msgs/msg/DiagnosticArray']
-    heads = [p.split('\n', 1)[0] for p in parts[1:]]
-    assert heads == ['MSG: diagnostic_msgs/DiagnosticStatus', 'MSG: diagnostic_msgs/KeyValue',
-                     'MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time']
-    assert parts[-1] == 'MSG: builtin_interfaces/Time\n' + bag.MSG_TEXT[
-        'builtin_interfaces/msg/Time']
-    heads = [p.split('\n', 1)[0] for p in
-             message_definition(bag.FLOAT64_MULTI_ARRAY).split('=' * 80 + '\n')[1:]]
-    assert heads == ['MSG: std_msgs/MultiArrayLayout', 'MSG: std_msgs/MultiArrayDimension']
-    assert message_definition(bag.STRING) == bag.MSG_TEXT[bag.STRING]
-    with pytest.raises(ConfigError, match='no message definition'):
-        message_definition('geometry_msgs/msg/Twist')
+def test_full_definition_holds_every_dependency_once():
+    sections = definition_sections('diagnostic_msgs/msg/DiagnosticArray')
+    assert list(sections)[0] == 'diagnostic_msgs/msg/DiagnosticArray'
+    assert set(sections) == {'diagnostic_msgs/msg/DiagnosticArray',
+                             'diagnostic_msgs/msg/DiagnosticStatus',
+                             'diagnostic_msgs/msg/KeyValue', 'std_msgs/msg/Header',
+                             'builtin_interfaces/msg/Time'}
+    assert 'byte STALE=3' in sections['diagnostic_msgs/msg/DiagnosticStatus']
+    assert set(definition_sections(bag.FLOAT64_MULTI_ARRAY)) == {
+        bag.FLOAT64_MULTI_ARRAY, 'std_msgs/msg/MultiArrayLayout',
+        'std_msgs/msg/MultiArrayDimension'}
+    assert message_definition(bag.STRING) == 'string data\n'
+    with pytest.raises(ConfigError, match='unknown message type'):
+        message_definition('motor_id/msg/Nothing')
 
 
-def test_type_hashes_match_the_jazzy_typestore():
-    from rosbags.typesys import get_typestore, Stores
-    store = get_typestore(Stores.ROS2_JAZZY)
-    for msgtype, digest in bag.TYPE_HASHES.items():
-        assert store.hash_rihs01(msgtype) == digest
+def test_channels_carry_the_jazzy_type_hashes(tmp_path):
+    path = tmp_path / 'hashes.mcap'
+    with BagWriter(path) as writer:
+        writer.write_meta({'input_kind': 'voltage'})
+        writer.write_samples(np.ones(6), 1)
+        writer.write_estimate({'J': 1.0}, 2)
+        writer.write_channel('speed', 3.0, 3)
+    with open(path, 'rb') as fh:
+        summary = make_reader(fh).get_summary()
+    found = {summary.schemas[ch.schema_id].name: ch.metadata['topic_type_hash']
+             for ch in summary.channels.values()}
+    assert found == JAZZY_HASHES
 
 
 def test_round_trip_is_exact(tmp_path):
@@ -143,13 +178,115 @@ def test_second_reader_rosbags_decodes_the_same_values(tmp_path):
     assert values == {'J': '0.0521', 'J_std': '0.0001', 'J_determined': 'true'}
     assert estimate.status[0].level == 1
     assert (estimate.header.stamp.sec, estimate.header.stamp.nanosec) == (0, 300_000_000)
-    assert qos['/samples'].depth == 100
+    assert qos['/samples'].depth == SAMPLES_DEPTH
+    assert qos['/samples'].durability.name == 'VOLATILE'
     assert qos['/motor_id/meta'].durability.name == 'TRANSIENT_LOCAL'
+    assert qos['/motor_id/meta'].depth == LATCHED_DEPTH
     assert qos['/identifier/estimate'].durability.name == 'TRANSIENT_LOCAL'
 
 
+def any_reader_rows(path):
+    """{topic: decoded messages} read by rosbags' AnyReader from the bag's own schemas."""
+    from rosbags.highlevel import AnyReader
+    out = {}
+    with AnyReader([Path(path)]) as reader:
+        for conn, _, raw in reader.messages():
+            out.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    return out
+
+
+def test_any_reader_decodes_with_the_definitions_in_the_bag(tmp_path):
+    rec = make_recording(n=90, seed=7)
+    path = tmp_path / 'any.mcap'
+    write_recording(rec, path, batch=20, channels=True)
+    with BagWriter(tmp_path / 'est.mcap') as writer:
+        writer.write_estimate({'K_T': 0.66}, 5, level=2)
+    got = any_reader_rows(path)
+    rows = np.concatenate([np.asarray(m.data).reshape(-1, 6) for m in got['/samples']])
+    np.testing.assert_array_equal(rows[:, 1], rec.time)
+    np.testing.assert_array_equal(rows[:, 4], rec.current)
+    np.testing.assert_array_equal([m.data for m in got['/speed']], rec.speed)
+    assert json.loads(got['/motor_id/meta'][0].data)['input_kind'] == 'voltage'
+    status = any_reader_rows(tmp_path / 'est.mcap')['/identifier/estimate'][0].status[0]
+    assert (status.level, status.values[0].key, status.values[0].value) == (2, 'K_T', '0.66')
+
+
+COMMITTED_ROWS = {'emps.mcap': 24841, 'dunker_ident_m1.mcap': 2291,
+                  'dunker_valid_m2.mcap': 1238, 'sim_card_paper.mcap': 8782}
+"""Sample counts of committed bags (bags/README.md); they were written before this reader."""
+
+
+@pytest.mark.parametrize('name', sorted(COMMITTED_ROWS))
+def test_committed_bags_read_the_same_with_both_readers(name):
+    path = ROOT / 'bags' / name
+    rec = read_recording(path)
+    assert len(rec) == COMMITTED_ROWS[name]
+    assert rec.meta['gaps'] == []
+    assert 'bag_note' not in rec.meta
+    got = any_reader_rows(path)
+    rows = np.concatenate([np.asarray(m.data).reshape(-1, 6) for m in got['/samples']])
+    np.testing.assert_array_equal(rows[np.argsort(rows[:, 0]), 1], rec.time)
+    np.testing.assert_array_equal(rows[np.argsort(rows[:, 0]), 3], rec.speed)
+
+
+def test_meta_is_strict_json_with_numpy_values_converted(tmp_path):
+    path = tmp_path / 'meta.mcap'
+    with BagWriter(path) as writer:
+        writer.write_meta({'input_kind': 'voltage', 'J': np.float64(0.25), 'n': np.int64(3),
+                           'missing': np.nan, 'grid': np.arange(3), 'pair': (1, 2)})
+        with pytest.raises(ConfigError, match='not JSON-serialisable'):
+            writer.write_meta({'bad': object()})
+    raw = any_reader_rows(path)['/motor_id/meta'][0].data
+
+    def reject(name):
+        raise AssertionError(f'non-standard JSON constant {name}')
+    assert json.loads(raw, parse_constant=reject) == bag.read_meta(path)
+    assert bag.read_meta(path) == {'input_kind': 'voltage', 'J': 0.25, 'n': 3, 'missing': None,
+                                   'grid': [0, 1, 2], 'pair': [1, 2]}
+
+
+def test_write_builds_messages_from_dicts_with_ros_defaults(tmp_path):
+    path = tmp_path / 'dicts.mcap'
+    with BagWriter(path) as writer:
+        writer.write('/status', bag.DIAGNOSTIC_ARRAY, {'status': [{'name': 'x'}]}, 4)
+        with pytest.raises(ConfigError, match=r"has no field\(s\) \['nmae'\]"):
+            writer.write('/status', bag.DIAGNOSTIC_ARRAY, {'status': [{'nmae': 'x'}]}, 5)
+        with pytest.raises(BagError, match='/status: cannot serialise'):
+            writer.write('/status', bag.DIAGNOSTIC_ARRAY, {'status': [{'level': 300}]}, 6)
+    status = any_reader_rows(path)['/status']
+    assert len(status) == 1
+    assert (status[0].status[0].name, status[0].status[0].level) == ('x', 0)
+    assert status[0].header.frame_id == ''
+
+
+def test_reads_samples_recorded_by_another_rosbag2_writer(tmp_path):
+    """/samples as `ros2 bag record` stores them (rosbags' rosbag2 writer, MCAP plugin)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    store = schemas.typestore()
+    rec = make_recording(n=200, seed=8)
+    rows = np.column_stack([np.arange(200), rec.time, rec.input, rec.speed, rec.current,
+                            np.zeros(200)])
+    path = tmp_path / 'recorded'
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        samples = writer.add_connection('/samples', bag.FLOAT64_MULTI_ARRAY, typestore=store)
+        meta = writer.add_connection('/motor_id/meta', bag.STRING, typestore=store)
+        writer.write(meta, 1_700_000_000_000_000_000, schemas.serialize(
+            bag.STRING, {'data': json.dumps({'input_kind': 'voltage', 'robot': 'r1'})}))
+        for k in range(0, 200, 25):
+            msg = {'layout': {'dim': [{'label': 'samples', 'size': 25, 'stride': 150},
+                                      {'label': 'seq,t,voltage,speed,current,flags',
+                                       'size': 6, 'stride': 6}]},
+                   'data': rows[k:k + 25].ravel()}
+            writer.write(samples, 1_700_000_000_000_000_000 + k * 10_000_000,
+                         schemas.serialize(bag.FLOAT64_MULTI_ARRAY, msg))
+    back = read_recording(path)
+    np.testing.assert_array_equal(back.time, rec.time)
+    np.testing.assert_array_equal(back.current, rec.current)
+    assert back.meta['robot'] == 'r1'
+    assert bag_info(path)['complete']
+
+
 def test_file_has_ros2_profile_statistics_and_rosbag2_metadata(tmp_path):
-    from ruamel.yaml import YAML
     path = tmp_path / 'meta.mcap'
     write_recording(make_recording(n=300, seed=4), path, batch=25)
     with open(path, 'rb') as fh:
@@ -358,6 +495,25 @@ def test_recover_skips_a_corrupt_chunk_and_keeps_the_rest(tmp_path):
     assert res['topics']['/samples'] == 30 - lost
 
 
+def test_recover_resumes_after_a_chunk_with_a_damaged_header(tmp_path):
+    full = tmp_path / 'full.mcap'
+    write_chunked(full, batches=30)
+    _, summary = chunk_layout(full)
+    data = bytearray(full.read_bytes())
+    bad = summary.chunk_indexes[3]
+    data[bad.chunk_start_offset + 9 + 28 + 3] ^= 0x7F   # length of the compression name
+    broken = tmp_path / 'broken.mcap'
+    broken.write_bytes(bytes(data))
+    lost = (bad.message_end_time - bad.message_start_time) // 1000 + 1
+    with pytest.raises(BagError, match=rf'1 unreadable record\(s\), first at byte '
+                                       rf'{bad.chunk_start_offset} .*\); '
+                                       rf'{31 - lost} message\(s\)'):
+        read_recording(broken)
+    res = recover(broken, tmp_path / 'fixed.mcap')
+    assert res['topics'] == {'/motor_id/meta': 1, '/samples': 30 - lost}
+    assert res['chunks'] == len(summary.chunk_indexes) - 1
+
+
 KILLED_WRITER = textwrap.dedent('''
     import sys, time
     import numpy as np
@@ -405,6 +561,15 @@ def test_recover_after_the_writer_is_killed(tmp_path):
     np.testing.assert_array_equal(rec.time, np.arange(200) * 0.01)
     assert rec.meta['provenance'] == 'killed'
     assert rec.meta['gaps'] == []
+    with open(out, 'rb') as fh:
+        records = {m.name: m.metadata for m in make_reader(fh).iter_metadata()}
+    info = YAML(typ='safe').load(records['rosbag2']['serialized_metadata'])
+    topics = {t['topic_metadata']['name']: t for t in info['topics_with_message_count']}
+    samples = topics['/samples']
+    assert samples['message_count'] == 40
+    assert samples['topic_metadata']['offered_qos_profiles'][0]['depth'] == SAMPLES_DEPTH
+    assert samples['topic_metadata']['type_description_hash'] == JAZZY_HASHES[
+        'std_msgs/msg/Float64MultiArray']
 
 
 def test_cli_bag_info_and_recover(tmp_path, capsys):
@@ -435,13 +600,6 @@ def test_committed_bags_are_complete():
         assert info['complete'], path
         assert info['profile'] == 'ros2'
         assert path.stat().st_size < 2_000_000, path
-
-
-def test_yaml_emitter_quotes_what_needs_quoting():
-    from ruamel.yaml import YAML
-    value = {'a': 'plain_text', 'b': 'yes', 'c': 'x: y', 'd': '', 'e': None, 'f': [],
-             'g': [{'h': 1, 'i': [True, 'z']}], 'j': {}}
-    assert YAML(typ='safe').load(io.StringIO(bag._yaml(value))) == value
 
 
 def test_writer_is_safe_to_share_between_threads(tmp_path):

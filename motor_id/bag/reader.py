@@ -1,0 +1,223 @@
+"""Reading a motor_id bag back: the ``/samples`` rows, the ``/motor_id/meta`` JSON, a Recording.
+
+The file is read with the mcap library's ``StreamReader`` (CRCs checked); messages are
+decoded with the ROS 2 Jazzy type store of rosbags. A file the library cannot read to
+the end of its data section is reported in one line, with what ``motor-id bag recover``
+would salvage (found by the tolerant scan of :mod:`motor_id.bag.scan`).
+"""
+
+from dataclasses import dataclass, field
+import json
+
+from mcap.records import Channel, DataEnd, Message, Schema
+from mcap.stream_reader import StreamReader
+import numpy as np
+
+from motor_id.bag.files import open_mcap
+from motor_id.bag.scan import DAMAGE_ERRORS, scan_file
+from motor_id.bag.schemas import (DECODE_ERRORS, deserialize, FLOAT64_MULTI_ARRAY,
+                                  MESSAGE_ENCODING, SCHEMA_ENCODING, STRING, topic_name)
+from motor_id.contracts import BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows, SAMPLE_COLUMNS
+from motor_id.errors import BagError
+from motor_id.recording import Recording
+
+
+@dataclass
+class _Contents:
+    """The schemas, channels and messages (per channel, in file order) of a read bag."""
+
+    path: str
+    schemas: dict = field(default_factory=dict)
+    channels: dict = field(default_factory=dict)
+    messages: dict = field(default_factory=dict)
+    data_end: bool = False
+    note: str = ''
+
+    def take(self, record):
+        if isinstance(record, Message):
+            self.messages.setdefault(record.channel_id, []).append(record)
+        elif isinstance(record, Channel):
+            self.channels[record.id] = record
+        elif isinstance(record, Schema):
+            self.schemas[record.id] = record
+        elif isinstance(record, DataEnd):
+            self.data_end = True
+
+    def on_topic(self, topic):
+        """The channels named ``topic`` (relative or absolute)."""
+        name = topic_name(topic)
+        return [ch for ch in self.channels.values() if topic_name(ch.topic) == name]
+
+    def topic_list(self):
+        """``topics present: /a (type, n msgs), ...`` for an error message."""
+        if not self.channels:
+            return 'the file has no topics'
+        items = []
+        for ch in self.channels.values():
+            schema = self.schemas.get(ch.schema_id)
+            items.append(f'{ch.topic} ({schema.name if schema else "no schema"}, '
+                         f'{len(self.messages.get(ch.id, []))} msgs)')
+        return 'topics present: ' + ', '.join(sorted(items))
+
+
+def _read(path):
+    """Every record of the data section; BagError (one line) if it cannot all be read."""
+    fh, _ = open_mcap(path)
+    contents = _Contents(str(path))
+    with fh:
+        try:
+            for record in StreamReader(fh, validate_crcs=True).records:
+                contents.take(record)
+        except DAMAGE_ERRORS as exc:
+            if not contents.data_end:
+                raise _damaged(path, exc) from None
+            contents.note = 'data complete but the summary/footer is missing'
+    return contents
+
+
+def _damaged(path, exc):
+    scan = scan_file(path)
+    problem = scan.problem() or ' '.join(f'{type(exc).__name__}: {exc}'.split())
+    return BagError(f'{scan.path}: truncated or corrupt MCAP ({problem}); '
+                    + scan.recover_hint())
+
+
+def _typed_channels(contents, topic, msgtype):
+    """Channels of ``topic``, checked to be CDR-encoded ``msgtype``."""
+    chans = contents.on_topic(topic)
+    for ch in chans:
+        schema = contents.schemas.get(ch.schema_id)
+        if schema is None:
+            raise BagError(f'{contents.path}: {ch.topic} has no schema, cannot decode it')
+        if schema.encoding != SCHEMA_ENCODING or ch.message_encoding != MESSAGE_ENCODING:
+            raise BagError(f'{contents.path}: cannot decode {ch.topic}: schema encoding '
+                           f'{schema.encoding!r}, message encoding {ch.message_encoding!r} '
+                           f'(need {SCHEMA_ENCODING!r} and {MESSAGE_ENCODING!r})')
+        if schema.name != msgtype:
+            raise BagError(f'{contents.path}: {ch.topic} has type {schema.name!r}, expected '
+                           f'{msgtype}')
+    return chans
+
+
+def _batches(contents, topic):
+    """(rows, log time [ns]) of every sample message of ``topic``, in file order."""
+    chans = _typed_channels(contents, topic, FLOAT64_MULTI_ARRAY)
+    if not chans:
+        raise BagError(f'{contents.path}: no {topic_name(topic)} topic; '
+                       f'{contents.topic_list()}')
+    ids = {ch.id for ch in chans}
+    messages = [m for cid in ids for m in contents.messages.get(cid, [])]
+    for i, msg in enumerate(messages):
+        try:
+            decoded = deserialize(msg.data, FLOAT64_MULTI_ARRAY)
+            dims = list(decoded.layout.dim)
+            labels, sizes = [d.label for d in dims], [d.size for d in dims]
+            rows = batch_rows(labels, sizes, decoded.layout.data_offset, decoded.data)
+        except DECODE_ERRORS as exc:
+            raise BagError(f'{contents.path}: {topic} message {i} (log time {msg.log_time} '
+                           f'ns) is not a valid sample batch: {exc}') from None
+        yield rows, msg.log_time
+
+
+def _samples(contents, topic=BAG_SAMPLES_TOPIC):
+    blocks, log_times = [], []
+    for rows, log_time in _batches(contents, topic):
+        blocks.append(rows)
+        log_times.append(np.full(rows.shape[0], log_time, dtype=np.int64))
+    if sum(b.shape[0] for b in blocks) == 0:
+        raise BagError(f'{contents.path}: {topic_name(topic)} holds no sample rows')
+    rows = np.concatenate(blocks)
+    log_ns = np.concatenate(log_times)
+    order = np.argsort(rows[:, 0], kind='stable')
+    rows, log_ns = rows[order], log_ns[order]
+    keep = np.ones(rows.shape[0], dtype=bool)
+    keep[1:] = np.diff(rows[:, 0]) != 0
+    rows, log_ns = rows[keep], log_ns[keep]
+    seq = rows[:, 0]
+    gaps = [{'after_seq': int(seq[k]), 'missing': int(seq[k + 1] - seq[k] - 1),
+             't_before': float(rows[k, 1]), 't_after': float(rows[k + 1, 1])}
+            for k in np.flatnonzero(np.diff(seq) > 1)]
+    out = {name: rows[:, j].copy() for j, name in enumerate(SAMPLE_COLUMNS)}
+    out.update(log_time_ns=log_ns, gaps=gaps, duplicates=int(np.count_nonzero(~keep)))
+    return out
+
+
+def _meta(contents):
+    meta = {}
+    for ch in _typed_channels(contents, BAG_META_TOPIC, STRING):
+        for msg in contents.messages.get(ch.id, []):
+            try:
+                item = json.loads(deserialize(msg.data, STRING).data)
+            except DECODE_ERRORS as exc:
+                raise BagError(f'{contents.path}: a {BAG_META_TOPIC} message is not valid '
+                               f'JSON ({exc})') from None
+            if not isinstance(item, dict):
+                raise BagError(f'{contents.path}: a {BAG_META_TOPIC} message is not a JSON '
+                               'object')
+            meta.update(item)
+    return meta
+
+
+def read_samples(path, topic=BAG_SAMPLES_TOPIC):
+    """All rows of the ``/samples`` topic, sorted by sequence number.
+
+    Parameters
+    ----------
+    path : str or Path
+        An ``.mcap`` file (or a rosbag2 directory holding exactly one).
+    topic : str
+
+    Returns
+    -------
+    dict
+        Arrays ``seq, t, voltage, speed, current, flags, log_time_ns`` (one entry per
+        row; a repeated ``seq`` keeps its first row), ``gaps`` (list of
+        ``{after_seq, missing, t_before, t_after}``; never filled) and ``duplicates``.
+
+    Raises
+    ------
+    BagError
+        One line: missing file, not an MCAP, truncated/corrupt (with the count that
+        :func:`motor_id.bag.recover` would salvage), no such topic (with the topics
+        present), wrong or undecodable type, unexpected layout.
+    """
+    return _samples(_read(path), topic)
+
+
+def read_meta(path):
+    """The merged JSON objects of ``/motor_id/meta`` ({} when the bag has none)."""
+    return _meta(_read(path))
+
+
+def read_recording(path):
+    """Rebuild a :class:`~motor_id.recording.Recording` from a bag's ``/samples`` topic.
+
+    Rows are sorted by ``seq``; gaps in ``seq`` are kept as they are (time simply jumps)
+    and listed in ``rec.meta['gaps']``; ``input_kind`` and the rest of the metadata come
+    from ``/motor_id/meta``. The current channel is None when it is NaN throughout.
+    The recording is not validated here (``Recording.validate`` or the fitter does it).
+
+    Raises
+    ------
+    BagError
+        See :func:`read_samples`.
+    """
+    contents = _read(path)
+    samples = _samples(contents)
+    meta = _meta(contents)
+    kind = meta.pop('input_kind', 'voltage')
+    if kind not in ('voltage', 'torque'):
+        raise BagError(f'{contents.path}: {BAG_META_TOPIC} input_kind must be voltage or '
+                       f'torque, got {kind!r}')
+    current = samples['current']
+    current = current if np.any(np.isfinite(current)) else None
+    meta['bag'] = contents.path
+    meta['gaps'] = samples['gaps']
+    if samples['duplicates']:
+        meta['duplicate_rows'] = samples['duplicates']
+    nonzero = int(np.count_nonzero(samples['flags']))
+    if nonzero:
+        meta['flagged_rows'] = nonzero
+    if contents.note:
+        meta['bag_note'] = contents.note
+    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)
