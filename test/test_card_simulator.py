@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 from motor_id.card import protocol as pr
-from motor_id.card.simulator import CardSimulator, FaultConfig, FaultInjector, VirtualCard
+from motor_id.card.faults import FaultConfig, FaultInjector
+from motor_id.card.simulator import CardSimulator
 from motor_id.card.transport import open_transport, read_available, TransportError
+from motor_id.card.virtual_card import VirtualCard
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation
 from motor_id.model import PAPER_MOTOR, Plant

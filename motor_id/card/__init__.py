@@ -1,1 +1,1 @@
-"""The simulated serial card: frame protocol and a virtual card on a pseudo-terminal."""
+"""The serial card: protocol, transport, link, limits and sessions, the simulated card."""

@@ -8,6 +8,7 @@ from motor_id.card.simulator import CardSimulator, FaultConfig
 from motor_id.errors import ConfigError
 from motor_id.model import METHODS, parse_effect_args, Plant
 
+
 def add_arguments(parser):
     """CLI arguments of `motor-id card-sim`."""
     parser.add_argument('--params', metavar='FILE',
@@ -21,7 +22,12 @@ def add_arguments(parser):
     parser.add_argument('--fault', action='append', default=[], metavar='NAME=VALUE',
                         help='inject faults (repeatable): garbage=P[:MAX], drop=P, '
                              'bad_crc=P, duplicate=P, reorder=P (per frame), '
-                             'disconnect=EVERY[:DOWN] (seconds; needs --link)')
+                             'disconnect=EVERY[:DOWN] (seconds; needs --link), '
+                             'current_spike=EVERY[:AMPS] (one sample per EVERY card '
+                             'seconds reads AMPS, default 50 A)')
+    parser.add_argument('--no-profiles', action='store_true',
+                        help='a card without built-in profiles: answer "unsupported" to '
+                             'start-profile commands (the driver then streams the profile)')
     parser.add_argument('--period', type=float, default=0.01, help='sample period [s]')
     parser.add_argument('--speedup', type=float, default=1.0,
                         help='card seconds per wall second; 0 = as fast as read')
@@ -51,7 +57,8 @@ def simulator_from_args(args):
         raise ConfigError('--fault disconnect needs --link PATH so that the device comes '
                           'back at the same path')
     return CardSimulator(plant, args.period, args.speedup, not args.no_current, speed_noise,
-                         current_noise, args.method, faults, args.link, args.seed)
+                         current_noise, args.method, faults, args.link, args.seed,
+                         profiles=not args.no_profiles)
 
 
 def run(args):

@@ -1,6 +1,5 @@
-"""The driver node: reads the card's serial stream in a thread and publishes samples."""
+"""The driver node: a card link in a reader thread, samples and joint states out."""
 
-from collections import Counter
 import json
 import math
 import sys
@@ -10,22 +9,23 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
-from motor_id.card.protocol import (encode_command, FLAG_STARTUP, FrameParser, MAX_FRAME,
-                                    SequenceTracker, SetPeriod, SetVoltage, StartProfile, Stop)
-from motor_id.card.transport import open_transport, read_available, TransportError, write_all
-from motor_id.errors import ConfigError, MotorIdError, ProtocolError
+from motor_id.card.link import CardLink, SampleClock
+from motor_id.card.protocol import Stop
+from motor_id.card.session import EXTERNAL, Session
+from motor_id.card.supervisor import Limits
+from motor_id.contracts import JOINT_STATES_TOPIC
+from motor_id.errors import ConfigError, MotorIdError
 from motor_id.excitation import PROFILES
 from motor_id.nodes import messages
 from motor_id.nodes.common import declare_parameters, ParamSpec, RCLError, run_node
 
-EXTERNAL = 'external'
-GARBLED_BYTES = 4 * MAX_FRAME
-"""Bytes in a row without one valid frame that mark the link garbled (wrong baud rate,
-wrong device, electrical noise): longer than any frame, so a torn or corrupt frame or
-a burst of line noise between good frames never does."""
+COMMAND_QOS = qos_profile_sensor_data
+"""``voltage_command``: best effort, so reliable and best-effort publishers both match."""
 
 PARAMETERS = (
     ParamSpec('device', '/dev/ttyACM0', 'card device path or pyserial URL (loop://, '
@@ -33,17 +33,32 @@ PARAMETERS = (
     ParamSpec('baud', 115200, 'serial line rate [bit/s]', low=50, high=12000000),
     ParamSpec('sample_period', 0.01, 'card sample period sent at start [s]', low=1e-5,
               high=10.0),
-    ParamSpec('excitation', 'paper_steps', 'profile the card runs at start; external: '
-              'forward the voltage_command topic', choices=PROFILES + (EXTERNAL,)),
-    ParamSpec('autostart', True, 'send the excitation when the device first opens (false: '
-              'wait for ~/start)'),
+    ParamSpec('excitation', 'paper_steps', 'profile ~/start runs; external: forward the '
+              'voltage_command topic', choices=PROFILES + (EXTERNAL,)),
+    ParamSpec('autostart', False, 'start the excitation as soon as the device first opens '
+              '(false: wait for ~/start)'),
     ParamSpec('amplitude', 9.0, 'profile amplitude [V]', low=0.0, high=1000.0),
     ParamSpec('duration', 40.0, 'profile length [s]; the card holds 0 V afterwards',
               low=0.001, high=1e6),
     ParamSpec('seed', 0, 'seed of random profiles (prbs, multisine)', low=0,
               high=2 ** 32 - 1),
-    ParamSpec('input_kind', 'voltage', 'what the voltage column carries (bag metadata)',
+    ParamSpec('max_voltage', 12.0, 'largest |voltage| any output carries [V]: commands '
+              'are clamped, a larger profile amplitude is refused', low=0.01, high=1000.0),
+    ParamSpec('max_speed', 100.0, '|speed| that stops the excitation and holds 0 V until '
+              '~/start or ~/reset [rad/s]; 0: off', low=0.0, high=1e6),
+    ParamSpec('max_current', 20.0, '|current| that stops the excitation and holds 0 V '
+              'until ~/start or ~/reset [A]; 0: off', low=0.0, high=1e5),
+    ParamSpec('command_timeout_s', 0.5, 'external excitation: hold 0 V after this long '
+              'without a voltage_command [s]; 0: off', low=0.0, high=3600.0),
+    ParamSpec('input_kind', 'voltage', 'what the voltage column carries (bag metadata; '
+              'joint_states effort is the torque for a torque card)',
               choices=('voltage', 'torque')),
+    ParamSpec('joint_name', 'motor', 'name of the joint in joint_states'),
+    ParamSpec('publish_joint_states', True, 'publish sensor_msgs/JointState on '
+              'joint_states, one per sample: stamp = card time + a fixed offset to ROS '
+              'time (taken at the first sample), velocity = speed [rad/s], effort = '
+              'current [A] (torque [N m] on a torque card), position = speed integrated '
+              'over card time [rad] (0 at the first sample)'),
     ParamSpec('record_path', '', 'MCAP file to record to (empty: no recording)'),
     ParamSpec('meta_file', '', 'JSON object merged into the recording metadata (e.g. '
               '{"truth": ...} of a simulated card); empty: none'),
@@ -58,39 +73,52 @@ PARAMETERS = (
 )
 
 
-class DriverNode(Node):
-    """Card driver: serial frames in, `samples` batches and per-channel topics out.
+def _check_settings(s):
+    """Cross-parameter checks (one line naming the parameter)."""
+    if not s['device']:
+        raise ConfigError('parameter device: got an empty string; allowed: a device '
+                          'path or pyserial URL')
+    if not s['joint_name']:
+        raise ConfigError('parameter joint_name: got an empty string; allowed: a name')
+    if s['excitation'] != EXTERNAL and s['amplitude'] > s['max_voltage']:
+        raise ConfigError(f'parameter amplitude: {s["amplitude"]:g} V exceeds max_voltage '
+                          f'{s["max_voltage"]:g} V, so the {s["excitation"]} profile would '
+                          'be refused; lower amplitude or raise max_voltage')
 
-    A reader thread does the blocking reads, parsing, sequence accounting, publishing
-    and recording; the executor only runs the diagnostics timer, the voltage command
-    subscription and the start/stop services. The device may be absent at start or
-    vanish: the thread reopens it with exponential backoff, logs each fault kind once
-    per outage, and the sequence numbers show the gap downstream.
+
+class DriverNode(Node):
+    """Card driver: a :class:`CardLink` read in a thread, samples and joint states out.
+
+    The reader thread polls the link (open with back-off, read, parse, count, batch)
+    and publishes the batches. A :class:`~motor_id.card.session.Session` runs the
+    excitation and checks every sample against the limits, holding 0 V when one trips
+    (latched until ``~/start`` or ``~/reset``). The executor runs the diagnostics
+    timer, the ``voltage_command`` subscription and the ``~/start``, ``~/stop``,
+    ``~/reset`` services. Nothing but parameters, messages, services and logging here.
     """
 
     def __init__(self):
         super().__init__('driver')
-        self.settings = declare_parameters(self, PARAMETERS)
-        s = self.settings
-        if not s['device']:
-            raise ConfigError('parameter device: got an empty string; allowed: a device '
-                              'path or pyserial URL')
+        self.settings = s = declare_parameters(self, PARAMETERS)
+        _check_settings(s)
         self.device = s['device']
-        self.parser = FrameParser()
-        self.tracker = SequenceTracker()
-        self.counts = Counter()          # samples, published, transport faults, reopen
-        self.link = 'connecting'
-        self._logged = set()             # fault kinds already logged (this outage)
-        self._port = None
-        self._port_lock = threading.Lock()
-        self._stop = threading.Event()
-        self._started_profile = False
-        self._last_frame = None
-        self._bytes_since_frame = 0
+        self._stop_event = threading.Event()
+        self._published = 0
         self._rate = (time.monotonic(), 0, 0.0)
-        self.writer = None
-        if s['record_path']:
-            self.writer = self._open_writer(s['record_path'])
+        self.link = CardLink(self.device, s['baud'], s['read_timeout'],
+                             s['reopen_backoff_max'], s['stall_timeout'], s['batch_size'],
+                             sample_period=s['sample_period'], log=self._log,
+                             on_open=lambda: self.session.on_open(),
+                             on_sample=lambda x: self.session.on_sample(x),
+                             on_reply=lambda r: self.session.on_reply(r),
+                             stop=self._stop_event)
+        self.session = Session(
+            self.link, Limits(s['max_voltage'], s['max_speed'], s['max_current'],
+                              s['command_timeout_s']),
+            s['excitation'], s['amplitude'], s['seed'], s['duration'], s['sample_period'],
+            s['autostart'], log=self._log)
+        self.clock = SampleClock()
+        self.writer = self._open_writer(s['record_path']) if s['record_path'] else None
         self.samples_pub = self.create_publisher(Float64MultiArray, messages.SAMPLES_TOPIC,
                                                  messages.SAMPLES_QOS)
         self.channel_pubs = {}
@@ -98,21 +126,34 @@ class DriverNode(Node):
             self.channel_pubs = {name: self.create_publisher(Float64, name,
                                                              messages.CHANNEL_QOS)
                                  for name in messages.CHANNEL_TOPICS}
+        self.joint_pub = None
+        if s['publish_joint_states']:
+            self.joint_pub = self.create_publisher(JointState, JOINT_STATES_TOPIC,
+                                                   messages.CHANNEL_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
         if s['excitation'] == EXTERNAL:
             self.create_subscription(Float64, messages.VOLTAGE_COMMAND_TOPIC,
-                                     self._on_voltage_command, messages.CHANNEL_QOS)
+                                     self._on_voltage_command, COMMAND_QOS)
         self.create_service(Trigger, '~/start', self._on_start)
         self.create_service(Trigger, '~/stop', self._on_stop)
+        self.create_service(Trigger, '~/reset', self._on_reset)
         self.create_timer(1.0, self._publish_diagnostics)
-        self._thread = threading.Thread(target=self._run, name='card-reader',
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name='card-reader', daemon=True)
         self._thread.start()
         self.get_logger().info(
             f'driver started: device {self.device}, excitation {s["excitation"]}, '
-            f'period {s["sample_period"]:g} s'
+            f'period {s["sample_period"]:g} s, max_voltage {s["max_voltage"]:g} V'
             + (f', recording to {s["record_path"]}' if self.writer else ''))
+
+    def _log(self, level, text):
+        log = self.get_logger()   # rclpy wants one severity per call site
+        if level == 'info':
+            log.info(text)
+        elif level == 'error':
+            log.error(text)
+        else:
+            log.warning(text)
 
     # ------------------------------------------------------------ recording
     def _open_writer(self, path):
@@ -150,173 +191,51 @@ class DriverNode(Node):
         return writer
 
     # ------------------------------------------------------------ the reader thread
-    def _fault(self, kind, text, level='warning'):
-        """Log a fault the first time its kind occurs (per outage); always count it."""
-        self.counts[kind] += 1
-        if kind in self._logged:
-            return
-        self._logged.add(kind)
-        text = f'{text} (further {kind} faults are counted in /diagnostics, not logged)'
-        log = self.get_logger()   # rclpy wants one severity per call site
-        if level == 'info':
-            log.info(text)
-        elif level == 'error':
-            log.error(text)
-        else:
-            log.warning(text)
-
-    def _open(self):
-        """Try to open the device once; return the port or None."""
-        try:
-            port = open_transport(self.device, self.settings['baud'],
-                                  self.settings['read_timeout'])
-        except TransportError as exc:
-            self.link = 'disconnected'
-            self._fault('open_failed', f'{exc}; retrying with backoff')
-            return None
-        self.parser.reset()
-        if self.counts['reopened'] or self.counts['lost_device']:
-            self.get_logger().info(f'device {self.device} reopened')
-        else:
-            self.get_logger().info(f'device {self.device} open')
-        self.counts['reopened'] += 1
-        self._logged = {k for k in self._logged if k not in ('open_failed', 'lost_device')}
-        return port
-
-    def _configure(self):
-        """Send the sample period and, the first time, the excitation."""
-        s = self.settings
-        commands = [SetPeriod(s['sample_period'])]
-        if s['excitation'] != EXTERNAL and s['autostart'] and not self._started_profile:
-            commands.append(self._profile_command())
-            self._started_profile = True
-        for cmd in commands:
-            self.send(cmd)
-
-    def _profile_command(self):
-        s = self.settings
-        return StartProfile(s['excitation'], s['amplitude'], s['seed'], s['duration'])
-
     def _run(self):
-        """Thread body: the read loop, restarted after an unexpected error."""
-        while not self._stop.is_set():
+        """Thread body: poll the link, publish batches; restarted after a bug."""
+        while not self._stop_event.is_set():
             try:
-                self._read_loop()
-            except Exception as exc:  # noqa: B902 - the reader must outlive any bug
-                self._fault(f'internal_{type(exc).__name__}',
-                            f'reader thread error {type(exc).__name__}: {exc}; restarting',
-                            'error')
-                self._stop.wait(1.0)
-
-    def _read_loop(self):
-        backoff = 0.05
-        batch = []
-        flush_at = time.monotonic()
-        while not self._stop.is_set():
-            port = self._port
-            if port is None:
-                port = self._open()
-                if port is None:
-                    self._stop.wait(backoff)
-                    backoff = min(2 * backoff, self.settings['reopen_backoff_max'])
-                    continue
-                backoff = 0.05
-                with self._port_lock:
-                    self._port = port
-                self.link = 'connected'
-                self._last_frame = time.monotonic()
-                self._bytes_since_frame = 0
-                try:
-                    self._configure()
-                except MotorIdError as exc:
-                    self._fault('command_failed', f'configuring the card failed: {exc}')
-            try:
-                data = read_available(port)
-            except TransportError as exc:
-                if batch:   # what was read before the loss goes out now, not after it
+                for batch in self.link.poll():
                     self._emit(batch)
-                    batch = []
-                self._lose_device(f'{exc}')
-                continue
-            if data:
-                self._bytes_since_frame += len(data)
-                self._handle(self.parser.feed(data), batch)
-                self._check_garbled()
-            now = time.monotonic()
-            if batch and (len(batch) >= self.settings['batch_size'] or not data or
-                          now - flush_at > 0.1):
-                self._emit(batch)
-                batch = []
-                flush_at = now
-            if not batch:
-                flush_at = now
-            if self._last_frame is not None and self.link == 'connected' and \
-                    now - self._last_frame > self.settings['stall_timeout']:
-                self.link = 'stalled'
-        if batch:
+                self.session.check_watchdog()
+            except Exception as exc:  # noqa: B902 - the reader must outlive any bug
+                self.link.fault(f'internal_{type(exc).__name__}',
+                                f'reader thread error {type(exc).__name__}: {exc}; '
+                                'restarting', 'error')
+                self._stop_event.wait(1.0)
+        for batch in self.link.flush():
             self._emit(batch)
 
-    def _check_garbled(self):
-        """Bytes keep coming but none of them is a frame: say so once, and what to check."""
-        if self._bytes_since_frame < GARBLED_BYTES or self.link == 'garbled':
-            return
-        self.link = 'garbled'
-        self._fault('garbled', f'no valid frame in {self._bytes_since_frame} bytes: check '
-                    f'the baud rate (the driver uses {self.settings["baud"]} bit/s) and the '
-                    'device')
-
-    def _lose_device(self, text):
-        self.link = 'disconnected'
-        self._fault('lost_device', f'device lost: {text}; reopening with backoff')
-        with self._port_lock:
-            port, self._port = self._port, None
-        try:
-            port.close()
-        except (OSError, ValueError):
-            pass
-
-    def _handle(self, items, batch):
-        """Count and sort parsed items; good samples go into ``batch``."""
-        for item in items:
-            if isinstance(item, ProtocolError):
-                self._fault(f'frame_{item.kind}', f'bad frame from the card: {item}')
-                continue
-            self.counts['frames_ok'] += 1
-            self._last_frame = time.monotonic()
-            self._bytes_since_frame = 0
-            if self.link in ('stalled', 'garbled'):
-                self.link = 'connected'
-            ev = self.tracker.update(item.seq, restart=bool(item.flags & FLAG_STARTUP))
-            if ev.kind == 'gap':
-                self._fault('lost_frames', f'{ev.lost} frame(s) lost before seq {ev.seq}')
-            elif ev.kind == 'reset':
-                self._fault('card_reset', f'the card restarted its sequence at {ev.seq}',
-                            'info')
-            elif ev.kind in ('duplicate', 'late'):
-                self._fault(f'{ev.kind}_frames', f'{ev.kind} frame seq {ev.seq} dropped')
-                continue
-            batch.append((item.seq, item.t_card, item.voltage, item.speed, item.current,
-                          item.flags))
-        while self.parser.replies:
-            reply = self.parser.replies.popleft()
-            if reply.status != 'ok':
-                self._fault(f'reply_{reply.status}', f'the card answered {reply.status} to '
-                            f'{reply.command}')
-
     def _emit(self, batch):
-        rows = np.asarray(batch, dtype=float)
+        rows = np.array([(x.seq, x.t_card, x.voltage, x.speed, x.current, x.flags)
+                         for x in batch], dtype=float)
+        now_ns = self.get_clock().now().nanoseconds
         if self.writer is not None:
             try:
-                self.writer.write_samples(rows, self.get_clock().now().nanoseconds)
+                self.writer.write_samples(rows, now_ns)
             except (MotorIdError, OSError) as exc:
-                self._fault('record_failed', f'recording failed: {exc}', 'error')
+                self.link.fault('record_failed', f'recording failed: {exc}', 'error')
         self._publish(self.samples_pub, messages.rows_to_msg(rows))
         for name, pub in self.channel_pubs.items():
             col = {'voltage': 2, 'speed': 3, 'current': 4}[name]
             for value in rows[:, col]:
                 if not (name == 'current' and math.isnan(value)):
                     self._publish(pub, messages.float_msg(value))
-        self.counts['samples_published'] += rows.shape[0]
+        for x in batch:
+            stamp = self.clock.update(x, now_ns)
+            if self.joint_pub is not None:
+                self._publish(self.joint_pub, self._joint_state(x, stamp))
+        self._published += rows.shape[0]
+
+    def _joint_state(self, sample, stamp_ns):
+        msg = JointState()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)
+        msg.name = [self.settings['joint_name']]
+        msg.position = [self.clock.position]
+        msg.velocity = [sample.speed]
+        torque = self.settings['input_kind'] == 'torque'
+        msg.effort = [sample.voltage if torque else sample.current]
+        return msg
 
     def _publish(self, pub, msg):
         try:
@@ -324,100 +243,86 @@ class DriverNode(Node):
         except RCLError:
             if self.context.ok():
                 raise
-            self._stop.set()   # the context shut down under us: leave quietly
+            self._stop_event.set()   # the context shut down under us: leave quietly
 
     # ------------------------------------------------------------ commands
-    def send(self, command):
-        """Encode and write one command to the card; raises a MotorIdError if not possible."""
-        data = encode_command(command)
-        with self._port_lock:
-            if self._port is None:
-                raise TransportError(f'device {self.device} is not open')
-            write_all(self._port, data)
-        self.counts['commands_sent'] += 1
-
     def _on_voltage_command(self, msg):
-        try:
-            self.send(SetVoltage(msg.data))
-        except (MotorIdError, ValueError) as exc:
-            self._fault('command_failed', f'voltage command {msg.data!r} not sent: {exc}')
+        self.session.command(msg.data)
 
     def _on_start(self, request, response):
-        if self.settings['excitation'] == EXTERNAL:
-            response.success = False
-            response.message = 'excitation is external: publish on voltage_command instead'
-            return response
         try:
-            self.send(self._profile_command())
+            text = self.session.start()
         except MotorIdError as exc:
             response.success, response.message = False, f'not started: {exc}'
         else:
-            self._started_profile = True
             response.success = True
-            response.message = (f'started {self.settings["excitation"]} '
-                                f'({self.samples_pub.get_subscription_count()} subscriber(s) '
-                                'on samples)')
+            response.message = (f'{text} ({self.samples_pub.get_subscription_count()} '
+                                'subscriber(s) on samples)')
         return response
 
     def _on_stop(self, request, response):
         try:
-            self.send(Stop())
+            self.session.stop()
         except MotorIdError as exc:
             response.success, response.message = False, f'not sent: {exc}'
         else:
             response.success, response.message = True, 'card holds 0 V'
         return response
 
+    def _on_reset(self, request, response):
+        try:
+            text = self.session.reset()
+        except MotorIdError as exc:
+            response.success, response.message = False, f'limits re-armed, 0 V not sent: {exc}'
+        else:
+            response.success, response.message = True, text
+        return response
+
     # ------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self):
         now = time.monotonic()
         t0, n0, _ = self._rate
-        n = self.counts['samples_published']
+        n = self._published
         rate = (n - n0) / (now - t0) if now > t0 else 0.0
         self._rate = (now, n, rate)
-        tr = self.tracker
-        bad = {k: v for k, v in self.counts.items() if k.startswith('frame_')}
-        values = {'link': self.link, 'device': self.device,
-                  'frames_ok': self.counts['frames_ok'], 'frames_bad': sum(bad.values()),
-                  'garbage_bytes': self.parser.garbage_bytes, 'lost': tr.lost,
-                  'duplicates': tr.duplicates, 'late': tr.late, 'resets': tr.resets,
-                  'last_seq': tr.last, 'samples_published': n, 'rate_hz': round(rate, 2),
-                  'opens': self.counts['reopened'],
-                  'device_lost': self.counts['lost_device'],
-                  'open_failures': self.counts['open_failed'],
-                  'commands_sent': self.counts['commands_sent']}
-        values.update(sorted(bad.items()))
+        values = self.link.values()
+        values.update(samples_published=n, rate_hz=round(rate, 2))
+        values.update(self.session.values())
         if self.writer is not None:
             values['record_path'] = self.settings['record_path']
-        if self.link == 'disconnected':
-            level, text = messages.ERROR, f'device {self.device} not available'
-        elif self.link != 'connected':
-            level, text = messages.WARN, f'link {self.link}'
-        elif tr.lost or bad:
-            level, text = messages.WARN, 'streaming, with lost or bad frames'
-        else:
-            level, text = messages.OK, 'streaming'
+        level, text = self._status(values)
         st = messages.status('motor_id: driver', level, text, values,
                              hardware_id=self.device)
         self._publish(self.diag_pub,
                       messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
 
+    def _status(self, values):
+        supervisor = self.session.supervisor
+        trip = supervisor.trip
+        if trip is not None:
+            return messages.ERROR, f'excitation stopped by the {trip.describe()}'
+        if values['link'] == 'disconnected':
+            return messages.ERROR, f'device {self.device} not available'
+        if values['link'] != 'connected':
+            return messages.WARN, f'link {values["link"]}'
+        if supervisor.watchdog_holding:
+            return messages.WARN, 'no voltage_command: watchdog holds 0 V'
+        if 'line_overload' in values:
+            return messages.WARN, 'streaming, but the line is too slow for the sample rate'
+        if values['lost'] or values['frames_bad']:
+            return messages.WARN, 'streaming, with lost or bad frames'
+        return messages.OK, 'streaming'
+
     # ------------------------------------------------------------ shutdown
     def stop(self):
         """Stop the reader thread, hold the card at 0 V, close the port and the bag."""
-        self._stop.set()
+        self._stop_event.set()
         self._thread.join(5.0)
         try:
-            self.send(Stop())
+            self.link.send(Stop())
         except MotorIdError:
             pass
-        with self._port_lock:
-            port, self._port = self._port, None
-        if port is not None:
-            try:
-                port.close()
-            except (OSError, ValueError):
-                pass
+        self.link.close()
         if self.writer is not None:
             try:
                 self.writer.close()

@@ -1,0 +1,243 @@
+"""One motor run from the host: profiles (on the card or streamed), commands, stop, reset.
+
+:class:`Session` is the driver's logic without ROS: it starts the excitation (a
+``StartProfile`` to the card, or :class:`HostProfile` as ``SetVoltage`` commands when
+the card answers ``unsupported``), forwards external voltage commands, and runs every
+sample and command through a :class:`~motor_id.card.supervisor.Supervisor`. It talks
+to the card through a :class:`~motor_id.card.link.CardLink` (``send``, ``fault``).
+"""
+
+from dataclasses import replace
+
+from motor_id.card.profile import profile_samples
+from motor_id.card.protocol import SetPeriod, SetVoltage, StartProfile, Stop
+from motor_id.card.supervisor import Supervisor
+from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END
+from motor_id.errors import MotorIdError
+
+EXTERNAL = 'external'
+"""The excitation name for "forward external voltage commands"."""
+
+
+class HostProfile:
+    """A profile played by the host: one ``SetVoltage`` per card sample.
+
+    Parameters
+    ----------
+    name : str
+    amplitude, seed, duration, period
+        As :func:`motor_id.card.profile.profile_samples` (the card's own definition).
+
+    Notes
+    -----
+    The schedule runs on the card's clock: the first sample received after the start
+    is profile sample -1 (the command sent then acts from the next sample), and each
+    later sample at card time ``t`` is profile sample ``round((t - t0) / period)``.
+    After each sample the value of the next profile sample is sent if it differs from
+    the last one sent. Samples inside the schedule are flagged :data:`FLAG_PROFILE`,
+    the last one (or the first after it when frames were lost)
+    :data:`FLAG_PROFILE_END`, as a card playing the profile flags them; 0 V follows.
+    The voltage a sample reports is the one the card applied, which may lag the
+    schedule by the link's latency (a few samples): the fit uses the reported value,
+    so the lag costs nothing but a slightly different input from the card's own.
+    """
+
+    def __init__(self, name, amplitude, seed, duration, period):
+        self.values = profile_samples(name, amplitude, seed, duration, period)
+        self.name = name
+        self.period = float(period)
+        self._t0 = None
+        self._last_sent = None
+        self.done = False
+        self.sent = 0
+
+    def on_sample(self, sample):
+        """Flag ``sample`` and return ``(sample, voltage to send or None)``."""
+        if self.done:
+            return sample, None
+        if self._t0 is None:
+            self._t0 = sample.t_card + self.period
+            k = -1
+        else:
+            k = round((sample.t_card - self._t0) / self.period)
+        n = self.values.size
+        flags = sample.flags
+        if k >= n - 1:   # the last sample (or the first after it, if frames were lost)
+            flags |= FLAG_PROFILE | FLAG_PROFILE_END
+            self.done = True
+            value = 0.0
+        else:
+            flags |= FLAG_PROFILE if k >= 0 else 0
+            value = float(self.values[k + 1])
+        out = None
+        if value != self._last_sent or self.done:
+            out = self._last_sent = value
+            self.sent += 1
+        return replace(sample, flags=flags), out
+
+
+class Session:
+    """Start, stop and supervise the excitation of one card.
+
+    Parameters
+    ----------
+    link : motor_id.card.link.CardLink
+        Used for ``send`` and ``fault`` (counted, logged once per kind).
+    limits : motor_id.card.supervisor.Limits
+    excitation : str
+        A profile name of :data:`motor_id.excitation.PROFILES` or :data:`EXTERNAL`.
+    amplitude, seed, duration : float, int, float
+        The profile's settings (see :class:`~motor_id.card.protocol.StartProfile`).
+    period : float
+        Sample period the card is set to [s].
+    autostart : bool
+        Start the profile when the device first opens.
+    log : callable
+        ``log(level, text)`` for events that are always logged (trips, mode changes).
+
+    Attributes
+    ----------
+    supervisor : Supervisor
+    card_profiles : bool
+        False once the card answered ``unsupported`` to a profile.
+    host_profile : HostProfile or None
+        The profile the host is playing now.
+    """
+
+    def __init__(self, link, limits, excitation, amplitude=9.0, seed=0, duration=40.0,
+                 period=0.01, autostart=False, log=None):
+        self.link = link
+        self.external = excitation == EXTERNAL
+        if not self.external:
+            limits = replace(limits, command_timeout=0.0)   # no commands to watch
+            limits.check_profile(excitation, amplitude)
+        self.supervisor = Supervisor(limits, link.send)
+        self.profile = None if self.external else StartProfile(excitation, amplitude, seed,
+                                                               duration)
+        self.period = float(period)
+        self.autostart = bool(autostart)
+        self._log = log or (lambda level, text: None)
+        self.card_profiles = True
+        self.host_profile = None
+        self._pending = None
+        self._started = False
+
+    # ------------------------------------------------------------ the polling thread
+    def on_open(self):
+        """After each (re)open: the sample period; 0 V again while a limit holds it (the
+        card may have missed the stop); the first time, an autostart."""
+        self.link.send(SetPeriod(self.period))
+        if self.supervisor.holding_zero:
+            self.link.send(Stop())
+        elif self.autostart and not self._started and not self.external:
+            self.start()
+
+    def on_sample(self, sample):
+        """Schedule the host profile, check the limits, flag; return the sample."""
+        host = self.host_profile
+        value = None
+        if host is not None:
+            sample, value = host.on_sample(sample)
+        sample, trip = self.supervisor.on_sample(sample)
+        if trip is not None:
+            self.host_profile = None
+            self._log('error', f'stopped the excitation: {trip.describe()}; the card holds '
+                      '0 V until ~/start or ~/reset')
+        elif value is not None and host is self.host_profile:
+            self._send(SetVoltage(self.supervisor.limits.clamp(value)))
+        if host is not None and host.done and host is self.host_profile:
+            self.host_profile = None
+            self._log('info', f'host-played {host.name} profile done')
+        return sample
+
+    def on_reply(self, reply):
+        """A card reply: ``unsupported`` to our profile switches to playing it here."""
+        pending = self._pending
+        if reply.command != 'start_profile' or pending is None:
+            return
+        self._pending = None
+        if reply.status == 'unsupported':
+            self.card_profiles = False
+            self._log('info', f'the card has no built-in profiles: the driver plays '
+                      f'{pending.name} as set-voltage commands every {self.period:g} s')
+            self._play_on_host(pending)
+
+    def check_watchdog(self):
+        """Hold 0 V when external commands stopped (logged once)."""
+        if self.external and self.supervisor.check_watchdog():
+            self.link.fault('watchdog', f'no voltage_command for '
+                            f'{self.supervisor.limits.command_timeout:g} s: holding 0 V')
+
+    # ------------------------------------------------------------ user requests
+    def start(self):
+        """Re-arm the limits and start the profile (external: only re-arm).
+
+        Returns
+        -------
+        str
+            What was done, for people.
+
+        Raises
+        ------
+        MotorIdError
+            The command could not be sent (device absent).
+        """
+        self.supervisor.reset()
+        if self.external:
+            return 'limits re-armed; excitation is external: publish on voltage_command'
+        cmd = self.profile
+        self._started = True
+        if not self.card_profiles:
+            self._play_on_host(cmd)
+            self.link.send(Stop())   # 0 V until the first scheduled sample
+            return f'started {cmd.name} (played by the driver)'
+        self.host_profile = None
+        self._pending = cmd
+        self.link.send(cmd)
+        return f'started {cmd.name}'
+
+    def stop(self):
+        """Stop any profile; the card holds 0 V (MotorIdError if it cannot be sent)."""
+        self.host_profile = None
+        self._pending = None
+        self.link.send(Stop())
+
+    def reset(self):
+        """Re-arm the limits and hold 0 V; return what was cleared, for people."""
+        trip = self.supervisor.trip
+        self.supervisor.reset()
+        self.stop()
+        return 'limits re-armed' + (f' (was: {trip.describe()})' if trip else '') + \
+            '; card holds 0 V'
+
+    def command(self, voltage):
+        """Forward one external voltage command [V] through the limits."""
+        value = self.supervisor.command(voltage)
+        if value is None:
+            trip = self.supervisor.trip
+            self.link.fault('command_refused', f'voltage command {voltage!r} refused: ' + (
+                f'{trip.describe()} (call ~/start or ~/reset)' if trip
+                else 'not a finite number'))
+            return
+        if value != voltage:
+            self.link.fault('command_clamped', f'voltage command {voltage:g} V clamped to '
+                            f'{value:g} V (max_voltage)')
+        self._send(SetVoltage(value))
+
+    # ------------------------------------------------------------ helpers
+    def _play_on_host(self, cmd):
+        self.host_profile = HostProfile(cmd.name, cmd.amplitude, cmd.seed, cmd.duration,
+                                        self.period)
+
+    def _send(self, command):
+        try:
+            self.link.send(command)
+        except MotorIdError as exc:
+            self.link.fault('command_failed', f'{type(command).__name__} not sent: {exc}')
+
+    def values(self):
+        """Diagnostic key/values (the supervisor's and where profiles are played)."""
+        values = self.supervisor.values()
+        values['profile_source'] = 'card' if self.card_profiles else 'driver'
+        values['host_profile_running'] = self.host_profile is not None
+        return values
