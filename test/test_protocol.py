@@ -263,3 +263,20 @@ def test_transport_errors_are_domain_errors(tmp_path):
     with pytest.raises(ConfigError):
         open_transport('loop://', baudrate=0)
     assert pr.open_transport is open_transport
+
+
+def test_a_frame_ending_in_a_sync_byte_does_not_depend_on_read_splitting():
+    """A frame whose CRC ends in 0xA5, read to its end: the consumed byte is not kept."""
+    token = next(k for k in range(10000)
+                 if pr.encode_command(pr.Ping(k))[-1] == pr.SYNC[0])
+    frame = pr.encode_command(pr.Ping(token))
+    tail = b'\x5a\x01\x02\x03'
+    whole = pr.CommandParser()
+    at_once = whole.feed(frame + tail) + whole.flush()
+    split = pr.CommandParser()
+    first = split.feed(frame)
+    assert split.garbage_bytes == 0
+    in_two = first + split.feed(tail) + split.flush()
+    assert [type(x) for x in in_two] == [type(x) for x in at_once] == [pr.Ping]
+    assert in_two[0].token == token
+    assert split.garbage_bytes == whole.garbage_bytes == len(tail)

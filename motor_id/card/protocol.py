@@ -543,7 +543,7 @@ class _StreamSplitter:
         while True:
             i = buf.find(SYNC, pos)
             if i < 0:
-                keep = 1 if (buf[-1:] == SYNC[:1] and not final) else 0
+                keep = 1 if (pos < len(buf) and buf[-1:] == SYNC[:1] and not final) else 0
                 self.garbage_bytes += len(buf) - pos - keep
                 pos = len(buf) - keep
                 break
