@@ -23,7 +23,8 @@ class Skip(Exception):
 PAPER_PERIOD = 40.0
 """Length of the paper's Eq. 14 experiment [s]; longer records repeat it."""
 
-PAPER_SETUP = {'R_m': PAPER_MOTOR.R_m, 'tie': False, 'fixed': {'J': PAPER_MOTOR.J}}
+PAPER_SETUP = {'R_m': PAPER_MOTOR.R_m, 'tie': False,
+               'fixed': {'J': PAPER_MOTOR.J, 'R_m': PAPER_MOTOR.R_m}}
 """Identifier settings for the paper's motor: it has K_T != K_b, so no K_T = K_b tie;
 R_m and J are given (explicit assumptions); K_T, K_b, B, L_m are fitted."""
 
@@ -64,28 +65,16 @@ def paper_recording(n=4000, dt=0.01, params=PAPER_MOTOR, noise=0.005, seed=0):
 
 
 class CountingIdentifier(Identifier):
-    """An :class:`Identifier` that counts every simulated parameter set.
+    """An :class:`Identifier` with the number of parameter sets it simulated.
 
-    The count is taken in the Identifier's lowest-level simulation method, whichever of
-    ``_simulate_channels`` / ``_simulate`` it has.
+    The count is the public ``problem_.evaluations`` (GA, refinement, uncertainty).
     """
 
-    evaluations = 0
-
-    def _count(self, X):
-        self.evaluations += np.atleast_2d(X).shape[0]
-
-
-if hasattr(Identifier, '_simulate_channels'):
-    def _counted_channels(self, X):
-        self._count(X)
-        return Identifier._simulate_channels(self, X)
-    CountingIdentifier._simulate_channels = _counted_channels
-else:
-    def _counted(self, X):
-        self._count(X)
-        return Identifier._simulate(self, X)
-    CountingIdentifier._simulate = _counted
+    @property
+    def evaluations(self):
+        """Parameter sets simulated so far (0 before ``fit``)."""
+        problem = getattr(self, 'problem_', None)
+        return 0 if problem is None else problem.evaluations
 
 
 class Objective:
@@ -93,7 +82,8 @@ class Objective:
 
     The Identifier is prepared by a warm-start fit (no GA) so that its data, channel
     weights (1/std of each channel) and initial state are exactly what ``fit`` uses;
-    afterwards only its batch cost ``_cost`` is called. Every simulated parameter set
+    afterwards only its public problem (``Identifier.problem_``: ``cost``, ``residuals``,
+    ``bounds``) is used. Every simulated parameter set
     is counted in :attr:`evaluations`.
 
     Parameters
@@ -110,8 +100,9 @@ class Objective:
         self.kwargs = dict(identifier_kwargs)
         idf = CountingIdentifier(start=start, use_ga=False, **self.kwargs).fit(rec)
         self.identifier = idf
-        self.bounds = idf._bounds
-        self.names = list(idf._bounds.names)
+        self.problem = idf.problem_
+        self.bounds = self.problem.bounds
+        self.names = list(self.bounds.names)
         self.reset()
 
     @property
@@ -130,7 +121,7 @@ class Objective:
 
     def cost(self, X):
         """Cost of parameter vectors ``X`` (P, d) in physical units -> (P,)."""
-        return self.identifier._cost(np.atleast_2d(X))
+        return self.problem.cost(np.atleast_2d(X))
 
     def unit_cost(self, G):
         """Cost of unit-cube genes ``G`` (P, d), mapped by :class:`motor_id.ga.Bounds`."""
@@ -141,10 +132,7 @@ class Objective:
 
         ``sum(r**2) / r.size`` equals :meth:`cost`.
         """
-        idf = self.identifier
-        with np.errstate(all='ignore'):
-            r = (idf._simulate(np.asarray(x, dtype=float)[None, :])[0] - idf._y) * idf._w
-        return np.where(np.isfinite(r), r, 1e6)
+        return self.problem.residuals(x)
 
     def polish(self, x):
         """The project's standard least-squares refinement from ``x`` (a warm-start fit).

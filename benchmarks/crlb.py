@@ -22,12 +22,14 @@ COVERAGE_NOMINAL = 0.9545  # P(|N(0,1)| <= 2)
 
 CONFIGS = (
     {'name': 'paper motor, J given, no tie', 'params': PAPER_MOTOR,
-     'kwargs': {'R_m': PAPER_MOTOR.R_m, 'tie': False, 'fixed': {'J': PAPER_MOTOR.J}},
+     'kwargs': {'R_m': PAPER_MOTOR.R_m, 'tie': False,
+                'fixed': {'J': PAPER_MOTOR.J, 'R_m': PAPER_MOTOR.R_m}},
      'free': ('K_T', 'K_b', 'B', 'L_m'), 'tie': False},
     {'name': 'K_T = K_b = 0.65 variant, default tie', 'params':
      MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B,
                  L_m=PAPER_MOTOR.L_m, R_m=PAPER_MOTOR.R_m),
-     'kwargs': {'R_m': PAPER_MOTOR.R_m}, 'free': ('J', 'K_T', 'B', 'L_m'), 'tie': True},
+     'kwargs': {'R_m': PAPER_MOTOR.R_m, 'fixed': {'R_m': PAPER_MOTOR.R_m}},
+     'free': ('J', 'K_T', 'B', 'L_m'), 'tie': True},
 )
 
 

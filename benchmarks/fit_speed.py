@@ -178,7 +178,7 @@ def run_seed(seed, n, budget, blas_one=None):
         seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
         if not obj.evaluations:
             raise RuntimeError(f'{name}: no model evaluation was counted; the '
-                               'Identifier internals used by common.Objective changed')
+                               'problem object used by common.Objective changed')
         rows.append(_record(name, obj, truth, x, seconds, obj.evaluations))
         rows[-1]['cpu_seconds'] = cpu
     rng = np.random.default_rng(10_000 + seed)

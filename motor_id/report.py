@@ -60,13 +60,24 @@ def plot_fit(result, path, title=None):
     path : str
         Output PNG path.
     """
+    plt, fig, axes = _figure(3, 2, (13, 11))
+    _plot_outputs(result, axes[0])
+    _plot_ga(result.ga.get('history', []), axes[1])
+    _plot_residuals(result, axes[2])
+    fig.suptitle(title or f'motor_id fit ({result.method})')
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def _plot_outputs(result, row):
     pred = result.prediction
     channels = list(result.channels)
-    plt, fig, axes = _figure(3, 2, (13, 11))
     t = pred['time']
     units = {'speed': 'rad/s', 'current': 'A'}
     for k, ch in enumerate(channels[:2]):
-        ax = axes[0, k]
+        ax = row[k]
         ax.plot(t, pred[ch + '_measured'], lw=1.0, label='measured')
         ax.plot(t, pred[ch], lw=1.0, ls='--', label='model')
         ax.set_title(f'{ch}: measured vs model (fit '
@@ -75,17 +86,18 @@ def plot_fit(result, path, title=None):
         ax.set_ylabel(f'{ch} [{units.get(ch, "")}]')
         ax.legend(loc='best')
     if len(channels) < 2:
-        ax = axes[0, 1]
+        ax = row[1]
         ax.plot(t, pred['input'], lw=1.0, color='k')
         ax.set_title('input')
         ax.set_xlabel('time [s]')
         ax.set_ylabel('input [V]' if result.input_kind == 'voltage' else 'input [N m]')
-    hist = result.ga.get('history', [])
-    ax = axes[1, 0]
+
+
+def _plot_ga(hist, row):
+    ax = row[0]
     if hist:
         gens = [h['generation'] for h in hist]
-        names = list(hist[-1]['best'])
-        for n in names:
+        for n in list(hist[-1]['best']):
             vals = np.array([h['best'][n] for h in hist])
             final = vals[-1] if vals[-1] != 0 else 1.0
             ax.plot(gens, vals / final, label=n)
@@ -93,15 +105,19 @@ def plot_fit(result, path, title=None):
         ax.legend(loc='best', fontsize=8)
     ax.set_title('GA best individual per generation (relative to final)')
     ax.set_xlabel('generation')
-    ax = axes[1, 1]
+    ax = row[1]
     if hist:
         ax.semilogy(gens, [h['best_cost'] for h in hist], label='best')
         ax.semilogy(gens, [h['mean_cost'] for h in hist], label='mean', alpha=0.7)
         ax.legend(loc='best')
     ax.set_title('GA fitness (normalised MSE)')
     ax.set_xlabel('generation')
+
+
+def _plot_residuals(result, row):
+    channels = list(result.channels)
     for k, ch in enumerate(channels[:2]):
-        ax = axes[2, k]
+        ax = row[k]
         m = result.fit['channels'][ch]
         lags = np.arange(1, len(m['autocorrelation']) + 1)
         ax.stem(lags, m['autocorrelation'], linefmt='C0-', markerfmt='C0o', basefmt=' ',
@@ -114,9 +130,4 @@ def plot_fit(result, path, title=None):
         ax.set_xlabel('lag [samples]')
         ax.legend(loc='best', fontsize=8)
     if len(channels) < 2:
-        axes[2, 1].axis('off')
-    fig.suptitle(title or f'motor_id fit ({result.method})')
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+        row[1].axis('off')

@@ -5,9 +5,9 @@ import re
 import numpy as np
 import pytest
 
-from motor_id.errors import ConfigError, DataError
+from motor_id.errors import ConfigError, DataError, IdentificationError, MotorIdError
 from motor_id.identify import Identifier, parse_bounds, parse_fixed
-from motor_id.model import PAPER_MOTOR
+from motor_id.model import MotorParams, PAPER_MOTOR
 from motor_id.recording import Recording
 
 from conftest import paper_recording, SI_MOTOR
@@ -43,11 +43,13 @@ def test_paper_method_reports_three_combinations_and_varies_by_seed():
 
 
 def test_zoh_recovers_all_five_with_current_and_tie():
-    """(b) noise-free speed + current of an SI-consistent motor: all five within 1 %."""
+    """(b) noise-free speed + current of an SI-consistent motor: all five (and R_m, now
+    estimated under its prior) within 1 %."""
     rec = paper_recording(params=SI_MOTOR)
     r = Identifier(method='zoh', R_m=2.3, random_state=0).fit(rec).result_
-    assert r.identifiability['rank'] == 4 and r.identifiability['fully_determined']
-    for name in FIVE:
+    assert r.identifiability['rank'] == 5 and r.identifiability['fully_determined']
+    assert r.identifiability['r_m_determined_by_data']
+    for name in FIVE + ('R_m',):
         e = r.parameters[name]
         assert e.determined
         assert rel_err(e.value, getattr(SI_MOTOR, name)) < 0.01, name
@@ -77,8 +79,9 @@ def test_tie_on_the_papers_motor_scales_j_and_kt(clean_paper):
 def test_speed_and_current_without_tie_leave_one_direction():
     rec = paper_recording(params=SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=2)
     r = Identifier(R_m=2.3, tie=False, random_state=0).fit(rec).result_
-    assert r.identifiability['rank'] == 4 and r.identifiability['n_free'] == 5
+    assert r.identifiability['rank'] == 5 and r.identifiability['n_free'] == 6  # R_m free
     assert r.parameters['L_m'].determined and r.parameters['K_b'].determined
+    assert r.parameters['R_m'].determined and r.identifiability['r_m_determined_by_data']
     for name in ('J', 'K_T', 'B'):
         assert not r.parameters[name].determined
 
@@ -187,3 +190,221 @@ def test_parse_fixed_and_bounds_read_good_items():
     # effect parameters may span zero; the Identifier checks that they are fitted
     assert parse_bounds(['J=1e-4:1', 'load_torque.T_L=-1:1']) == {
         'J': (1e-4, 1.0), 'load_torque.T_L': (-1.0, 1.0)}
+
+
+# ------------------------------------------------------------------ R_m as users know it
+WARM = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.41)
+"""The SI paper motor, warm: R_m 2.41 Ohm while the ohmmeter said 2.3 (4.6 % low)."""
+
+
+def test_r_m_is_estimated_from_current_within_1_percent():
+    """1 % noise on speed and current, R_m given 4.6 % low: the data correct it."""
+    rec = paper_recording(params=WARM, speed_noise=0.01, current_noise=0.01, seed=11)
+    r = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+    e = r.parameters['R_m']
+    assert e.determined and not e.assumed
+    assert rel_err(e.value, 2.41) < 0.01
+    assert abs(e.value - 2.41) < 4 * e.std
+    for name in FIVE:
+        assert rel_err(r.parameters[name].value, getattr(WARM, name)) < 0.01, name
+    res = r.to_dict()['resistance']
+    assert res['estimated'] and res['given'] == 2.3
+    assert res['relative_change'] == pytest.approx(e.value / 2.3 - 1)
+    assert 'warm motor' in res['note']
+    assert re.search(r'R_m: given 2.3 Ohm, the data say 2.4\d* \+- [\d.e-]+ Ohm \(\+4\.\d %: '
+                     'a warm motor', r.summary())
+    assert 'prior' in r.identifiability['prior'] and r.identifiability[
+        'r_m_determined_by_data']
+    assert 'r_m_sensitivity' not in r.to_dict()
+
+
+@pytest.mark.parametrize('seed', [31, 32])
+def test_r_m_estimate_on_a_hidden_case(seed):
+    """Perturbed motors from motor_id.hidden, R_m given as the case's ohmmeter reading
+    (2 to 5 % off), 1 % noise: the estimate is within 1 % of the true R_m."""
+    from motor_id.hidden import make_case
+    rec, case = make_case(seed, effect='none', noise=(0.01, 0.01))
+    given, truth = case.known['R_m'], case.motor['R_m']
+    assert rel_err(given, truth) > 0.02
+    r = Identifier(R_m=given, random_state=0).fit(rec).result_
+    assert rel_err(r.parameters['R_m'].value, truth) < 0.01
+    assert r.resistance['note'] != 'consistent with the given value'
+
+
+def ode_recording(params, noise, seed):
+    """Speed and current of the paper's experiment from scipy's solve_ivp (DOP853,
+    rtol 1e-10) between the input's steps: data this project's simulator did not make."""
+    from scipy.integrate import solve_ivp
+
+    from motor_id.excitation import paper_steps
+    t = np.arange(4000) * 0.01
+    u = paper_steps(t)
+    p = params
+
+    def rhs(_, x, v):
+        w, i = x
+        return [(p.K_T * i - p.B * w) / p.J, (v - p.R_m * i - p.K_b * w) / p.L_m]
+    edges = np.concatenate([[0], np.flatnonzero(np.diff(u)) + 1, [t.size]])
+    x = np.zeros(2)
+    out = np.zeros((t.size, 2))
+    for a, b in zip(edges[:-1], edges[1:]):
+        t_end = t[b] if b < t.size else t[-1]
+        sol = solve_ivp(rhs, (t[a], t_end), x, 'DOP853', t_eval=t[a:b + 1][:b + 1 - a],
+                        rtol=1e-10, atol=1e-12, args=(u[a],))
+        out[a:b] = sol.y.T[:b - a]
+        x = sol.y[:, -1]
+    rng = np.random.default_rng(seed)
+    speed = out[:, 0] + noise * np.std(out[:, 0]) * rng.standard_normal(t.size)
+    current = out[:, 1] + noise * np.std(out[:, 1]) * rng.standard_normal(t.size)
+    return Recording(t, u, speed, current, 'voltage', {'source': 'solve_ivp'})
+
+
+def test_r_m_estimate_on_data_integrated_by_solve_ivp():
+    """Independent data (solve_ivp, 1 % noise), R_m given 4.6 % low: within 1 %."""
+    rec = ode_recording(WARM, 0.01, seed=12)
+    r = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+    assert rel_err(r.parameters['R_m'].value, WARM.R_m) < 0.01
+    for name in FIVE:
+        assert rel_err(r.parameters[name].value, getattr(WARM, name)) < 0.01, name
+
+
+def test_fixed_r_m_stays_as_given():
+    rec = paper_recording(params=WARM, speed_noise=0.01, current_noise=0.01, seed=11)
+    r = Identifier(R_m=5.0, fixed={'R_m': 2.41}, random_state=0).fit(rec).result_
+    assert r.parameters['R_m'].assumed and r.parameters['R_m'].value == 2.41
+    assert r.resistance['estimated'] is False and 'fixed' in r.resistance['note']
+    assert r.identifiability['n_free'] == 4
+    assert set(r.r_m_sensitivity) == {'J', 'K_T', 'K_b', 'B', 'L_m'}
+
+
+def test_r_m_sensitivity_without_current_predicts_a_refit():
+    """Speed only, J given: the reported % change per +1 % in R_m matches a refit."""
+    rec = paper_recording(params=SI_MOTOR, with_current=False)
+    kw = dict(tie=True, fixed={'J': 0.052}, random_state=0)
+    a = Identifier(R_m=2.3, **kw).fit(rec).result_
+    b = Identifier(R_m=2.3 * 1.01, **kw).fit(rec).result_
+    assert a.resistance['estimated'] is False and 'no current' in a.resistance['note']
+    sens = a.to_dict()['r_m_sensitivity']
+    assert set(sens) == {'K_T', 'K_b', 'B', 'L_m'}
+    for name in ('K_T', 'B', 'L_m'):
+        moved = 100 * (b.parameters[name].value / a.parameters[name].value - 1)
+        assert sens[name] == pytest.approx(moved, rel=0.05, abs=0.02), name
+    assert abs(sens['L_m']) > 0.5  # L_m follows R_m (the electrical pole R_m / L_m)
+    assert 'a +1 % error in R_m moves' in a.summary()
+
+
+def test_r_m_tolerance_sets_the_prior_width():
+    rec = paper_recording(params=WARM, speed_noise=0.01, current_noise=0.01, seed=11)
+    with pytest.raises(ConfigError, match='tolerance'):
+        Identifier(R_m=2.3, R_m_tolerance=0).fit(rec)
+    tight = Identifier(R_m=2.3, R_m_tolerance=1e-4, random_state=0).fit(rec).result_
+    assert tight.parameters['R_m'].value == pytest.approx(2.3, rel=1e-3)
+    assert tight.to_dict()['assumptions']['R_m_prior']['std'] == pytest.approx(2.3e-4)
+
+
+# ------------------------------------------------------------------ never lose a fit
+def test_a_model_diverging_everywhere_is_an_identification_error():
+    """Euler with L_m < R_m T / 2 is unstable for every parameter set in the bounds."""
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    with pytest.raises(IdentificationError, match='no parameter set .* finite simulation'):
+        Identifier(method='euler', R_m=2.3, random_state=0,
+                   bounds={'L_m': (1e-7, 1e-6)}).fit(rec)
+
+
+@pytest.mark.parametrize('exc', [ValueError('x'), OverflowError('y'), IndexError('z'),
+                                 np.linalg.LinAlgError('w')])
+def test_numerical_failures_become_identification_errors(monkeypatch, exc):
+    from motor_id.identify import IdentificationProblem
+
+    def broken(self, X, overrides=None):
+        raise exc
+    monkeypatch.setattr(IdentificationProblem, 'simulate_channels', broken)
+    rec = paper_recording(params=SI_MOTOR)
+    with pytest.raises(IdentificationError, match=type(exc).__name__):
+        Identifier(R_m=2.3, random_state=0, generations=2).fit(rec)
+
+
+def test_a_constant_channel_is_a_clear_error():
+    rec = paper_recording(params=SI_MOTOR)
+    flat = Recording(rec.time, rec.input, rec.speed, np.full(len(rec), 0.5))
+    with pytest.raises(DataError, match='constant'):
+        Identifier(R_m=2.3, random_state=0).fit(flat)
+
+
+# ------------------------------------------------------------------ bad numbers
+def test_values_near_1e299_are_a_clear_error_not_an_index_error():
+    """What once died with IndexError in the log transform: now one clear message."""
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    huge = Recording(rec.time, rec.input * 1e299, rec.speed * 1e299, rec.current * 1e299,
+                     'voltage', {})
+    with pytest.raises(MotorIdError, match='check the units'):
+        Identifier(R_m=2.3, random_state=0).fit(huge)
+
+
+@pytest.mark.parametrize('factor', [1e140, 1e-8])
+def test_extreme_units_are_rescaled_and_fit_the_same(factor):
+    """Voltage, speed and current all in a unit `factor` times smaller than SI: the
+    physical parameters in those units are the SI ones, and the fit finds them."""
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    base = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+    big = Recording(rec.time, rec.input * factor, rec.speed * factor,
+                    rec.current * factor, 'voltage', {})
+    r = Identifier(R_m=2.3, random_state=0).fit(big).result_
+    assert r.units is not None and r.units['exponents']['speed'] != 0
+    for name in FIVE + ('R_m',):
+        assert r.parameters[name].value == pytest.approx(base.parameters[name].value,
+                                                         rel=1e-6), name
+        assert r.parameters[name].std == pytest.approx(base.parameters[name].std, rel=1e-4)
+    assert r.fit['channels']['speed']['rms'] == pytest.approx(
+        factor * base.fit['channels']['speed']['rms'], rel=1e-6)
+    assert np.isfinite(r.fit['channels']['speed']['fit_percent'])
+
+
+@pytest.mark.parametrize('factor', [1e9, 1e-5])
+def test_time_in_extreme_units_scales_j_and_l(factor):
+    """Time stamps in ns (1e7 per 10 ms sample) or in units of 1e5 s: J and L_m (the
+    only parameters multiplying a time derivative) scale with the time unit."""
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    base = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+    ns = Recording(rec.time * factor, rec.input, rec.speed, rec.current, 'voltage', {})
+    r = Identifier(R_m=2.3, random_state=0).fit(ns).result_
+    assert r.units['exponents']['time'] != 0
+    for name in FIVE + ('R_m',):
+        scale = factor if name in ('J', 'L_m') else 1.0
+        assert r.parameters[name].value == pytest.approx(
+            scale * base.parameters[name].value, rel=1e-6), name
+
+
+def test_an_estimate_on_its_bound_is_flagged():
+    """L_m's range capped at 20 mH (truth 34.5 mH): the table and the JSON say so."""
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    r = Identifier(R_m=2.3, random_state=0, bounds={'L_m': (1e-3, 0.02)}).fit(rec).result_
+    d = r.to_dict()['parameters']
+    assert d['L_m']['at_bound'] is True and d['L_m']['value'] == pytest.approx(0.02)
+    assert all(d[n]['at_bound'] is False for n in ('J', 'K_T', 'B', 'R_m'))
+    line = next(x for x in r.summary().splitlines() if x.startswith('L_m'))
+    assert 'at bound' in line
+
+
+def test_parameter_covariance_is_in_linear_si_units():
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    r = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+    pc = r.to_dict()['parameter_covariance']
+    assert pc['names'] == ['J', 'K_T', 'K_b', 'B', 'L_m', 'R_m']
+    m = np.array(pc['matrix'])
+    assert np.allclose(m, m.T)
+    for k, n in enumerate(pc['names']):
+        assert np.sqrt(m[k, k]) == pytest.approx(r.parameters[n].std, rel=1e-9)
+    assert m[1, 2] == pytest.approx(m[1, 1])  # K_b is K_T under the tie
+
+
+def test_problem_object_is_public():
+    rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=1)
+    idf = Identifier(R_m=2.3, random_state=0, generations=5).fit(rec)
+    p = idf.problem_
+    assert p.bounds.names == ('J', 'K_T', 'B', 'L_m', 'R_m')
+    x = np.array([0.052, 0.66, 0.002, 0.0345, 2.3])
+    r = p.residuals(x)
+    assert r.size == p.y.size + 1  # R_m's prior is the last residual
+    assert p.cost(x[None, :])[0] == pytest.approx(np.sum(r ** 2) / p.y.size)
+    assert p.simulate(x[None, :]).shape == (1, p.y.size) and p.weights.shape == p.y.shape

@@ -1,19 +1,32 @@
 """`motor-id fit`: identify motor parameters from a CSV or MCAP recording."""
 
+import math
 import os
 import sys
 import time
 
+import yaml
+
+from motor_id.controller import from_identification, to_ros_parameters
 from motor_id.data.load import load_recording
-from motor_id.errors import ConfigError
+from motor_id.errors import ConfigError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
-from motor_id.report import plot_fit, write_json
+from motor_id.model import EFFECTS, parse_effect_args
+from motor_id.report import plot_fit, to_jsonable, write_json
+
+GRID_ONLY = {'input_delay': ('d',), 'speed_quantization': ('q',)}
+"""Effect parameters that a least-squares refinement cannot move (integer or steps):
+``--effect`` keeps them at the given value."""
 
 
 def add_fit_arguments(parser):
     """Options shared by `fit` and `replay --offline`."""
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
-                        help='known armature resistance R_m [Ohm] (voltage plants)')
+                        help='armature resistance R_m [Ohm] as measured (an ohmmeter '
+                             'reading); with current data it is the prior of the estimate')
+    parser.add_argument('--resistance-tolerance', type=float, default=10.0, metavar='PCT',
+                        help='how good --resistance is, in %% (the std of its Gaussian '
+                             'prior; default 10)')
     parser.add_argument('--method', choices=METHODS, default='zoh',
                         help='zoh: exact ZOH + GA + least squares (recommended); '
                              'euler: same with Euler discretisation; '
@@ -24,9 +37,13 @@ def add_fit_arguments(parser):
     tie.add_argument('--tie', dest='tie', action='store_true',
                      help='impose K_T = K_b (default when current is measured)')
     parser.add_argument('--fix', action='append', default=[], metavar='NAME=VALUE',
-                        help='a known parameter value (an explicit extra assumption)')
+                        help='a known parameter value (an explicit extra assumption); '
+                             '--fix R_m=R holds R_m fixed')
     parser.add_argument('--bounds', action='append', default=[], metavar='NAME=LO:HI',
                         help='search range of a parameter')
+    parser.add_argument('--effect', action='append', default=[], metavar='NAME[=VALUE]',
+                        help='add an effect term to the model and estimate its parameters '
+                             f'(VALUE: the start); one of {", ".join(sorted(EFFECTS))}')
     parser.add_argument('--seed', type=int, default=0, help='GA random seed')
     parser.add_argument('--population', type=int, default=20)
     parser.add_argument('--generations', type=int, default=160)
@@ -37,7 +54,14 @@ def add_fit_arguments(parser):
     parser.add_argument('--order-selection', action='store_true',
                         help='also fit free linear Elman nets of order 1..4 (speed) and '
                              'report the minimum order that explains the data')
+    parser.add_argument('--current-bandwidth', type=float, metavar='HZ',
+                        help='current-loop crossover of the controller design [Hz]')
+    parser.add_argument('--speed-bandwidth', type=float, metavar='HZ',
+                        help='speed-loop crossover of the controller design [Hz]')
     parser.add_argument('--json', metavar='OUT', help='write the report as JSON')
+    parser.add_argument('--yaml', metavar='OUT',
+                        help='write the estimates and controller gains as a ROS 2 '
+                             'parameters file (ros__parameters)')
     parser.add_argument('--plot', metavar='OUT.png', help='write plots')
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
 
@@ -69,19 +93,84 @@ def progress_printer(quiet, stream=None):
     return progress
 
 
+def build_identifier(rec, args):
+    """The :class:`Identifier` the options ask for (checked before any work)."""
+    fixed = parse_fixed(args.fix, '--fix')
+    r_m = fixed.get('R_m', args.resistance)
+    if rec.input_kind == 'voltage' and r_m is None:
+        raise ConfigError('--resistance R (the armature resistance in Ohm, as measured) is '
+                          'required for voltage-input data')
+    tol = getattr(args, 'resistance_tolerance', 10.0)
+    if not (math.isfinite(tol) and tol > 0):
+        raise ConfigError(f'--resistance-tolerance must be a percentage > 0, got {tol}')
+    for opt in ('current_bandwidth', 'speed_bandwidth'):
+        hz = getattr(args, opt, None)
+        if hz is not None and not (math.isfinite(hz) and hz > 0):
+            raise ConfigError(f'--{opt.replace("_", "-")} must be a frequency > 0 Hz, '
+                              f'got {hz}')
+    effects = parse_effect_args(getattr(args, 'effect', []))
+    free = [f'{e}.{p.name}' for e in effects for p in EFFECTS[e].params
+            if p.name not in GRID_ONLY.get(e, ())]
+    return Identifier(method=args.method, R_m=r_m, R_m_tolerance=tol / 100.0, tie=args.tie,
+                      population=args.population, generations=args.generations,
+                      crossover=args.crossover, mutation=args.mutation,
+                      random_state=args.seed, fixed=fixed or None,
+                      bounds=parse_bounds(args.bounds) or None, bootstrap=args.bootstrap,
+                      effects=effects or None, free_effects=free or None)
+
+
+def controller_design(report, args):
+    """The controller block for a fit report, or None (with the reason) if it cannot be."""
+    kw = {}
+    if getattr(args, 'current_bandwidth', None) is not None and \
+            report['input_kind'] == 'voltage':
+        kw['current_bandwidth_hz'] = args.current_bandwidth
+    if getattr(args, 'speed_bandwidth', None) is not None:
+        kw['speed_bandwidth_hz'] = args.speed_bandwidth
+    kw['sample_period'] = report['data']['sample_period']
+    try:
+        return from_identification(to_jsonable(report), **kw), None
+    except MotorIdError as exc:  # the fit stands; say why there is no design
+        return None, f'controller design not possible: {exc}'
+
+
+def ros_parameters(report, design, node_name='/**'):
+    """``{node: {'ros__parameters': {...}}}``: estimate.NAME, estimate.NAME_std (determined
+    parameters only; ROS parameters have no null) and the controller gains."""
+    params = {}
+    for name, p in report['parameters'].items():
+        if p['value'] is None:
+            continue
+        params[f'estimate.{name}'] = float(p['value'])
+        if p['std'] is not None:
+            params[f'estimate.{name}_std'] = float(p['std'])
+    if design is not None:
+        params.update(to_ros_parameters(design, node_name)[node_name]['ros__parameters'])
+    return {node_name: {'ros__parameters': params}}
+
+
+def write_yaml(data, path):
+    """Write ``data`` with PyYAML's safe_dump."""
+    try:
+        with open(path, 'w') as fh:
+            yaml.safe_dump(data, fh, default_flow_style=False, sort_keys=False)
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot write ({exc.strerror})') from None
+
+
+def _order_selection(rec, args, report):
+    from motor_id.elman import FreeElmanOrderSelection
+    sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.input, rec.speed)
+    report['order_selection'] = sel.to_dict()
+    print('minimum linear Elman order (speed): ' + str(sel.order_))
+    for e in sel.evidence_:
+        print(f'  order {e.order}: train RMS {e.train_rmse:.4g}  held-out RMS '
+              f'{e.validation_rmse:.4g}  AIC {e.aic:.1f}  BIC {e.bic:.1f}')
+
+
 def identify_and_report(rec, args, extra=None):
     """Run the identification on a recording and print / write what the options ask."""
-    fixed = parse_fixed(args.fix, '--fix')
-    r_m = args.resistance
-    if 'R_m' in fixed:
-        r_m = fixed.pop('R_m')
-    if rec.input_kind == 'voltage' and r_m is None:
-        raise ConfigError('--resistance R (the known armature resistance in Ohm) is required '
-                          'for voltage-input data')
-    est = Identifier(method=args.method, R_m=r_m, tie=args.tie, population=args.population,
-                     generations=args.generations, crossover=args.crossover,
-                     mutation=args.mutation, random_state=args.seed, fixed=fixed or None,
-                     bounds=parse_bounds(args.bounds) or None, bootstrap=args.bootstrap)
+    est = build_identifier(rec, args)
     if not args.quiet:
         print(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
               f'{"regular" if rec.is_regular else "irregular"} sampling '
@@ -95,17 +184,20 @@ def identify_and_report(rec, args, extra=None):
     if extra:
         report.update(extra)
     print(res.summary())
+    design, why = controller_design(report, args)
+    if design is not None:
+        report['controller'] = design.to_dict()
+        print(design.summary())
+    else:
+        print(why)
     if getattr(args, 'order_selection', False):
-        from motor_id.elman import FreeElmanOrderSelection
-        sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.input, rec.speed)
-        report['order_selection'] = sel.to_dict()
-        print('minimum linear Elman order (speed): ' + str(sel.order_))
-        for e in sel.evidence_:
-            print(f'  order {e.order}: train RMS {e.train_rmse:.4g}  held-out RMS '
-                  f'{e.validation_rmse:.4g}  AIC {e.aic:.1f}  BIC {e.bic:.1f}')
+        _order_selection(rec, args, report)
     if args.json:
         write_json(report, args.json)
         print(f'wrote {args.json}')
+    if getattr(args, 'yaml', None):
+        write_yaml(ros_parameters(report, design), args.yaml)
+        print(f'wrote {args.yaml}')
     if args.plot:
         plot_fit(res, args.plot, title=f'motor_id fit: {os.path.basename(str(args.data))}')
         print(f'wrote {args.plot}')

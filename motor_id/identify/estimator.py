@@ -1,0 +1,403 @@
+"""The estimator: GA fit of the constrained Elman net, then least-squares refinement."""
+
+import time
+
+import numpy as np
+
+from motor_id.errors import ConfigError, IdentificationError, MotorIdError
+from motor_id.ga import GeneticAlgorithm
+from motor_id.identify import uncertainty
+from motor_id.identify.problem import IdentificationProblem, TORQUE_FREE
+from motor_id.identify.result import Estimate, IdentificationResult
+from motor_id.metrics import channel_metrics
+from motor_id.model import PARAM_NAMES
+
+
+class Identifier:
+    """Estimate physical motor parameters from a recording.
+
+    Parameters
+    ----------
+    method : {'zoh', 'euler', 'paper'}
+    R_m : float
+        Given armature resistance [Ohm] (an ohmmeter reading); required for a voltage
+        plant. With a fitted current channel (not ``paper``) and R_m not in ``fixed``,
+        R_m is estimated with this value as a Gaussian prior; otherwise it is held fixed.
+    R_m_tolerance : float
+        Relative standard deviation of that prior (0.10: the given value is good to
+        about 10 %).
+    tie : bool or None
+        Impose K_T = K_b (SI units). ``None``: on when a current channel is present and
+        the method is not ``paper``.
+    population, generations, crossover, mutation : GA settings (the paper's defaults).
+    random_state : int, Generator or None
+    fixed : dict, optional
+        Known values ``{name: value}``: an explicit extra assumption; those parameters are
+        not fitted (``{'R_m': v}`` holds R_m fixed).
+    bounds : dict, optional
+        ``{name: (low, high)}`` search ranges overriding the defaults; effect
+        parameters are named ``effect.param``.
+    channels : tuple, optional
+        Output channels to fit; default all measured (``paper``: speed only).
+    effects : dict, optional
+        ``{effect: {param: value}}`` terms included in the model (from
+        :data:`motor_id.model.EFFECTS`).
+    free_effects : sequence of str, optional
+        ``'effect.param'`` entries of ``effects`` to estimate.
+    start : dict, optional
+        A starting parameter set; seeds the GA and the refinement.
+    use_ga : bool
+        False skips the GA and refines from ``start`` only (warm starts).
+    bootstrap : int
+        Number of residual-bootstrap refits for percentile intervals (0 = off).
+    refine_starts : int
+        Number of distinct GA individuals the refinement starts from.
+    """
+
+    def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
+                 crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
+                 channels=None, effects=None, free_effects=None, start=None, use_ga=True,
+                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10):
+        self.method = method
+        self.R_m = R_m
+        self.tie = tie
+        self.population = population
+        self.generations = generations
+        self.crossover = crossover
+        self.mutation = mutation
+        self.random_state = random_state
+        self.fixed = fixed
+        self.bounds = bounds
+        self.channels = channels
+        self.effects = effects
+        self.free_effects = free_effects
+        self.start = start
+        self.use_ga = use_ga
+        self.bootstrap = bootstrap
+        self.refine_starts = refine_starts
+        self.R_m_tolerance = R_m_tolerance
+
+    def fit(self, rec, progress=None, sample_weight=None):
+        """Fit the model to a recording.
+
+        Parameters
+        ----------
+        rec : motor_id.recording.Recording
+        progress : callable, optional
+            ``progress(generation, generations, best_cost)``; returning True cancels
+            the GA (the best so far is then refined and reported).
+        sample_weight : array_like, shape (N,), optional
+            Non-negative weight of each sample in the cost (every channel); 0 leaves a
+            sample out of the fit while the simulation still runs through it (held-out
+            blocks for validation).
+
+        Returns
+        -------
+        self
+            With ``result_`` (:class:`IdentificationResult`), ``params_`` (dict, SI),
+            ``problem_`` (:class:`IdentificationProblem`), ``covariance_`` (ndarray over
+            the search coordinates: log of the positive parameters, then the initial
+            state) and ``history_`` (GA generations).
+
+        Raises
+        ------
+        ConfigError, DataError
+            Bad settings or unusable data.
+        IdentificationError
+            The fit could not produce a finite result (a diverging model, a numerical
+            failure); the message says why.
+        """
+        t_start = time.perf_counter()
+        rec.validate()
+        try:
+            self._fit(rec, progress, sample_weight)
+        except MotorIdError:
+            raise
+        except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
+            raise IdentificationError(f'the fit failed ({type(exc).__name__}: {exc})') \
+                from exc
+        self.result_.seconds = time.perf_counter() - t_start
+        return self
+
+    def _fit(self, rec, progress, sample_weight):
+        problem = IdentificationProblem(
+            rec, method=self.method, R_m=self.R_m, R_m_tolerance=self.R_m_tolerance,
+            tie=self.tie, fixed=self.fixed, bounds=self.bounds, channels=self.channels,
+            effects=self.effects, free_effects=self.free_effects,
+            sample_weight=sample_weight)
+        self.problem_ = problem
+        rng = (self.random_state if isinstance(self.random_state, np.random.Generator)
+               else np.random.default_rng(self.random_state))
+        ga, best, ga_seconds = self._run_ga(problem, rng, progress)
+        z_best, refine_info = self._refine(problem, ga, best)
+        x_best = problem.from_z(z_best)
+        with np.errstate(all='ignore'):
+            pred = problem.simulate(x_best[None, :])[0]
+        if not (np.all(np.isfinite(x_best)) and np.all(np.isfinite(pred))):
+            raise IdentificationError('the model diverges at the best parameters found: '
+                                      'check the units of the data and the --bounds')
+        sigma, w = uncertainty.noise_levels(problem, z_best)
+        J = problem.jacobian_z(z_best, w)
+        result = self._build_result(rec, problem, x_best, z_best, J, sigma, w, pred)
+        result.ga = self._ga_block(problem, ga, ga_seconds)
+        result.refinement = refine_info
+        if self.bootstrap and self.method != 'paper':
+            self._bootstrap(problem, result, z_best, w, rng)
+        self.result_ = result
+        self.params_ = result.values()
+        self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
+
+    # -------------------------------------------------------------- the search
+    def _run_ga(self, problem, rng, progress):
+        """The paper's network training; returns (ga or None, best vector, seconds)."""
+        t_ga = time.perf_counter()
+        x_start = None
+        if self.start is not None:
+            x_start = problem.start_vector(self.start)
+        if not self.use_ga:
+            if x_start is None:
+                raise ConfigError('use_ga=False needs a start parameter set')
+            return None, x_start, time.perf_counter() - t_ga
+        ga = GeneticAlgorithm(problem.bounds, self.population, self.generations,
+                              self.crossover, self.mutation, x0=x_start, random_state=rng)
+        while not ga.stop():
+            with np.errstate(over='ignore'):  # Bounds.decode takes exp of linear genes too
+                X = ga.ask()
+            ga.tell(problem.cost(X))
+            if progress is not None and progress(ga.generation_, ga.generations,
+                                                 ga.best_cost_):
+                ga.cancel()
+        if not np.isfinite(ga.best_cost_):
+            raise IdentificationError('no parameter set inside the search bounds gives a '
+                                      'finite simulation: check the units of the data and '
+                                      'the --bounds')
+        return ga, ga.best_, time.perf_counter() - t_ga
+
+    def _refine(self, problem, ga, best):
+        """Least squares from the GA's best individuals (not for ``paper``)."""
+        z_best = problem.to_z(best)
+        if self.method == 'paper':
+            return z_best, {'used': False}
+        # the refinement also estimates the initial state (nuisance parameters):
+        # starting from a noisy first sample would bias the fit
+        z_best = np.concatenate([z_best, problem.x0])
+        starts = [z_best]
+        if ga is not None and self.refine_starts > 1:
+            order = np.argsort(ga.costs_)
+            pop = problem.to_z(ga.bounds.decode(ga.genes_))
+            for k in order:
+                if len(starts) >= self.refine_starts:
+                    break
+                zk = np.concatenate([pop[k], problem.x0])
+                if all(np.max(np.abs(zk - s)) > 0.05 for s in starts):
+                    starts.append(zk)
+        sols = [problem.refine(s, problem.weights) for s in starts]
+        sol = min(sols, key=lambda s: s.cost)
+        z_best = sol.x
+        # re-weight by the estimated noise levels and restart until the cost settles
+        # (a trust-region run can stall on a tiny step far from the optimum)
+        for _ in range(4):
+            w = uncertainty.noise_levels(problem, z_best)[1]
+            prev = np.sum(problem.weighted_residuals(z_best, w) ** 2)
+            sol = problem.refine(z_best, w)
+            z_best = sol.x
+            if prev - 2 * sol.cost <= 1e-9 * prev:
+                break
+        return z_best, {'used': True, 'starts': len(starts), 'nfev': int(sol.nfev),
+                        'status': int(sol.status), 'message': str(sol.message)}
+
+    # ------------------------------------------------------------ the result
+    def _build_result(self, rec, problem, x_best, z_best, J, sigma, w, pred):
+        names = list(problem.bounds.names)
+        state_names = ['x0:speed', 'x0:current'][:z_best.size - len(names)]
+        names = names + state_names
+        rank, Vr, Vn, determined = uncertainty.structural(problem, z_best)
+        cov, cond = uncertainty.covariance(J, Vr, rank)
+        self.covariance_ = cov
+        lg = problem.log_mask(len(names))
+        std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        bound = np.zeros(len(names), dtype=bool)
+        bound[:problem.bounds.dim] = uncertainty.at_bound(problem, z_best)
+        params = _estimates(problem, names, x_best, std_z, lg, determined, bound)
+        undetermined, self._free_choice = uncertainty.undetermined_directions(
+            names, Vn, determined, lg)
+        fit, prediction = _fit_block(rec, problem, x_best, sigma, pred, names, state_names)
+        idf = {'rank': rank - len(state_names), 'n_free': len(names) - len(state_names),
+               'free': names[:len(names) - len(state_names)], 'nuisance': state_names,
+               'condition': cond,
+               'basis': 'transfer-function coefficients (structural); covariance from '
+                        'output sensitivities on the identifiable subspace',
+               'fully_determined': rank == len(names),
+               'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels)}
+        idf.update(_prior_verdict(problem, z_best))
+        result = IdentificationResult(
+            method=self.method, input_kind=problem.kind, channels=problem.channels,
+            parameters=params,
+            identifiable_combinations=uncertainty.combinations(problem, z_best, cov),
+            undetermined_directions=undetermined, identifiability=idf, fit=fit, ga={},
+            refinement={}, assumptions=self._assumptions(problem),
+            effects=_effects_block(problem, x_best, std_z, determined, bound),
+            prediction=prediction, parameter_covariance=_covariance_block(
+                problem, params, names, cov),
+            units=problem.units.to_dict())
+        if problem.kind == 'voltage':
+            result.resistance = self._resistance_block(problem, params)
+            if problem.r_m_prior is None:
+                dz = uncertainty.r_m_sensitivity(problem, z_best, w, J, cov)
+                result.r_m_sensitivity = _sensitivity_block(problem, params, names, dz)
+        return result
+
+    def _assumptions(self, problem):
+        fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
+        return {'R_m': fixed.get('R_m'), 'R_m_given': problem.R_m_given,
+                'R_m_prior': None if problem.r_m_prior is None else {
+                    'mean': problem.R_m_given,
+                    'std': problem.R_m_tolerance * problem.R_m_given},
+                'K_T_eq_K_b': bool(problem.tie),
+                'fixed': {k: v for k, v in fixed.items() if k != 'R_m'},
+                'discretisation': problem.discretisation}
+
+    def _resistance_block(self, problem, params):
+        given = problem.R_m_given
+        if problem.r_m_prior is None:
+            if 'R_m' in (self.fixed or {}):
+                why = 'fixed by --fix R_m'
+            elif 'current' not in problem.channels:
+                why = 'no current channel fitted: the data cannot see R_m; see ' \
+                      'r_m_sensitivity for what an error in it does'
+            else:
+                why = 'the paper method holds R_m fixed'
+            return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
+                    'estimated': False, 'note': why}
+        e = params['R_m']
+        rel = e.value / given - 1.0
+        prior_std = problem.R_m_tolerance
+        if e.std is None or e.std > 0.5 * prior_std * given:
+            note = 'the data hardly determine R_m; the estimate leans on the given value'
+        elif abs(rel) <= max(2 * e.std / given, 0.01):
+            note = 'consistent with the given value'
+        elif rel > 0:
+            note = 'a warm motor, or leads and brushes in series?'
+        else:
+            note = 'below the given value: a cold motor, or a wrong --resistance?'
+        if e.at_bound:
+            note += '; at its search bound'
+        return {'given': given, 'estimate': e.value, 'std': e.std, 'relative_change': rel,
+                'estimated': True, 'note': note,
+                'prior_std': prior_std * given}
+
+    def _ga_block(self, problem, ga, ga_seconds):
+        if ga is None:
+            return {'generations': 0, 'evaluations': 0, 'seconds': ga_seconds,
+                    'history': []}
+        history = [h.to_dict() for h in ga.history_]
+        if problem.units.rescaled:
+            for h in history:
+                h['best'] = {k: problem.units.to_physical(k, v) for k, v in h['best'].items()}
+        return {'generations': ga.generation_, 'evaluations': ga.evaluations_,
+                'seconds': ga_seconds, 'best_cost': ga.best_cost_,
+                'stop': {k: v for k, v in ga.stop().items()},
+                'population': ga.population, 'crossover': ga.crossover,
+                'mutation': ga.mutation, 'history': history}
+
+    def _bootstrap(self, problem, result, z_best, w, rng):
+        samples = uncertainty.bootstrap(problem, z_best, w, self.bootstrap, rng)
+        names = list(problem.bounds.names)
+        for n, e in result.parameters.items():
+            src = 'K_T' if (problem.tie and n == 'K_b') else n
+            if e.determined and not e.assumed and src in names:
+                col = samples[:, names.index(src)]
+                lo, hi = np.percentile(col, 2.5), np.percentile(col, 97.5)
+                e.ci95 = (problem.units.to_physical(src, float(lo)),
+                          problem.units.to_physical(src, float(hi)))
+        result.refinement['bootstrap'] = int(self.bootstrap)
+
+
+# ---------------------------------------------------------------- result pieces
+def _estimates(problem, names, x_best, std_z, lg, determined, bound):
+    """Estimates of every plant parameter (SI)."""
+    params = {}
+    all_names = list(PARAM_NAMES) if problem.kind == 'voltage' else list(TORQUE_FREE)
+    for n in all_names:
+        if n in problem.fixed:
+            params[n] = Estimate(problem.units.to_physical(n, problem.fixed[n]), 0.0, True,
+                                 assumed=True)
+            continue
+        src = 'K_T' if (problem.tie and n == 'K_b') else n
+        j = names.index(src)
+        value = problem.units.to_physical(src, float(x_best[j]))
+        if determined[j]:
+            std = std_z[j] * x_best[j] if lg[j] else std_z[j]
+            params[n] = Estimate(value, problem.units.to_physical(src, float(std)), True,
+                                 at_bound=bool(bound[j]))
+        else:
+            params[n] = Estimate(None, None, False, particular_value=value,
+                                 at_bound=bool(bound[j]))
+    return params
+
+
+def _effects_block(problem, x_best, std_z, determined, bound):
+    eff_out = {e: dict(v) for e, v in problem.effects.items()}
+    for j, fe in enumerate(problem.free_effects):
+        e, _, p = fe.partition('.')
+        k = len(problem.free) + j
+        eff_out[e][p] = {'value': float(x_best[k]),
+                         'std': float(std_z[k]) if determined[k] else None,
+                         'determined': bool(determined[k]), 'at_bound': bool(bound[k])}
+    return eff_out
+
+
+def _fit_block(rec, problem, x_best, sigma, pred, names, state_names):
+    """Per-channel fit metrics (in the data's units) and the predictions."""
+    un = problem.units
+    fit = {'channels': {}, 'noise_std': {}}
+    prediction = {'time': rec.time, 'input': rec.input}
+    i = 0
+    for ch, n, sg in zip(problem.channels, problem.n_per, sigma):
+        m = channel_metrics(problem.y[i:i + n], pred[i:i + n], problem.input)
+        m['rms'] = float(un.physical_signal(m['rms'], ch))
+        fit['channels'][ch] = m
+        fit['noise_std'][ch] = float(un.physical_signal(sg, ch))
+        prediction[ch] = un.physical_signal(pred[i:i + n], ch)
+        prediction[ch + '_measured'] = getattr(rec, ch)
+        i += n
+    fit['cost'] = float(np.mean(((pred - problem.y) * problem.weights) ** 2))
+    fit['initial_state'] = {n: float(un.physical_signal(x_best[names.index(n)], n[3:]))
+                            for n in state_names}
+    return fit, prediction
+
+
+def _prior_verdict(problem, z_best):
+    """What R_m's prior does to the identifiability verdict (empty without a prior)."""
+    if problem.r_m_prior is None:
+        return {}
+    j = problem.r_m_prior[0]
+    by_data = bool(uncertainty.structural(problem, z_best, prior=False)[3][j])
+    given, tol = problem.R_m_given, problem.R_m_tolerance
+    text = (f'R_m is estimated with a Gaussian prior N({given:.4g}, ({tol:.0%} of it)^2) Ohm '
+            '(one extra residual); ' +
+            ('the data alone determine it (steady states V = R_m i + K_b w)' if by_data
+             else 'the data alone do not determine it: the prior does'))
+    return {'prior': text, 'r_m_determined_by_data': by_data}
+
+
+def _covariance_block(problem, params, names, cov):
+    """``parameter_covariance`` over the determined estimated plant parameters (SI)."""
+    index, values = {}, {}
+    for n, e in params.items():
+        src = 'K_T' if (problem.tie and n == 'K_b') else n
+        if e.determined and not e.assumed and src in names:
+            index[n] = names.index(src)
+            values[n] = e.value
+    return uncertainty.parameter_covariance(list(index), values, cov, index)
+
+
+def _sensitivity_block(problem, params, names, dz):
+    """``{name: % change per +1 % in R_m}`` of the determined estimated parameters."""
+    out = {}
+    for n, e in params.items():
+        if e.assumed:
+            continue
+        src = 'K_T' if (problem.tie and n == 'K_b') else n
+        out[n] = float(dz[names.index(src)]) if e.determined else None
+    return out

@@ -1,0 +1,407 @@
+"""The output-error problem of one recording: parameters, bounds, data, cost, residuals.
+
+The problem works in internal units (:mod:`motor_id.identify.units`): SI exactly for
+every ordinary recording, SI over powers of two for data in extreme units.
+"""
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from motor_id.errors import ConfigError, DataError
+from motor_id.ga import Bounds
+from motor_id.identify.units import InternalUnits
+from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
+from motor_id.simulate import simulate_batch
+
+METHODS = ('zoh', 'euler', 'paper')
+VOLTAGE_FREE = ('J', 'K_T', 'K_b', 'B', 'L_m')
+TORQUE_FREE = ('J', 'B')
+DEFAULT_BOUNDS = {
+    'J': (1e-6, 10.0), 'K_T': (1e-3, 10.0), 'K_b': (1e-3, 10.0), 'B': (1e-7, 1.0),
+    'L_m': (1e-5, 1.0),
+}
+TORQUE_BOUNDS = {'J': (1e-7, 1e4), 'B': (1e-8, 1e5)}
+R_M_SPAN = 4.0      # a free R_m is searched in [given / 4, given * 4]
+FAILED_RESIDUAL = 1e6       # weighted residual given to a diverging simulation
+
+
+def _pick_channels(rec, method, channels):
+    """The output channels to fit (default: all measured; ``paper``: speed only)."""
+    if channels is not None:
+        channels = tuple(channels)
+    elif method == 'paper':
+        channels = ('speed',)
+    else:
+        channels = rec.channels()
+    for ch in channels:
+        if ch not in rec.channels():
+            raise ConfigError(f'channel {ch!r} is not in the recording '
+                              f'(it has {", ".join(rec.channels())})')
+    return channels
+
+
+def _effect_terms(effects, free_effects):
+    """Complete effect parameters (catalogue defaults) and the checked free ones."""
+    effects = {k: dict(v) for k, v in (effects or {}).items()}
+    for e in effects:
+        if e not in EFFECTS:
+            raise ConfigError(f'unknown effect {e!r}')
+        effects[e] = {**EFFECTS[e].defaults(), **effects[e]}
+    free_eff = list(free_effects or ())
+    for fe in free_eff:
+        e, _, p = fe.partition('.')
+        if e not in effects or p not in effects[e]:
+            raise ConfigError(f'free effect parameter {fe!r} is not in the effects '
+                              f'{sorted(effects)}')
+    return effects, free_eff
+
+
+def _plant_parameters(problem, R_m, fixed):
+    """Plant parameter names, default search box and the given R_m (None: torque plant).
+
+    Decides whether R_m is free: for a voltage plant with a fitted current channel (not
+    ``paper``) and R_m not in ``fixed``; otherwise it goes into ``fixed`` at its given
+    value.
+    """
+    if problem.kind != 'voltage':
+        unknown = set(fixed) - set(TORQUE_FREE)
+        if unknown:
+            raise ConfigError(f'cannot fix {sorted(unknown)}: the parameters of a torque '
+                              f'plant are {list(TORQUE_FREE)}')
+        return list(TORQUE_FREE), dict(TORQUE_BOUNDS), None
+    given = fixed.get('R_m', R_m)
+    if given is None:
+        raise ConfigError('the armature resistance R_m is required (--resistance R)')
+    if not (np.isfinite(given) and given > 0):
+        raise ConfigError(f'R_m must be a finite value > 0 Ohm, got {given}')
+    tol = problem.R_m_tolerance
+    if not (np.isfinite(tol) and tol > 0):
+        raise ConfigError(f'the R_m tolerance must be a finite fraction > 0 (0.1 = 10 %), '
+                          f'got {tol}')
+    names, box = list(VOLTAGE_FREE), dict(DEFAULT_BOUNDS)
+    unknown = set(fixed) - set(names) - {'R_m'}
+    if unknown:
+        raise ConfigError(f'cannot fix {sorted(unknown)}: the parameters of a voltage '
+                          f'plant are {names + ["R_m"]}')
+    if 'R_m' not in fixed and 'current' in problem.channels and problem.method != 'paper':
+        names.append('R_m')  # steady states V = R_m i + K_b w: the data see R_m
+        r = problem.units.to_internal('R_m', given)
+        box['R_m'] = (r / R_M_SPAN, r * R_M_SPAN)
+    else:
+        fixed['R_m'] = float(given)
+    return names, box, float(given)
+
+
+def _search_box(box, bounds, fitted, units):
+    """Default box updated by the user's ``bounds`` (SI -> internal) and effect ranges."""
+    box = dict(box)
+    for key, (lo, hi) in (bounds or {}).items():
+        if key not in box and key not in fitted:
+            raise ConfigError(f'bounds given for {key!r}, which is not fitted '
+                              f'(fitted: {fitted})')
+        box[key] = (units.to_internal(key, lo), units.to_internal(key, hi))
+    for fe in fitted:
+        if fe not in box:
+            e, _, p = fe.partition('.')
+            spec = {q.name: q for q in EFFECTS[e].params}[p]
+            box[fe] = (spec.low, spec.high)
+    return box
+
+
+class IdentificationProblem:
+    """What a fit minimises: the model, its free parameters, the data and the cost.
+
+    Built by :meth:`motor_id.identify.Identifier.fit` (``Identifier.problem_``); usable
+    on its own by any optimiser (the benchmarks do).
+
+    Parameters
+    ----------
+    rec : motor_id.recording.Recording
+    method : {'zoh', 'euler', 'paper'}
+    R_m : float or None
+        The given armature resistance [Ohm] (voltage plants).
+    R_m_tolerance : float
+        Relative standard deviation of the given R_m: the width of its Gaussian prior
+        when R_m is estimated.
+    tie, fixed, bounds, channels, effects, free_effects
+        As :class:`motor_id.identify.Identifier`.
+    sample_weight : array_like, shape (N,), optional
+
+    Attributes
+    ----------
+    bounds : motor_id.ga.Bounds
+        Search box of the free parameters (internal units), in the order of ``x``.
+    y : ndarray
+        Measured outputs of the fitted channels side by side (internal units).
+    weights : ndarray
+        Per-sample weights of the cost: 1 / std of each channel times the sample weights.
+    r_m_prior : tuple or None
+        ``(index in x, mean, std)`` of R_m's Gaussian prior (internal units).
+    units : motor_id.identify.units.InternalUnits
+        Internal units (SI unless the data are in extreme units); ``units.to_physical``
+        maps a parameter back.
+    free, fixed : list, dict
+        Free plant parameters (in ``x`` before the effect parameters) and fixed values.
+    evaluations : int
+        Parameter sets simulated so far.
+    """
+
+    def __init__(self, rec, method='zoh', R_m=None, R_m_tolerance=0.10, tie=None,
+                 fixed=None, bounds=None, channels=None, effects=None, free_effects=None,
+                 sample_weight=None):
+        if method not in METHODS:
+            raise ConfigError(f'method must be one of {METHODS}, got {method!r}')
+        self.method = method
+        self.kind = rec.input_kind
+        self.discretisation = 'zoh' if method == 'zoh' else 'euler'
+        self.channels = _pick_channels(rec, method, channels)
+        self.evaluations = 0
+        self.units = InternalUnits.from_recording(rec, bool(effects))
+        self._configure(R_m, R_m_tolerance, tie, fixed, bounds, effects, free_effects)
+        self._load(rec, sample_weight)
+
+    # ----------------------------------------------------------------- set-up
+    def _configure(self, R_m, R_m_tolerance, tie, fixed, bounds, effects, free_effects):
+        fixed = {k: float(v) for k, v in (fixed or {}).items()}
+        self.R_m_tolerance = float(R_m_tolerance)
+        names, box, self.R_m_given = _plant_parameters(self, R_m, fixed)
+        if tie is None:
+            tie = (self.kind == 'voltage' and 'current' in self.channels
+                   and self.method != 'paper')
+        self.tie = bool(tie and self.kind == 'voltage')
+        free = [n for n in names if n not in fixed and not (self.tie and n == 'K_b')]
+        self.effects, self.free_effects = _effect_terms(effects, free_effects)
+        order = free + self.free_effects
+        box = _search_box(box, bounds, order, self.units)
+        self.fixed = {k: self.units.to_internal(k, v) for k, v in fixed.items()}
+        self.free = free
+        self.bounds = Bounds(tuple(order), tuple(box[n][0] for n in order),
+                             tuple(box[n][1] for n in order),
+                             tuple(n in PARAM_NAMES for n in order))
+        self.r_m_prior = None
+        if 'R_m' in free:
+            mean = self.units.to_internal('R_m', self.R_m_given)
+            self.r_m_prior = (free.index('R_m'), mean, self.R_m_tolerance * mean)
+
+    def _load(self, rec, sample_weight):
+        un = self.units
+        self.time = un.signal(rec.time, 'time')
+        self.input = un.signal(rec.input, 'input')
+        x0 = [un.signal(rec.speed[:1], 'speed')[0]]
+        if self.kind == 'voltage':
+            x0.append(un.signal(rec.current[:1], 'current')[0] if rec.has_current else 0.0)
+        self.x0 = np.array(x0, dtype=float)
+        ys0 = [un.signal(rec.speed, 'speed')]
+        if self.kind == 'voltage':
+            ys0.append(un.signal(rec.current, 'current') if rec.has_current else np.zeros(1))
+        span = np.array([np.max(np.abs(y)) * 2 + 1.0 for y in ys0])
+        self.x0_bounds = (self.x0 - span, self.x0 + span)
+        ys = [un.signal(getattr(rec, c), c) for c in self.channels]
+        for ch, y in zip(self.channels, ys):
+            if np.ptp(y) == 0:
+                raise DataError(f'the {ch} channel is constant ({float(y[0]):g} throughout): '
+                                'it holds nothing to fit; check the sensor and the column '
+                                'mapping, or leave the channel out')
+        self.y = np.concatenate(ys)
+        self.n_per = [y.size for y in ys]
+        scales = [np.std(y) if np.std(y) > 0 else 1.0 for y in ys]
+        self.weights = np.concatenate([np.full(y.size, 1.0 / s) for y, s in zip(ys, scales)])
+        self.sample_weight = np.ones(self.y.size)
+        if sample_weight is not None:
+            sw = np.asarray(sample_weight, dtype=float)
+            if sw.shape != rec.time.shape or not np.all(np.isfinite(sw) & (sw >= 0)) \
+                    or not np.any(sw > 0):
+                raise ConfigError(f'sample_weight must hold {len(rec)} finite values >= 0, '
+                                  'not all zero')
+            self.sample_weight = np.tile(sw, len(ys))
+            self.weights = self.weights * self.sample_weight
+
+    # -------------------------------------------------------------- simulation
+    def expand(self, X, overrides=None):
+        """Parameter rows X (P, d) -> (theta dict, effects dict) batches for the model."""
+        X = np.atleast_2d(X)
+        P = X.shape[0]
+        theta = {k: np.full(P, v) for k, v in {**self.fixed, **(overrides or {})}.items()}
+        for j, n in enumerate(self.free):
+            theta[n] = X[:, j]
+        if self.tie:
+            theta['K_b'] = theta['K_T']
+        effects = {e: {p: np.full(P, v) for p, v in vals.items()}
+                   for e, vals in self.effects.items()}
+        for j, fe in enumerate(self.free_effects):
+            e, _, p = fe.partition('.')
+            effects[e][p] = X[:, len(self.free) + j]
+        return theta, effects
+
+    def simulate_channels(self, X, overrides=None):
+        """Outputs per channel for parameter rows X (trailing columns: initial state).
+
+        ``overrides`` replaces fixed parameter values (internal units).
+        """
+        X = np.atleast_2d(X)
+        self.evaluations += X.shape[0]
+        d = self.bounds.dim
+        x0 = X[:, d:] if X.shape[1] > d else self.x0
+        theta, effects = self.expand(X[:, :d], overrides)
+        with np.errstate(all='ignore'):
+            out = simulate_batch(theta, self.time, self.input, self.kind,
+                                 self.discretisation, effects, x0)
+        return [out[c] for c in self.channels]
+
+    def simulate(self, X, overrides=None):
+        """All fitted channels side by side, shape (P, n_channels * N)."""
+        return np.concatenate(self.simulate_channels(X, overrides), axis=1)
+
+    def prior_residuals(self, X):
+        """R_m's prior residual ``(R_m - given) / std`` per row of X, or None."""
+        if self.r_m_prior is None:
+            return None
+        j, mean, std = self.r_m_prior
+        return (np.atleast_2d(X)[:, j] - mean) / std
+
+    def cost(self, X):
+        """The GA's fitness: weighted mean squared output error (plus R_m's prior) per row.
+
+        Equals ``sum(residuals(x)**2) / y.size`` for each row x.
+        """
+        ys = self.simulate_channels(X)
+        c = np.zeros(ys[0].shape[0])
+        n = ys[0].shape[1]
+        with np.errstate(all='ignore'):
+            for k, y in enumerate(ys):
+                sl = slice(k * n, (k + 1) * n)
+                e = y - self.y[sl]
+                e *= self.weights[sl]
+                c += np.einsum('ij,ij->i', e, e)
+            p = self.prior_residuals(X)
+            if p is not None:
+                c += p * p
+        c /= n * len(ys)
+        return np.where(np.isfinite(c), c, np.inf)
+
+    def residuals(self, x, weights=None):
+        """Weighted residuals at one parameter vector x (free parameters, internal units;
+        trailing entries, if any, are the initial state); R_m's prior is the last entry.
+
+        A diverging simulation gives :data:`FAILED_RESIDUAL` entries.
+        """
+        x = np.asarray(x, dtype=float)
+        w = self.weights if weights is None else weights
+        with np.errstate(all='ignore'):
+            r = (self.simulate(x[None, :])[0] - self.y) * w
+            p = self.prior_residuals(x[None, :self.bounds.dim])
+        if p is not None:
+            r = np.concatenate([r, p])
+        return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
+
+    def output_residuals(self, z):
+        """Simulated minus measured outputs (unweighted) at search vector z."""
+        return self.simulate(self.from_z(z[None, :]))[0] - self.y
+
+    # ------------------------------------------------------------- transforms
+    def log_mask(self, size):
+        """Which of ``size`` coordinates are on a log scale (initial states never are)."""
+        lg = np.zeros(size, dtype=bool)
+        lg[:self.bounds.dim] = self.bounds.log
+        return lg
+
+    def to_z(self, x):
+        """Parameters (and initial state) -> search coordinates (log of the positive ones)."""
+        x = np.asarray(x, dtype=float)
+        lg = self.log_mask(np.shape(x)[-1])
+        with np.errstate(all='ignore'):
+            return np.where(lg, np.log(np.where(lg, np.maximum(x, 1e-300), 1.0)), x)
+
+    def from_z(self, z):
+        """Search coordinates -> parameters."""
+        lg = self.log_mask(np.shape(z)[-1])
+        with np.errstate(over='ignore'):
+            return np.where(lg, np.exp(z), z)
+
+    def z_bounds(self, size=None):
+        """Bounds in search coordinates; with the initial state when ``size`` asks."""
+        lo = self.to_z(np.array(self.bounds.low))
+        hi = self.to_z(np.array(self.bounds.high))
+        if size is not None and size > lo.size:
+            lo = np.concatenate([lo, self.x0_bounds[0]])
+            hi = np.concatenate([hi, self.x0_bounds[1]])
+        return lo, hi
+
+    def start_vector(self, start):
+        """A starting parameter vector from SI values ``{name: value}``, clipped to bounds."""
+        vals = []
+        for n in self.bounds.names:
+            if '.' in n:
+                e, _, p = n.partition('.')
+                vals.append(self.effects[e][p] if n not in start else start[n])
+            elif n == 'R_m' and n not in start:
+                vals.append(self.r_m_prior[1])
+            else:
+                if n not in start:
+                    raise ConfigError(f'start values lack {n!r}')
+                vals.append(self.units.to_internal(n, start[n]))
+        return np.clip(np.array(vals, dtype=float), self.bounds.low, self.bounds.high)
+
+    # ------------------------------------------------------------ derivatives
+    def weighted_residuals(self, z, weights, overrides=None):
+        """Weighted residuals at search vector z (with the prior entry, if any)."""
+        x = self.from_z(z[None, :])
+        with np.errstate(all='ignore'):
+            r = (self.simulate(x, overrides)[0] - self.y) * weights
+            p = self.prior_residuals(x[:, :self.bounds.dim])
+        if p is not None:
+            r = np.concatenate([r, p])
+        return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
+
+    def jacobian_z(self, z, weights):
+        """Central-difference Jacobian of the weighted residuals w.r.t. z, one batch."""
+        d = z.size
+        h = 1e-5 * np.maximum(1.0, np.abs(z))
+        # linear coordinates whose range is narrow (effect parameters of a small motor,
+        # given bounds) step by a fraction of that range, never by more than before
+        lo, hi = self.z_bounds(d)
+        h = np.minimum(h, 1e-5 * np.maximum(np.abs(z), 1e-3 * (hi - lo)))
+        h = np.where(self.log_mask(d), 1e-5, h)
+        Z = np.repeat(z[None, :], 2 * d, axis=0)
+        Z[np.arange(d), np.arange(d)] += h
+        Z[d + np.arange(d), np.arange(d)] -= h
+        Y = self.simulate(self.from_z(Z)) * weights[None, :]
+        Jt = (Y[:d] - Y[d:]) / (2 * h[:, None])
+        if self.r_m_prior is not None:
+            j, _, std = self.r_m_prior
+            row = np.zeros((d, 1))
+            row[j, 0] = np.exp(z[j]) / std  # d/dz of (exp(z) - mean) / std
+            Jt = np.concatenate([Jt, row], axis=1)
+        return Jt.T
+
+    def refine(self, z0, weights, max_nfev=60):
+        """Bounded least squares (trust region) from search vector z0."""
+        lo, hi = self.z_bounds(z0.size)
+        z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+
+        def jac(z, w):
+            J = self.jacobian_z(z, w)
+            return np.where(np.isfinite(J), J, 0.0)
+
+        return least_squares(self.weighted_residuals, z0, jac=jac, bounds=(lo, hi),
+                             method='trf', x_scale='jac', max_nfev=max_nfev, xtol=1e-10,
+                             ftol=1e-12, args=(weights,))
+
+    # ------------------------------------------------------------ structure
+    def values_at(self, z):
+        """Full ``{name: value}`` of the physical parameters at free vector z (internal)."""
+        x = self.from_z(z)
+        v = dict(self.fixed)
+        for j, n in enumerate(self.free):
+            v[n] = x[j]
+        if self.tie:
+            v['K_b'] = v['K_T']
+        return v
+
+    def coefficients(self, z, physical=False):
+        """The transfer-function coefficients the data determine, at z."""
+        v = self.values_at(z)
+        if physical:
+            v = {k: self.units.to_physical(k, val) for k, val in v.items()}
+        with np.errstate(all='ignore'):
+            return transfer_coefficients(v, self.kind, self.channels)

@@ -1,0 +1,163 @@
+"""What a fit produced: per-parameter estimates and the result with its JSON and table."""
+
+from dataclasses import dataclass, field
+import math
+
+
+@dataclass
+class Estimate:
+    """One parameter's estimate (SI units)."""
+
+    value: float = None
+    std: float = None
+    determined: bool = False
+    assumed: bool = False
+    particular_value: float = None
+    ci95: tuple = None
+    at_bound: bool = False
+
+    def to_dict(self):
+        """JSON-ready; undetermined parameters have value and std null."""
+        d = {'value': self.value, 'std': self.std, 'determined': self.determined,
+             'at_bound': bool(self.at_bound)}
+        if self.assumed:
+            d['assumed'] = True
+        if self.particular_value is not None:
+            d['particular_value'] = self.particular_value
+        if self.ci95 is not None:
+            d['bootstrap_ci95'] = list(self.ci95)
+        return d
+
+
+def _num(x, spec='.4g'):
+    """Format a number for the table; None and NaN print as '-'."""
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return '-'
+    return format(x, spec)
+
+
+@dataclass
+class IdentificationResult:
+    """Everything a fit produced; serialises to the documented JSON shape."""
+
+    method: str
+    input_kind: str
+    channels: tuple
+    parameters: dict
+    identifiable_combinations: list
+    undetermined_directions: list
+    identifiability: dict
+    fit: dict
+    ga: dict
+    refinement: dict
+    assumptions: dict
+    effects: dict = field(default_factory=dict)
+    prediction: dict = field(default_factory=dict, repr=False)
+    seconds: float = 0.0
+    resistance: dict = None
+    r_m_sensitivity: dict = None
+    parameter_covariance: dict = None
+    units: dict = None
+
+    def to_dict(self):
+        """The JSON shape documented in the README (extra keys beyond the contract)."""
+        d = {
+            'parameters': {k: v.to_dict() for k, v in self.parameters.items()},
+            'identifiable_combinations': self.identifiable_combinations,
+            'undetermined_directions': self.undetermined_directions,
+            'identifiability': self.identifiability,
+            'fit': self.fit,
+            'method': self.method,
+            'input_kind': self.input_kind,
+            'channels': list(self.channels),
+            'assumptions': self.assumptions,
+            'effects': self.effects,
+            'ga': self.ga,
+            'refinement': self.refinement,
+            'seconds': self.seconds,
+            'parameter_covariance': self.parameter_covariance,
+        }
+        if self.resistance is not None:
+            d['resistance'] = self.resistance
+        if self.r_m_sensitivity is not None:
+            d['r_m_sensitivity'] = self.r_m_sensitivity
+        if self.units is not None:
+            d['units'] = self.units
+        return d
+
+    def values(self):
+        """``{name: value}`` of every parameter, using the particular value if undetermined."""
+        out = {}
+        for k, e in self.parameters.items():
+            out[k] = e.value if e.value is not None else e.particular_value
+        return out
+
+    def summary(self):
+        """A plain-text table for people."""
+        lines = [f'method: {self.method}   channels: {", ".join(self.channels)}   '
+                 f'plant: {self.input_kind} input']
+        lines += self._parameter_lines()
+        lines += self._resistance_lines()
+        lines += self._identifiability_lines()
+        for ch, m in self.fit['channels'].items():
+            lines.append(f'fit {ch}: {_num(m["fit_percent"], ".2f")} %  RMS '
+                         f'{_num(m["rms"])}  residual white: {m["white"]}  independent of '
+                         f'input: {m["independent"]}')
+        lines.append(f'GA: {self.ga["generations"]} generations, {self.ga["evaluations"]} '
+                     f'evaluations, {self.ga["seconds"]:.3f} s; total {self.seconds:.2f} s')
+        return '\n'.join(lines)
+
+    def _parameter_lines(self):
+        lines = [f'{"parameter":<12}{"estimate":>14}{"std":>12}  note']
+        for name, e in self.parameters.items():
+            if e.value is None:
+                lines.append(f'{name:<12}{"-":>14}{"-":>12}  not determined by this data')
+                continue
+            std = '-' if e.std is None else f'{e.std:.4g}'
+            note = 'assumed (given)' if e.assumed else ''
+            if e.at_bound:
+                note += ' at bound (the search range limits it; the std is not meaningful: ' \
+                        'widen --bounds or check the units)'
+            if e.ci95 is not None:
+                note += f' bootstrap 95%: [{e.ci95[0]:.4g}, {e.ci95[1]:.4g}]'
+            lines.append(f'{name:<12}{e.value:>14.6g}{std:>12}  {note.strip()}'.rstrip())
+        return lines
+
+    def _resistance_lines(self):
+        lines = []
+        r = self.resistance
+        if r is not None:
+            if r['estimated']:
+                lines.append(f'R_m: given {r["given"]:.3g} Ohm, the data say '
+                             f'{r["estimate"]:.4g} +- {_num(r["std"], ".2g")} Ohm '
+                             f'({100 * r["relative_change"]:+.1f} %: {r["note"]})')
+            else:
+                lines.append(f'R_m: {r["given"]:.4g} Ohm, given and held fixed ({r["note"]})')
+        if self.r_m_sensitivity:
+            moves = ', '.join(f'{k} {v:+.2f} %' for k, v in self.r_m_sensitivity.items()
+                              if v is not None)
+            if moves:
+                lines.append(f'  a +1 % error in R_m moves: {moves}')
+        return lines
+
+    def _identifiability_lines(self):
+        idf = self.identifiability
+        lines = [f'identifiability: rank {idf["rank"]} of {idf["n_free"]} free '
+                 f'parameter(s), condition {idf["condition"]:.3g}']
+        if idf.get('prior'):
+            lines.append('  ' + idf['prior'])
+        if self.undetermined_directions:
+            pivots = [d['free'] for d in self.undetermined_directions]
+            lines.append(f'{len(pivots)} direction(s) in parameter space leave the output '
+                         f'unchanged: {", ".join(pivots)} can take any value, and the '
+                         'others follow:')
+            for d in self.undetermined_directions:
+                lines.append('  ' + d['description'])
+            lines.append('  add a measured channel (current), the K_T = K_b tie, or a known '
+                         'value (--fix NAME=VALUE) to determine them')
+        if self.identifiable_combinations:
+            lines.append('determined combinations:')
+            for c in self.identifiable_combinations:
+                std = '' if c.get('std') is None else f' +- {c["std"]:.4g}'
+                lines.append(f'  {c["name"]:<28} = {c["value"]:.6g}{std}')
+        return lines

@@ -1,0 +1,223 @@
+"""Uncertainty of a fit: noise levels, covariance, structural identifiability, bootstrap.
+
+Uncertainty is the Gauss-Newton (Cramer-Rao) covariance with each channel's noise level
+estimated from its residuals. Identifiability comes from the rank of the map from the
+parameters to the transfer-function coefficients (what input-output data can determine);
+a prior on R_m is one more observation, a unit row in that map.
+"""
+
+import numpy as np
+from scipy.linalg import qr
+
+NULL_TOL = 1e-7     # singular value ratio below which a direction is structurally unseen
+DETERMINED_TOL = 1e-6  # max projection of a parameter on the unseen directions
+AT_BOUND = 1e-3     # share of the (log-)range within which an estimate is at its bound
+
+
+def noise_levels(problem, z):
+    """Per-channel noise std of the residuals at z and the matching weights (1/std)."""
+    r = problem.output_residuals(z)
+    sig, w = [], []
+    i = 0
+    d = z.size
+    for n in problem.n_per:
+        rc = r[i:i + n]
+        swc = problem.sample_weight[i:i + n]
+        dof = max(np.sum(swc) - d / len(problem.n_per), 1.0)
+        s = float(np.sqrt(np.sum(swc * rc * rc) / dof))
+        s = s if s > 0 else 1e-12 * (np.std(problem.y[i:i + n]) or 1.0)
+        sig.append(s)
+        w.append(swc / s)
+        i += n
+    return sig, np.concatenate(w)
+
+
+def _log_coefficients(problem, z):
+    with np.errstate(all='ignore'):
+        return np.log(np.abs(np.array(list(problem.coefficients(z).values()))))
+
+
+def structural_jacobian(problem, z, prior=True):
+    """d log|c| / dz of the transfer coefficients; effect parameters (and R_m's prior,
+    when ``prior``) get unit rows."""
+    d = z.size
+    n_phys = len(problem.free)
+    base = _log_coefficients(problem, z)
+    extra = d - n_phys + (1 if prior and problem.r_m_prior is not None else 0)
+    rows = np.zeros((base.size + extra, d))
+    for j in range(n_phys):
+        h = 1e-6
+        zp = z.copy()
+        zm = z.copy()
+        zp[j] += h
+        zm[j] -= h
+        rows[:base.size, j] = (_log_coefficients(problem, zp)
+                               - _log_coefficients(problem, zm)) / (2 * h)
+    for j in range(n_phys, d):
+        rows[base.size + j - n_phys, j] = 1.0
+    if extra > d - n_phys:
+        rows[-1, problem.r_m_prior[0]] = 1.0
+    return rows
+
+
+def structural(problem, z, prior=True):
+    """Generic structural rank, bases and per-parameter verdict near z.
+
+    The rank of the coefficient map is evaluated at z and at three random points inside
+    the bounds (fixed seed): a parameter counts as determined only if it is at all of
+    them, so an estimate sitting on a special point (B at its lower bound, say) does not
+    make a parameter look determined.
+
+    Returns
+    -------
+    rank : int
+    Vr, Vn : ndarray
+        Bases of the identifiable and of the unseen directions (columns).
+    determined : ndarray of bool
+    """
+    rng = np.random.default_rng(20261122)
+    lo, hi = problem.z_bounds(z.size)
+    points = [z] + [lo + rng.uniform(0.2, 0.8, z.size) * (hi - lo) for _ in range(3)]
+    best = None
+    determined = np.ones(z.size, dtype=bool)
+    for zz in points:
+        Jc = structural_jacobian(problem, zz, prior)
+        _, sc, Vt = np.linalg.svd(Jc, full_matrices=True)
+        smax = sc[0] if sc.size and sc[0] > 0 else 1.0
+        rank = int(np.sum(sc > NULL_TOL * smax))
+        Vn = Vt[rank:].T
+        proj = np.linalg.norm(Vn, axis=1) if Vn.size else np.zeros(z.size)
+        determined &= proj < DETERMINED_TOL
+        if best is None or rank > best[0]:
+            best = (rank, Vt[:rank].T, Vn)
+    return best[0], best[1], best[2], determined
+
+
+def covariance(J, Vr, rank):
+    """Gauss-Newton covariance on the identifiable subspace and its condition number."""
+    Jr = J @ Vr  # output sensitivities along the identifiable directions
+    fisher_r = Jr.T @ Jr
+    sr = np.linalg.svd(fisher_r, compute_uv=False) if rank else np.zeros(0)
+    cov = Vr @ np.linalg.pinv(fisher_r, rcond=1e-15) @ Vr.T
+    cond = float(sr[0] / sr[-1]) if rank and sr[-1] > 0 else float('inf')
+    return cov, cond
+
+
+def undetermined_directions(names, Vn, determined, log_mask):
+    """The unseen directions with one free "pivot" parameter each (QR column pivoting).
+
+    Returns
+    -------
+    directions : list of dict
+    choice : (list, list)
+        The pivot names and the other undetermined names.
+    """
+    if not Vn.size:
+        return [], ([], [])
+    _, _, piv = qr(Vn.T, pivoting=True)
+    piv = np.sort(piv[:Vn.shape[1]])
+    basis = Vn @ np.linalg.inv(Vn[piv])
+    pivots = [names[j] for j in piv]
+    others = [n for j, n in enumerate(names) if j not in piv and not determined[j]]
+    out = []
+    for k, v in enumerate(basis.T):
+        comp = {names[j]: round(float(c), 4) for j, c in enumerate(v) if abs(c) > 1e-6}
+        desc = ' '.join(f'{n}^{c:+.3g}' if log_mask[names.index(n)] else f'{n}{c:+.3g}'
+                        for n, c in comp.items() if abs(c) >= 1e-3)
+        out.append({'free': pivots[k], 'exponents': comp,
+                    'description': f'multiply {desc} by any common factor'})
+    return out, (pivots, others)
+
+
+def combinations(problem, z_best, cov):
+    """The transfer-function coefficients (SI), with delta-method standard errors."""
+    base = problem.coefficients(z_best, physical=True)
+    out = []
+    for key, val in base.items():
+        g = np.zeros(z_best.size)
+        for j in range(len(problem.free)):
+            h = 1e-6
+            zp = z_best.copy()
+            zp[j] += h
+            g[j] = (problem.coefficients(zp, physical=True)[key] - val) / h
+        std = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        out.append({'name': key, 'value': float(val), 'std': std, 'determined': True})
+    return out
+
+
+def at_bound(problem, z):
+    """Per free parameter: on or within :data:`AT_BOUND` of its (log-)range from a bound.
+
+    A linear (effect) parameter whose range starts at 0 is not at a bound near 0: a
+    magnitude that small is an estimate of "hardly any" (as the analysis judges it).
+    """
+    d = problem.bounds.dim
+    lo, hi = problem.z_bounds()
+    tol = AT_BOUND * (hi - lo)
+    low_open = ~problem.log_mask(d) & (lo == 0.0)
+    return ((z[:d] <= lo + tol) & ~low_open) | (z[:d] >= hi - tol)
+
+
+def r_m_sensitivity(problem, z, weights, J, cov):
+    """Percent change of each free estimate per +1 % error in a fixed R_m (linearised).
+
+    The estimate moves by ``dz = -cov J^T dr/dlog(R_m)`` where r are the weighted
+    residuals; parameters not determined get None.
+    """
+    r = problem.fixed['R_m']
+    h = 1e-4
+    up = problem.weighted_residuals(z, weights, {'R_m': r * np.exp(h)})
+    down = problem.weighted_residuals(z, weights, {'R_m': r * np.exp(-h)})
+    dz = -cov @ (J.T @ ((up - down) / (2 * h)))
+    return dz
+
+
+def parameter_covariance(names, values, cov, index):
+    """Covariance of the determined estimated physical parameters in linear SI units.
+
+    Parameters
+    ----------
+    names : list of str
+        Parameters to include, in order.
+    values : dict
+        Their SI values.
+    cov : ndarray
+        Covariance over the search coordinates (log of the physical parameters).
+    index : dict
+        ``{name: coordinate}`` (K_b under the tie maps to K_T's coordinate).
+    """
+    if not names:
+        return None
+    idx = [index[n] for n in names]
+    scale = np.array([values[n] for n in names])
+    m = cov[np.ix_(idx, idx)] * np.outer(scale, scale)
+    return {'names': list(names), 'matrix': m.tolist()}
+
+
+def bootstrap(problem, z_best, weights, n_boot, rng, block=50):
+    """Residual moving-block bootstrap: refit ``n_boot`` times from the estimate.
+
+    Returns
+    -------
+    ndarray, shape (n_boot, d)
+        Refitted parameter vectors (internal units).
+    """
+    y_true = problem.y.copy()
+    r = -problem.output_residuals(z_best)
+    y_hat = y_true - r
+    samples = []
+    try:
+        for _ in range(int(n_boot)):
+            r_star = np.empty_like(r)
+            i = 0
+            for n in problem.n_per:
+                seg = r[i:i + n]
+                starts = rng.integers(0, max(n - block, 1), n // block + 1)
+                r_star[i:i + n] = np.concatenate([seg[s:s + block] for s in starts])[:n]
+                i += n
+            problem.y = y_hat + r_star
+            sol = problem.refine(z_best, weights, max_nfev=20)
+            samples.append(problem.from_z(sol.x))
+    finally:
+        problem.y = y_true
+    return np.array(samples)
