@@ -1,15 +1,11 @@
-"""One in-memory recording (time + channels), its validation, and the CSV reader/writer."""
+"""One in-memory recording (time + channels) and its validation."""
 
-import csv
 from dataclasses import dataclass, field
-import math
 
 import numpy as np
 
 from motor_id.errors import DataError
 
-REQUIRED_COLUMNS = ('time', 'voltage', 'speed')
-OPTIONAL_COLUMNS = ('current',)
 MIN_SAMPLES = 20
 
 
@@ -39,6 +35,14 @@ class Recording:
     current: np.ndarray = None
     input_kind: str = 'voltage'
     meta: dict = field(default_factory=dict)
+
+    MAX_MAGNITUDE = 1e200
+    """Largest accepted magnitude of any value. The fit rescales each channel and copes
+    with values up to about 1e250 (tested); beyond, its arithmetic overflows."""
+    OUTLIER_RATIO = 1e12
+    """A value this many times the channel's typical magnitude is a corrupt cell."""
+    MIN_MOVING_FRACTION = 0.01
+    """Fewer samples than this fraction off the output's median is a constant output."""
 
     def __post_init__(self):
         self.time = np.asarray(self.time, dtype=float)
@@ -79,32 +83,53 @@ class Recording:
     def validate(self, min_samples=MIN_SAMPLES):
         """Raise :class:`DataError` with a one-line reason if the data cannot be fitted.
 
-        Checks equal lengths, finite values, strictly increasing time, enough samples and
-        an input that actually varies.
+        Checks equal lengths, enough samples, finite values of sane magnitude (see
+        :func:`bad_magnitude`), strictly increasing time, an input that varies and a speed
+        that varies (not constant, and off its median in at least
+        :attr:`MIN_MOVING_FRACTION` of the samples).
         """
         n = self.time.size
-        for name in ('input', 'speed') + (('current',) if self.has_current else ()):
+        names = ('time', 'input', 'speed') + (('current',) if self.has_current else ())
+        for name in names[1:]:
             arr = getattr(self, name)
             if arr.shape != self.time.shape:
                 raise DataError(f'channel {name!r} has {arr.size} samples but time has {n}')
         if n < min_samples:
             raise DataError(f'too few samples: {n} (need at least {min_samples})')
-        for name in ('time', 'input', 'speed') + (('current',) if self.has_current else ()):
+        for name in names:
             arr = getattr(self, name)
             bad = np.flatnonzero(~np.isfinite(arr))
             if bad.size:
                 raise DataError(f'channel {name!r} has {bad.size} NaN/inf value(s), '
                                 f'first at sample {bad[0]}')
+            found = bad_magnitude(arr, relative=name != 'time')
+            if found:
+                raise DataError(f'channel {name!r} at sample {found[0]}: {found[1]}')
         dt = np.diff(self.time)
         bad = np.flatnonzero(dt <= 0)
         if bad.size:
             k = bad[0] + 1
             raise DataError(f'time is not strictly increasing at sample {k} '
                             f'(t = {self.time[k - 1]:g} then {self.time[k]:g})')
-        if np.ptp(self.input) <= 1e-12 * max(1.0, np.max(np.abs(self.input))):
+        if _is_constant(self.input):
             raise DataError('no excitation: the input is constant '
                             f'({self.input[0]:g} throughout); use a varying input')
+        self._check_output_moves()
         return self
+
+    def _check_output_moves(self):
+        """DataError when the speed is constant or nearly so (nothing to fit)."""
+        speed = self.speed
+        if _is_constant(speed):
+            raise DataError(f'no response: the speed is constant ({speed[0]:g} throughout); '
+                            'check the speed column/topic and that the motor moved')
+        median = np.median(speed)
+        moving = int(np.count_nonzero(np.abs(speed - median)
+                                      > 1e-9 * max(1.0, float(np.max(np.abs(speed))))))
+        if moving < max(3, self.MIN_MOVING_FRACTION * speed.size):
+            raise DataError(f'no response: the speed is nearly constant ({median:g} in '
+                            f'{speed.size - moving} of {speed.size} samples); check the speed '
+                            'column/topic and that the motor moved')
 
     def to_dict(self):
         """Plain lists for JSON."""
@@ -115,106 +140,47 @@ class Recording:
         return d
 
 
-def read_csv(path, min_samples=MIN_SAMPLES):
-    """Read a recording from CSV with a header naming its columns.
+def _is_constant(values):
+    """True when the values vary by no more than rounding (relative 1e-12)."""
+    return bool(np.ptp(values) <= 1e-12 * max(1.0, float(np.max(np.abs(values)))))
 
-    Columns ``time`` [s], ``voltage`` [V], ``speed`` [rad/s] are required, ``current`` [A]
-    optional; other columns are ignored. Comma-separated; lines starting with ``#`` are
-    comments (``# input_kind: torque`` switches the plant kind).
 
-    Raises
-    ------
-    DataError
-        With the file, line and reason: a missing column, a wrong delimiter, a
-        non-numeric cell, NaN/inf, non-increasing time, too few samples, no excitation.
+def bad_magnitude(values, relative=True):
+    """The first value no measurement can have, and why; None when all are sane.
+
+    Parameters
+    ----------
+    values : ndarray
+        Finite values of one channel.
+    relative : bool
+        Also flag a value above :attr:`Recording.OUTLIER_RATIO` times the channel's
+        typical magnitude (the 90th percentile of ``|values|``, or the median of the
+        non-zero ones when that is 0): one corrupt cell among sane ones.
+
+    Returns
+    -------
+    (int, str) or None
+        Index of the first offending value and a one-line reason.
     """
-    path = str(path)
-    try:
-        with open(path, newline='') as fh:
-            lines = fh.read().splitlines()
-    except OSError as exc:
-        raise DataError(f'{path}: cannot read ({exc.strerror})') from None
-    except UnicodeDecodeError:
-        raise DataError(f'{path}: not a text CSV file') from None
-    meta = {'source': path}
-    body = []
-    for lineno, line in enumerate(lines, 1):
-        s = line.strip()
-        if not s:
-            continue
-        if s.startswith('#'):
-            key, sep, value = s[1:].partition(':')
-            if sep:
-                meta[key.strip()] = value.strip()
-            continue
-        body.append((lineno, line))
-    if not body:
-        raise DataError(f'{path}: empty file, expected a header line '
-                        f'with columns {", ".join(REQUIRED_COLUMNS)}')
-    header_line, header = body[0]
-    names = [c.strip().lower() for c in next(csv.reader([header]))]
-    missing = [c for c in REQUIRED_COLUMNS if c not in names]
-    if missing:
-        hint = ''
-        if len(names) == 1 and any(d in header for d in ';\t|'):
-            hint = ' (the file looks delimited by something other than commas)'
-        elif all(_is_number(c) for c in names):
-            hint = ' (the first line holds numbers: the header is missing)'
-        raise DataError(f'{path}:{header_line}: missing column(s) {", ".join(missing)} in '
-                        f'header {header.strip()!r}{hint}')
-    cols = {c: names.index(c) for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in names}
-    data = {c: [] for c in cols}
-    for lineno, line in body[1:]:
-        cells = next(csv.reader([line]))
-        if len(cells) != len(names):
-            raise DataError(f'{path}:{lineno}: {len(cells)} cell(s), header has {len(names)}')
-        for c, j in cols.items():
-            cell = cells[j].strip()
-            try:
-                value = float(cell)
-            except ValueError:
-                raise DataError(f'{path}:{lineno}: column {c!r} has non-numeric value '
-                                f'{cell!r}') from None
-            if not math.isfinite(value):
-                raise DataError(f'{path}:{lineno}: column {c!r} is {cell} (NaN/inf)')
-            data[c].append(value)
-    time = np.asarray(data['time'])
-    dt = np.diff(time)
-    bad = np.flatnonzero(dt <= 0)
-    if bad.size:
-        k = bad[0] + 1
-        lineno = body[1 + k][0]
-        what = 'duplicate time stamp' if dt[bad[0]] == 0 else 'time goes backwards'
-        raise DataError(f'{path}:{lineno}: {what} (t = {time[k]:g} after {time[k - 1]:g})')
-    kind = meta.pop('input_kind', 'voltage')
-    if kind not in ('voltage', 'torque'):
-        raise DataError(f'{path}: input_kind must be voltage or torque, got {kind!r}')
-    rec = Recording(time, np.asarray(data['voltage']), np.asarray(data['speed']),
-                    np.asarray(data['current']) if 'current' in data else None, kind, meta)
-    try:
-        return rec.validate(min_samples)
-    except DataError as exc:
-        raise DataError(f'{path}: {exc}') from None
-
-
-def write_csv(rec, path, comments=None):
-    """Write a recording as CSV (``time,voltage,speed[,current]``) with ``#`` comments."""
-    cols = ['time', 'voltage', 'speed'] + (['current'] if rec.has_current else [])
-    arr = np.column_stack([rec.time, rec.input, rec.speed]
-                          + ([rec.current] if rec.has_current else []))
-    with open(path, 'w', newline='') as fh:
-        if rec.input_kind != 'voltage':
-            fh.write(f'# input_kind: {rec.input_kind}\n')
-        for key, value in (comments or {}).items():
-            fh.write(f'# {key}: {value}\n')
-        fh.write(','.join(cols) + '\n')
-        for row in arr:
-            fh.write(','.join(repr(float(v)) for v in row) + '\n')
-
-
-def _is_number(text):
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
+    mag = np.abs(values)
+    if mag.size == 0:
+        return None
+    huge = np.flatnonzero(mag > Recording.MAX_MAGNITUDE)
+    if huge.size:
+        k = int(huge[0])
+        return k, (f'{values[k]:g} is above {Recording.MAX_MAGNITUDE:g} in magnitude '
+                   '(the fit\'s arithmetic overflows): check the units or the column')
+    if not relative:
+        return None
+    typical = float(np.percentile(mag, 90))
+    if typical == 0.0:
+        nonzero = mag[mag > 0]
+        typical = float(np.median(nonzero)) if nonzero.size else 0.0
+    if typical == 0.0:
+        return None
+    out = np.flatnonzero(mag > Recording.OUTLIER_RATIO * typical)
+    if out.size:
+        k = int(out[0])
+        return k, (f'{values[k]:g} is {mag[k] / typical:.2g} times the typical magnitude '
+                   f'{typical:.3g} of the channel: a corrupt value?')
+    return None

@@ -8,9 +8,10 @@ from scipy.io import loadmat, savemat
 
 from motor_id.bag import bag_info, read_recording
 from motor_id.cli import main
+from motor_id.data.csv_io import write_csv
+from motor_id.data.importers import DUNKER_K_T, load, load_csv, load_dunker, load_emps
 from motor_id.errors import ConfigError, DataError
-from motor_id.data.importers import DUNKER_K_T, load_csv, load_dunker, load_emps
-from motor_id.recording import Recording, write_csv
+from motor_id.recording import Recording
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / 'shared' / 'data'
@@ -160,3 +161,33 @@ def test_committed_bags_hold_the_converted_data(emps):
             np.testing.assert_array_equal(back.input, rec.input)
             np.testing.assert_array_equal(back.time, rec.time)
             assert bag_info(path)['topics'][1]['count'] == -(-len(rec) // 50)
+
+
+def test_dunker_as_a_torque_csv_imports_by_column_name(tmp_path, capsys):
+    """A measured set written as users write it: ``time,torque,speed`` with a BOM."""
+    rec = load_dunker(DUNKER_VAL, 1)
+    src = tmp_path / 'dunker.csv'
+    src.write_text('time,torque,speed\n' + ''.join(
+        f'{t!r},{u!r},{w!r}\n' for t, u, w in zip(rec.time.tolist(), rec.input.tolist(),
+                                                   rec.speed.tolist())),
+        encoding='utf-8-sig')
+    back = load_csv(src)
+    assert back.input_kind == 'torque'
+    np.testing.assert_array_equal(back.input, rec.input)
+    out = tmp_path / 'd.mcap'
+    assert main(['import', 'csv', str(src), str(out)]) == 0
+    assert '(torque input)' in capsys.readouterr().out
+    again = load('bag', out)
+    np.testing.assert_array_equal(again.speed, rec.speed)
+    assert again.input_kind == 'torque'
+
+
+def test_measured_sets_pass_validation_and_show_no_false_shift(emps):
+    """Closed-loop measured data: valid, and the shift check stays silent (rss ratios)."""
+    from motor_id.data.shift import detect_shift
+    recs = [emps] + [load_dunker(src, m) for src in (DUNKER_ID, DUNKER_VAL) for m in (1, 2, 3)]
+    for rec in recs:
+        rec.validate()
+        check = detect_shift(rec)
+        assert check.samples == 0 and check.channel == 'speed', rec.meta['source']
+        assert min(check.relative_rss.values()) > 0.8

@@ -1,73 +1,68 @@
-"""CSV reading: good data, and one clear error per kind of bad data."""
+"""Recording: validation gives one clear error per kind of unusable data."""
 
 import numpy as np
 import pytest
 
 from motor_id.errors import DataError
-from motor_id.recording import read_csv, Recording, write_csv
+from motor_id.recording import Recording
 
 from conftest import paper_recording
 
-HEADER = 'time,voltage,speed,current\n'
-
-
-def write(tmp_path, text, name='d.csv'):
-    p = tmp_path / name
-    p.write_text(text)
-    return p
-
-
-def rows(n=50, start=0):
-    return ''.join(f'{0.01 * k},{1.0 + (k > 10)},{0.1 * k},{0.01 * k}\n'
-                   for k in range(start, start + n))
-
-
-def test_round_trip_is_exact(tmp_path):
-    rec = paper_recording(speed_noise=0.01, current_noise=0.01, seed=1)
-    write_csv(rec, tmp_path / 'r.csv', {'note': 'x'})
-    back = read_csv(tmp_path / 'r.csv')
-    for ch in ('time', 'input', 'speed', 'current'):
-        np.testing.assert_array_equal(getattr(back, ch), getattr(rec, ch))
-    assert back.meta['note'] == 'x'
-
-
-def test_optional_current_and_extra_columns(tmp_path):
-    p = write(tmp_path, 'time,speed,voltage,temp\n' + ''.join(
-        f'{0.01 * k},{0.1 * k},{1.0 + (k > 3)},20\n' for k in range(30)))
-    rec = read_csv(p)
-    assert not rec.has_current and rec.channels() == ('speed',)
-    assert rec.input[5] == 2.0
-
-
-@pytest.mark.parametrize('text, message', [
-    ('time,voltage\n' + '0,1\n' * 30, r'd\.csv:1: missing column\(s\) speed'),
-    ('time;voltage;speed\n0;1;2\n', 'delimited by something other than commas'),
-    ('0,1,2,3\n' + rows(), 'the header is missing'),
-    (HEADER + rows(5) + '0.05,abc,0.5,0.05\n' + rows(30, 6),
-     r"d\.csv:7: column 'voltage' has non-numeric value 'abc'"),
-    (HEADER + rows(5) + '0.05,1,nan,0.05\n' + rows(30, 6), r"d\.csv:7: column 'speed' is nan"),
-    (HEADER + rows(5) + rows(30, 4), r'd\.csv:7: duplicate time stamp'),
-    (HEADER + rows(5) + '0.01,1,1,1\n' + rows(30, 6), r'd\.csv:7: time goes backwards'),
-    (HEADER + rows(5), 'too few samples: 5'),
-    (HEADER + ''.join(f'{0.01 * k},2.0,{0.1 * k},0\n' for k in range(40)), 'no excitation'),
-    ('', 'empty file'),
-    (HEADER + '0,1,2\n', r'd\.csv:2: 3 cell\(s\), header has 4'),
-])
-def test_bad_files_get_one_specific_line(tmp_path, text, message):
-    with pytest.raises(DataError, match=message) as info:
-        read_csv(write(tmp_path, text))
-    assert '\n' not in str(info.value)
-
-
-def test_missing_file(tmp_path):
-    with pytest.raises(DataError, match='cannot read'):
-        read_csv(tmp_path / 'nope.csv')
+T = np.arange(30) * 0.1
+V = np.r_[np.zeros(10), np.ones(20)]
+W = np.linspace(0.0, 2.0, 30)
 
 
 def test_validate_catches_inf_and_length_mismatch():
-    t = np.arange(30) * 0.1
-    v = np.r_[np.zeros(10), np.ones(20)]
     with pytest.raises(DataError, match="'speed' has 1 NaN/inf"):
-        Recording(t, v, np.r_[np.zeros(29), np.inf]).validate()
+        Recording(T, V, np.r_[W[:29], np.inf]).validate()
     with pytest.raises(DataError, match='has 29 samples but time has 30'):
-        Recording(t, v, np.zeros(29)).validate()
+        Recording(T, V, np.zeros(29)).validate()
+
+
+@pytest.mark.parametrize('speed, message', [
+    (np.zeros(30), r'no response: the speed is constant \(0 throughout\)'),
+    (np.full(30, 3.5) + 1e-14 * np.arange(30), 'the speed is constant'),
+    (np.r_[np.zeros(28), 0.1, 0.2], r'nearly constant \(0 in 28 of 30 samples\)'),
+])
+def test_constant_or_nearly_constant_speed_is_refused(speed, message):
+    with pytest.raises(DataError, match=message) as info:
+        Recording(T, V, speed).validate()
+    assert '\n' not in str(info.value)
+
+
+def test_a_real_speed_with_rests_passes():
+    rec = paper_recording(speed_noise=0.01, seed=2)
+    assert rec.validate() is rec
+    rec.speed[:len(rec) // 2] = 0.0          # motor at rest for half the record
+    rec.validate()
+
+
+@pytest.mark.parametrize('channel', ['time', 'input', 'speed', 'current'])
+def test_overflowing_magnitudes_name_the_channel_and_sample(channel):
+    rec = paper_recording(seed=1)
+    if channel == 'time':     # every value ~1e299, still strictly increasing
+        rec.time = 1e299 * (1 + 1e-12 * np.arange(len(rec)))
+    else:                     # one cell of 1e300
+        getattr(rec, channel)[17] = 1e300
+    k = 0 if channel == 'time' else 17
+    with pytest.raises(DataError, match=rf"channel '{channel}' at sample {k}: .* is above "
+                                        r"1e\+200 in magnitude \(the fit's arithmetic "
+                                        'overflows\\): check the units'):
+        rec.validate()
+
+
+def test_a_whole_channel_near_1e299_is_refused_but_1e140_is_left_to_the_fit():
+    rec = paper_recording(seed=1)
+    with pytest.raises(DataError, match=r"channel 'speed' at sample 301: .* above 1e\+200"):
+        Recording(rec.time, rec.input, rec.speed * 1e299).validate()
+    big = Recording(rec.time, rec.input * 1e140, rec.speed * 1e140, rec.current * 1e140)
+    assert big.validate() is big
+
+
+def test_one_corrupt_cell_among_sane_values_is_named():
+    rec = paper_recording(seed=1)
+    rec.speed[1234] = 3e16
+    with pytest.raises(DataError, match=r"channel 'speed' at sample 1234: 3e\+16 is .* times "
+                                        r'the typical magnitude .* a corrupt value\?'):
+        rec.validate()

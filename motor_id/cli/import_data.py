@@ -1,22 +1,26 @@
-"""`motor-id import`: convert measured data (emps, dunker, csv) to MCAP."""
+"""`motor-id import`: convert measured data (emps, dunker, csv, any rosbag2) to MCAP."""
 
 import os
 
 from motor_id.bag import write_recording
+from motor_id.cli.data_args import add_data_arguments, load_from_args
 from motor_id.data.importers import load, SOURCES
 from motor_id.errors import ConfigError
 
 
 def add_arguments(parser):
-    """``motor-id import emps|dunker|csv SRC OUT.mcap [--motor N]``."""
+    """``motor-id import emps|dunker|csv|bag SRC OUT.mcap [--motor N] [data options]``."""
     parser.add_argument('source', choices=SOURCES, help='kind of the input data')
-    parser.add_argument('src', metavar='SRC', help='input file (.mat, .csv)')
+    parser.add_argument('src', metavar='SRC',
+                        help='input file (.mat, .csv) or rosbag2 recording (.mcap, .db3, '
+                             'folder)')
     parser.add_argument('out', metavar='OUT.mcap', help='bag to write')
     parser.add_argument('--motor', type=int, default=1, choices=(1, 2, 3),
                         help='dunker: which motor (default 1)')
     parser.add_argument('--batch', type=int, default=50, help='rows per /samples message')
     parser.add_argument('--compression', choices=('zstd', 'lz4', 'none'), default='zstd')
     parser.add_argument('--force', action='store_true', help='replace OUT if it exists')
+    add_data_arguments(parser)
 
 
 def run(args):
@@ -25,10 +29,15 @@ def run(args):
         raise ConfigError(f'output must be an .mcap file, got {args.out!r}')
     if os.path.exists(args.out) and not args.force:
         raise ConfigError(f'{args.out} exists; pass --force to replace it')
-    rec = load(args.source, args.src, args.motor)
+    if args.source in ('csv', 'bag'):
+        rec = load_from_args(args, args.src)
+    else:
+        rec = load(args.source, args.src, args.motor)
     meta = {'import_command': (f'motor-id import {args.source} {os.path.basename(args.src)} '
                                f'{os.path.basename(args.out)}'
                                + (f' --motor {args.motor}' if args.source == 'dunker' else ''))}
+    if os.path.exists(args.out):
+        os.remove(args.out)
     res = write_recording(rec, args.out, meta=meta, batch=args.batch,
                           compression=args.compression)
     size = os.path.getsize(args.out)

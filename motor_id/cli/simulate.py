@@ -7,7 +7,7 @@ import numpy as np
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
 from motor_id.model import parse_effect_args, Plant
-from motor_id.recording import write_csv
+from motor_id.data.csv_io import write_csv
 from motor_id.simulate import simulate_recording
 
 

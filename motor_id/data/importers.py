@@ -1,12 +1,13 @@
-"""Importers of measured data sets (EMPS, Dunker GR 42x25, CSV) into Recordings and bags."""
+"""Importers of measured data sets (EMPS, Dunker GR 42x25, CSV, rosbag2) into Recordings."""
 
 import math
 import os
 
 import numpy as np
 
+from motor_id.data.csv_io import read_csv
 from motor_id.errors import ConfigError, DataError
-from motor_id.recording import read_csv, Recording
+from motor_id.recording import Recording
 
 EMPS_CITATION = ('A. Janot, M. Gautier, M. Brunot, "Data Set and Reference Models of EMPS", '
                  'Workshop on Nonlinear System Identification Benchmarks, Eindhoven, 2019')
@@ -37,7 +38,7 @@ DUNKER_SIGN_RULE = ('torque = k_t * |i| * s with s = sign(m{n}vel) where the mea
                     'current trailing a stop), 0 before any motion. The logged current has '
                     'no sign and follows the speed, also during the ~0.12 s after a '
                     'set-point step to 0 while the motor still runs')
-SOURCES = ('emps', 'dunker', 'csv')
+SOURCES = ('emps', 'dunker', 'csv', 'bag')
 
 
 def load_emps(path):
@@ -244,17 +245,24 @@ def dunker_sign(vel, setvel):
     return np.where(vel != 0, np.sign(vel), np.where(setvel != 0, np.sign(setvel), held))
 
 
-def load_csv(path):
-    """Load a project CSV (``time,voltage,speed[,current]``); see :func:`read_csv`."""
-    return read_csv(path)
+def load_csv(path, columns=None, input_kind=None):
+    """Load a CSV recording (input column voltage, torque or force); see :func:`read_csv`."""
+    return read_csv(path, columns=columns, input_kind=input_kind)
 
 
 def load(source, path, motor=1):
-    """Dispatch to the loader of ``source`` ('emps', 'dunker' or 'csv')."""
+    """Dispatch to the loader of ``source`` ('emps', 'dunker', 'csv' or 'bag').
+
+    'bag' reads the ``/samples`` topic of any rosbag2 recording; a field mapping is
+    :func:`motor_id.data.rosbag.read_bag`'s.
+    """
     if source == 'emps':
         return load_emps(path)
     if source == 'dunker':
         return load_dunker(path, motor)
     if source == 'csv':
         return load_csv(path)
+    if source == 'bag':
+        from motor_id.data.rosbag import read_bag
+        return read_bag(path)
     raise ConfigError(f'unknown source {source!r}; choose one of {", ".join(SOURCES)}')

@@ -1,21 +1,40 @@
 """Load a recording from any file the tools accept, chosen by what the path is."""
 
-from motor_id.recording import read_csv
+from motor_id.data.csv_io import read_csv
+from motor_id.errors import ConfigError
 
 
-def load_recording(path):
-    """Read a recording from a CSV file or an MCAP bag.
+def load_recording(path, columns=None, input_kind=None, mapping=None):
+    """Read a recording from a CSV file or a rosbag2 recording.
 
     Parameters
     ----------
     path : str or os.PathLike
-        ``*.mcap``: a bag with this project's ``/samples`` topic; anything else: CSV.
+        A directory (rosbag2 folder), ``*.mcap`` or ``*.db3``: a bag, read by
+        :func:`motor_id.data.rosbag.read_bag`; anything else: CSV
+        (:func:`motor_id.data.csv_io.read_csv`).
+    columns : dict or str, optional
+        CSV only: column mapping ``{role: name}``.
+    input_kind : {'voltage', 'torque'}, optional
+        Plant kind when the names cannot tell (CSV, or a bag mapping).
+    mapping : motor_id.data.rosbag.Mapping, optional
+        Bags only: the topic/field mapping (None or empty: the ``/samples`` topic).
 
     Returns
     -------
     motor_id.recording.Recording
+        Validated for CSV; a bag's recording is validated by the caller.
     """
-    if str(path).endswith('.mcap'):
-        from motor_id.bag import read_recording
-        return read_recording(path)
-    return read_csv(path)
+    from motor_id.data.rosbag import is_rosbag, Mapping, read_bag
+    if is_rosbag(path):
+        if columns:
+            raise ConfigError('--columns maps CSV columns; a bag is mapped with --input, '
+                              '--speed, --current')
+        mapping = mapping or Mapping()
+        if input_kind is not None:
+            mapping.input_kind = input_kind
+        return read_bag(path, mapping)
+    if mapping is not None and not mapping.is_empty:
+        raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
+                          'for a CSV map its columns with --columns time=T,input=U,speed=W')
+    return read_csv(path, columns=columns, input_kind=input_kind)

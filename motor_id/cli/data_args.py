@@ -1,0 +1,120 @@
+"""Data-source options shared by every subcommand that reads a recording."""
+
+import sys
+
+from motor_id.data.csv_io import parse_columns
+from motor_id.data.load import load_recording
+from motor_id.data.rosbag import load_profile, Mapping
+from motor_id.data.shift import detect_shift, shift_input
+from motor_id.errors import ConfigError, DataError
+
+DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), or a rosbag2 recording: '
+             'an .mcap or .db3 file or a bag folder')
+
+
+def add_data_arguments(parser, profile=True):
+    """Add the options that say how to read DATA (CSV columns, bag topics, alignment).
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The subcommand's parser; its positional DATA argument stays its own.
+    profile : bool
+        Add ``--profile FILE`` (a subcommand that already has a ``--profile`` adds its
+        own and sets ``args.profile`` to the file or None).
+    """
+    g = parser.add_argument_group('data source (CSV columns, bag topics)')
+    g.add_argument('--columns', metavar='ROLE=NAME,...',
+                   help='CSV: map columns, e.g. time=t,input=u_cmd,speed=omega,current=i_a')
+    g.add_argument('--input-kind', choices=('voltage', 'torque'),
+                   help='plant kind when the input name cannot tell (torque: also force)')
+    g.add_argument('--input', metavar='TOPIC[:FIELD]',
+                   help='bag: plant input, e.g. /motor_voltage_cmd or /cmd:data[2]')
+    g.add_argument('--speed', metavar='TOPIC[:FIELD]',
+                   help='bag: measured speed, e.g. /joint_states:velocity')
+    g.add_argument('--current', metavar='TOPIC[:FIELD]',
+                   help='bag: measured current, e.g. /joint_states:effort')
+    g.add_argument('--joint', metavar='NAME',
+                   help='bag: JointState joint (name or index)')
+    g.add_argument('--effort-is', choices=('current', 'torque'),
+                   help='bag: what a JointState effort is (torque: a torque plant whose '
+                        'input is the effort)')
+    g.add_argument('--align', choices=('hold', 'next'), default=None,
+                   help='bag: command held from its stamp (hold, default) or the command '
+                        'published just after each measurement (next)')
+    g.add_argument('--shift', type=int, default=None, metavar='N',
+                   help='use input[k+N] at sample k (N > 0: the input was stamped late)')
+    if profile:
+        g.add_argument('--profile', metavar='FILE',
+                       help='YAML mapping profile (keys: input, speed, current, joint, '
+                            'effort_is, align, input_kind, shift, columns); flags override')
+
+
+def settings_from_args(args):
+    """The merged data settings: the profile's values overridden by the flags.
+
+    Returns
+    -------
+    dict
+        Keys ``columns, input_kind, shift, mapping`` (a :class:`Mapping`).
+    """
+    prof = getattr(args, 'profile', None)
+    merged = load_profile(prof) if isinstance(prof, str) and prof else {}
+    for key in ('input', 'speed', 'current', 'joint', 'effort_is', 'align', 'input_kind',
+                'shift', 'columns'):
+        value = getattr(args, key, None)
+        if value is not None:
+            merged[key] = value
+    mapping = Mapping(input=merged.get('input'), speed=merged.get('speed'),
+                      current=merged.get('current'),
+                      joint=None if merged.get('joint') is None else str(merged['joint']),
+                      effort_is=merged.get('effort_is'), align=merged.get('align') or 'hold',
+                      input_kind=merged.get('input_kind'))
+    shift = merged.get('shift')
+    if shift is not None and (isinstance(shift, bool) or not isinstance(shift, int)):
+        raise ConfigError(f'shift must be a whole number of samples, got {shift!r}')
+    if merged.get('input_kind') not in (None, 'voltage', 'torque'):
+        raise ConfigError(f'input_kind must be voltage or torque, got '
+                          f'{merged["input_kind"]!r}')
+    return {'columns': parse_columns(merged.get('columns')),
+            'input_kind': merged.get('input_kind'), 'shift': shift, 'mapping': mapping}
+
+
+def load_from_args(args, path=None, validate=True, stream=None):
+    """Read the recording the options describe, check it, report a time shift.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        Parsed with :func:`add_data_arguments`.
+    path : str, optional
+        The data path (default ``args.data``).
+    validate : bool
+        Validate (``Recording.validate``) and check for a shift between input and
+        output; a shift found without ``--shift`` is printed as a warning with the fix.
+    stream : file, optional
+        Where the warning goes (default stderr).
+
+    Returns
+    -------
+    motor_id.recording.Recording
+    """
+    path = str(args.data if path is None else path)
+    s = settings_from_args(args)
+    rec = load_recording(path, columns=s['columns'], input_kind=s['input_kind'],
+                         mapping=s['mapping'])
+    if s['shift']:
+        rec = shift_input(rec, s['shift'])
+    if not validate:
+        return rec
+    try:
+        rec.validate()
+    except DataError as exc:
+        text = str(exc)
+        raise DataError(text if text.startswith(path) else f'{path}: {text}') from None
+    if s['shift'] is None and len(rec) >= 40:
+        check = detect_shift(rec)
+        rec.meta['shift_check'] = check.to_dict()
+        if check.samples:
+            print(f'warning: {path}: {check.message()}', file=stream or sys.stderr)
+    return rec

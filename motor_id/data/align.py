@@ -1,0 +1,134 @@
+"""Commands zero-order held onto measurement times: the rule, batch and streaming."""
+
+import collections
+
+import numpy as np
+
+from motor_id.contracts import SAMPLE_COLUMNS
+from motor_id.errors import ConfigError
+
+ALIGN_RULES = ('hold', 'next')
+"""``hold``: a sample takes the last command at or before its own time (the command in
+force when it was measured). ``next``: the last command before the next sample's time
+(the command in force over the interval that starts at the sample), for robots that
+publish the command just after reading the state."""
+
+
+def _check_rule(align):
+    if align not in ALIGN_RULES:
+        raise ConfigError(f'align must be one of {", ".join(ALIGN_RULES)}, got {align!r}')
+
+
+def held_command_index(t_meas, t_cmd, align='hold'):
+    """Index of the command each measurement takes (-1: no command yet).
+
+    Parameters
+    ----------
+    t_meas : array_like, shape (n,)
+        Measurement times [s], increasing.
+    t_cmd : array_like, shape (m,)
+        Command times [s], non-decreasing.
+    align : {'hold', 'next'}
+        See :data:`ALIGN_RULES`. With ``next`` the last measurement has no next time
+        and gets -1 (it cannot be aligned yet).
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+    """
+    _check_rule(align)
+    t_meas = np.asarray(t_meas, dtype=float)
+    t_cmd = np.asarray(t_cmd, dtype=float)
+    if align == 'hold':
+        return np.searchsorted(t_cmd, t_meas, side='right') - 1
+    idx = np.full(t_meas.shape, -1, dtype=np.intp)
+    idx[:-1] = np.searchsorted(t_cmd, t_meas[1:], side='left') - 1
+    return idx
+
+
+class StreamAligner:
+    """Builds sample rows from a measurement stream and a command stream, as they arrive.
+
+    Rows are released in measurement order once no command that could still change
+    them is expected: when a command at or after the time that decides the row
+    (the sample's own time for ``hold``, the next sample's time for ``next``) has
+    arrived, or ``max_delay_s`` after that time. Measurements before the first command,
+    or out of order, are dropped and counted.
+
+    Parameters
+    ----------
+    align : {'hold', 'next'}
+    max_delay_s : float
+        Longest expected delay of a command message [s].
+    """
+
+    def __init__(self, align='hold', max_delay_s=0.2):
+        _check_rule(align)
+        self.align = align
+        self.max_delay_s = float(max_delay_s)
+        self._cmd = collections.deque()      # (time, value), time non-decreasing
+        self._meas = collections.deque()     # (time, speed, current)
+        self.seq = 0
+        self.dropped_no_command = 0
+        self.dropped_out_of_order = 0
+        self._last_meas_t = -np.inf
+
+    def add_command(self, t, value):
+        """A command ``value`` that took effect at time ``t`` [s]."""
+        if self._cmd and t < self._cmd[-1][0]:
+            t = self._cmd[-1][0]   # keep the held value well defined
+        self._cmd.append((float(t), float(value)))
+
+    def add_measurement(self, t, speed, current=np.nan):
+        """A measurement at time ``t`` [s]: speed [rad/s], current [A] or the torque."""
+        if t <= self._last_meas_t:
+            self.dropped_out_of_order += 1
+            return
+        self._last_meas_t = t
+        self._meas.append((float(t), float(speed), float(current)))
+
+    def _decided_at(self, k):
+        """The time that decides measurement ``k``'s command (None: not known yet)."""
+        if self.align == 'hold':
+            return self._meas[k][0]
+        return self._meas[k + 1][0] if k + 1 < len(self._meas) else None
+
+    def _command_at(self, t_ref):
+        """The held command for deciding time ``t_ref``, or None before the first."""
+        value = None
+        strict = self.align == 'next'
+        for t, v in self._cmd:
+            if t < t_ref or (not strict and t == t_ref):
+                value = v
+            else:
+                break
+        return value
+
+    def ready_rows(self, now):
+        """Release the rows that can be aligned at time ``now`` [s].
+
+        Returns
+        -------
+        ndarray, shape (n, 6)
+            Columns seq, t, input, speed, current, flags (0); ``seq`` counts released
+            rows from 0.
+        """
+        out = []
+        last_cmd = self._cmd[-1][0] if self._cmd else -np.inf
+        while self._meas:
+            t_ref = self._decided_at(0)
+            if t_ref is None or (last_cmd < t_ref and now - t_ref < self.max_delay_s):
+                break
+            t, speed, current = self._meas.popleft()
+            value = self._command_at(t_ref)
+            if value is None:
+                self.dropped_no_command += 1
+                continue
+            out.append((self.seq, t, value, speed, current, 0.0))
+            self.seq += 1
+            # commands older than the one just used are never needed again
+            while len(self._cmd) > 1 and self._cmd[1][0] <= t_ref:
+                self._cmd.popleft()
+        if not out:
+            return np.zeros((0, len(SAMPLE_COLUMNS)))
+        return np.array(out, dtype=float)
