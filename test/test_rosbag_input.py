@@ -410,3 +410,23 @@ def test_replay_rate_republishes_the_mapped_recording(tmp_path, rec):
         np.testing.assert_array_equal(rows[:, 4], rec.current[:300])
     finally:
         client.close()
+
+
+def test_fit_command_takes_a_robot_bag_with_the_mapping_flags(tmp_path, rec, capsys):
+    """`motor-id fit BAG --input ... --speed ... --current ...`: one command, no code."""
+    bag = write_robot_bag(tmp_path / 'robot', rec.slice(0, 1500), 'mcap')
+    out, yml = tmp_path / 'fit.json', tmp_path / 'motor.yaml'
+    code = main(['fit', str(bag), '-R', '2.3', '-q', '--generations', '40', *MAP,
+                 '--json', str(out), '--yaml', str(yml)])
+    assert code == 0, capsys.readouterr()
+    report = json.loads(out.read_text())
+    for name in ('J', 'K_T', 'L_m', 'R_m'):
+        assert report['parameters'][name]['value'] == pytest.approx(
+            getattr(TRUE, name), rel=0.02), name
+    assert report['data']['channels'] == ['speed', 'current']
+    ff = report['controller']['feedforward']
+    k_v = TRUE.K_b + TRUE.R_m * TRUE.B / TRUE.K_T
+    assert ff['kV']['value'] == pytest.approx(k_v, rel=0.02)
+    params = yaml.safe_load(yml.read_text())['/**']['ros__parameters']
+    assert params['estimate.J'] == pytest.approx(TRUE.J, rel=0.02)
+    assert 'controller.kV' in params

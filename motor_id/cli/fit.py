@@ -8,7 +8,7 @@ import time
 import yaml
 
 from motor_id.controller import from_identification, to_ros_parameters
-from motor_id.data.load import load_recording
+from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_from_args
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import EFFECTS, parse_effect_args
@@ -68,9 +68,9 @@ def add_fit_arguments(parser):
 
 def add_arguments(parser):
     """CLI arguments of `motor-id fit`."""
-    parser.add_argument('data', metavar='DATA', help='CSV (time,voltage,speed[,current]) '
-                                                     'or MCAP bag')
+    parser.add_argument('data', metavar='DATA', help=DATA_HELP)
     add_fit_arguments(parser)
+    add_data_arguments(parser)
 
 
 def progress_printer(quiet, stream=None):
@@ -206,6 +206,7 @@ def identify_and_report(rec, args, extra=None):
 
 def run(args):
     """Read the data, fit, print the table, write JSON / plots."""
-    rec = load_recording(args.data)
-    identify_and_report(rec, args)
+    rec = load_from_args(args)
+    extra = {'shift_check': rec.meta['shift_check']} if 'shift_check' in rec.meta else None
+    identify_and_report(rec, args, extra=extra)
     return 0
