@@ -16,8 +16,6 @@ from dataclasses import dataclass, field
 import time
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.signal import lfilter
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds, GeneticAlgorithm
@@ -99,6 +97,8 @@ def canonical_weights(a, b):
 
 def _simulate_free(theta, u, n, y0):
     """Outputs of free nets; theta (P, 2n) = [a_1..a_n, b_1..b_n]."""
+    from scipy.signal import lfilter  # lazy: scipy.signal costs ~0.5 s to import
+
     theta = np.atleast_2d(theta)
     out = np.empty((theta.shape[0], u.size))
     for p, th in enumerate(theta):
@@ -184,6 +184,8 @@ class FreeElmanOrderSelection:
             raise DataError('u and y must be 1-D arrays of the same length')
         if u.size < 50:
             raise DataError(f'too few samples for order selection: {u.size} (need 50)')
+        from scipy.optimize import least_squares  # lazy: only the order selection needs it
+
         t0 = time.perf_counter()
         rng = np.random.default_rng(self.random_state)
         n_tr = int(round(u.size * (1 - self.validation)))

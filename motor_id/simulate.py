@@ -8,7 +8,9 @@ load), static input maps (delay, dead zone, saturation) and output maps (sensor 
 quantisation).
 """
 
-import numba
+import threading
+import time
+
 import numpy as np
 
 from motor_id.errors import ConfigError
@@ -16,8 +18,10 @@ from motor_id.model import continuous_matrices, discretize, EFFECTS, validate_ef
 
 REGULAR_RTOL = 1e-6
 
+_HEAP_PRIME_BYTES = 16 << 20
+"""Size of the block :func:`_prime_allocator` allocates and frees once (16 MiB)."""
 
-@numba.njit(cache=True, nogil=True)
+
 def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, tau_s):  # noqa: C901
     P, N = u.shape
     n = A.shape[2]
@@ -78,19 +82,18 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
     return X, Y
 
 
-@numba.njit(cache=True, nogil=True)
 def _linear_kernel(A, Bd, idx, u, x0):
-    """Fast path without effects: returns the first two states (P, N, 2)."""
+    """Fast path without effects: the first two states, shape (2, P, N) (state first)."""
     P, N = u.shape
     n = A.shape[2]
-    out = np.zeros((P, N, 2))
+    out = np.zeros((2, P, N))
     for p in range(P):
         x = x0[p].copy()
         xn = np.zeros(n)
         for k in range(N):
-            out[p, k, 0] = x[0]
+            out[0, p, k] = x[0]
             if n > 1:
-                out[p, k, 1] = x[1]
+                out[1, p, k] = x[1]
             if k == N - 1:
                 break
             c = idx[k]
@@ -105,11 +108,10 @@ def _linear_kernel(A, Bd, idx, u, x0):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
 def _linear2_regular_kernel(A, Bd, u, x0):
-    """Fast path for the two-state plant on a regular grid (the GA's case)."""
+    """Fast path for the two-state plant on a regular grid (the GA's case); (2, P, N)."""
     P, N = u.shape
-    out = np.empty((P, N, 2))
+    out = np.empty((2, P, N))
     for p in range(P):
         a00 = A[p, 0, 0, 0]
         a01 = A[p, 0, 0, 1]
@@ -120,11 +122,100 @@ def _linear2_regular_kernel(A, Bd, u, x0):
         w = x0[p, 0]
         i = x0[p, 1]
         for k in range(N):
-            out[p, k, 0] = w
-            out[p, k, 1] = i
+            out[0, p, k] = w
+            out[1, p, k] = i
             v = u[p, k]
             w, i = a00 * w + a01 * i + b0 * v, a10 * w + a11 * i + b1 * v
     return out
+
+
+KERNELS = (_kernel, _linear_kernel, _linear2_regular_kernel)
+"""The loops numba compiles (plain Python here; see :func:`warm_up`)."""
+
+_COMPILED = {}
+_COMPILE_LOCK = threading.Lock()
+
+
+def _prime_allocator():
+    """Allocate and free one large block once, so that malloc keeps big arrays around.
+
+    glibc serves blocks above its mmap threshold (128 KiB at start) with fresh pages and
+    trims its heap when more than twice that is free. A GA generation on 4,000 samples
+    allocates and frees a few MiB, so until the threshold has risen every generation
+    page-faults its arrays in again: 97,000 minor faults and +0.17 s of CPU (doubling
+    the GA's time) in the first fit of a process. Freeing one mmap()ed block raises the
+    threshold to its size (mallopt(3), "dynamic mmap threshold"); on other allocators
+    this is an allocation of untouched memory and does nothing.
+    """
+    np.empty(_HEAP_PRIME_BYTES // 8)
+
+
+def _compiled(func):
+    """The numba-compiled form of a kernel in :data:`KERNELS`, created on first use.
+
+    numba is imported here, not with this module: it costs 0.2-0.4 s, and only a
+    simulation needs it. The machine code comes from numba's on-disk cache when one
+    matches (see :func:`warm_up`).
+    """
+    jitted = _COMPILED.get(func.__name__)
+    if jitted is None:
+        with _COMPILE_LOCK:
+            jitted = _COMPILED.get(func.__name__)
+            if jitted is None:
+                import numba
+
+                _prime_allocator()
+                jitted = numba.njit(cache=True, nogil=True)(func)
+                _COMPILED[func.__name__] = jitted
+    return jitted
+
+
+def warm_up():
+    """Load (the first time ever: compile) every simulation kernel, before a fit needs it.
+
+    Without it the first simulation of a process pays for numba's import and type-system
+    set-up (~0.3 s of CPU with the kernels in numba's cache; several seconds to compile
+    them without). Call it where a first fit must not stall, e.g. when a node starts.
+    It is thread-safe, and cheap once done.
+
+    Returns
+    -------
+    dict
+        ``'seconds'``: wall time of this call [s]; ``'compiled'``: kernels that had to
+        be compiled now (0 when numba's cache served them all); ``'kernels'``: compiled
+        kernel signatures now ready in this process; ``'cache_dir'``: numba's cache
+        directory for this module.
+
+    Notes
+    -----
+    The kernels are cached by numba (``cache=True``) in ``__pycache__`` next to this
+    module or, where that is not writable (a read-only install), in numba's user-wide
+    cache directory; the environment variable ``NUMBA_CACHE_DIR`` overrides both. Any
+    edit of this file makes numba compile once more. Every simulation reaches the
+    kernels with C-contiguous arrays of fixed dtypes, so each kernel has one signature
+    and the three small simulations below cover all of them.
+    """
+    t0 = time.perf_counter()
+    ready = [_COMPILED.get(f.__name__) for f in KERNELS]
+    if all(d is not None and d.signatures for d in ready):  # done before: nothing to load
+        return {'seconds': time.perf_counter() - t0, 'compiled': 0,
+                'kernels': sum(len(d.signatures) for d in ready),
+                'cache_dir': ready[0].stats.cache_path}
+    from numba.core import event
+
+    p = {'J': 0.05, 'K_T': 0.5, 'K_b': 0.5, 'B': 1e-3, 'L_m': 0.01, 'R_m': 2.0}
+    t = np.array([0.0, 0.01, 0.02, 0.035])
+    u = np.ones(t.size)
+    with event.install_recorder('numba:compile') as recorder:
+        simulate_batch(p, t[:3], u[:3])  # regular grid, no effects
+        simulate_batch(p, t, u)  # irregular grid
+        simulate_batch(p, t, u, effects={'coulomb_friction': {'T_c': 0.0}})
+    ours = {id(_compiled(f)) for f in KERNELS}
+    compiled = sum(1 for _, ev in recorder.buffer  # (time, event) pairs
+                   if ev.is_start and id(ev.data['dispatcher']) in ours)
+    return {'seconds': time.perf_counter() - t0, 'compiled': compiled,
+            'kernels': sum(len(_compiled(f).signatures) for f in KERNELS),
+            'cache_dir': _compiled(_kernel).stats.cache_path}
 
 
 def interval_table(t):
@@ -243,31 +334,34 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
 
     kernel_effects = {'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
                       'resistance_drift', 'sensor_lag'}
+    # one array layout per argument, so that each kernel has one compiled signature
+    A = np.ascontiguousarray(A)
+    Bd = np.ascontiguousarray(Bd)
     if not kernel_effects & set(effects):
         if n == 2 and dts.size == 1:
-            X = _linear2_regular_kernel(A, Bd, ueff, x0b)
+            X = _compiled(_linear2_regular_kernel)(A, Bd, ueff, x0b)
         else:
-            X = _linear_kernel(A, Bd, idx, ueff, x0b)
-        Y = X[:, :, 0]
-        out = {'speed': _quantize(Y, effects, P), 'states': X}
+            X = _compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
+        # state-major from the kernel: each channel is one contiguous (P, N) block
+        out = {'speed': _quantize(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
         if input_kind == 'voltage':
-            out['current'] = X[:, :, 1]
+            out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
         return out
-    X, Y = _kernel(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
+    X, Y = _compiled(_kernel)(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
                    eff('coulomb_friction', 'T_c'), eff('load_torque', 'T_L'),
                    eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
                    eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
                    eff('sensor_lag', 'tau_s'))
     out = {'speed': _quantize(Y, effects, P), 'states': X}
     if input_kind == 'voltage':
-        out['current'] = X[:, :, 1]
+        out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
     return out
 
 
-def _quantize(Y, effects, P):
-    if 'speed_quantization' not in effects:
+def _quantize(Y, effects, P, name='speed_quantization', key='q'):
+    if name not in effects:
         return Y
-    q = _as_batch(effects['speed_quantization']['q'], P)[:, None]
+    q = _as_batch(effects[name][key], P)[:, None]
     return np.where(q > 0, np.round(Y / np.where(q > 0, q, 1.0)) * q, Y)
 
 

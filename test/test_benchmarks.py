@@ -1,4 +1,5 @@
-"""Smoke test of benchmarks/run.py: the --quick run prints every section and writes JSON."""
+"""Smoke test of benchmarks/run.py: the --quick run prints every section, writes JSON and
+exits non-zero when a target it checks is missed."""
 
 import json
 import os
@@ -7,7 +8,7 @@ import sys
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, 'benchmarks', 'run.py')
-SECTIONS = ('fit_speed', 'crlb', 'scaling', 'streaming', 'discrepancy')
+SECTIONS = ('fit_speed', 'crlb', 'scaling', 'streaming', 'discrepancy', 'cold_start')
 
 
 def test_benchmarks_quick_run_writes_tables_and_json(tmp_path):
@@ -16,8 +17,8 @@ def test_benchmarks_quick_run_writes_tables_and_json(tmp_path):
     env = dict(os.environ, PYTHONPATH=REPO + os.pathsep + os.environ.get('PYTHONPATH', ''))
     proc = subprocess.run([sys.executable, SCRIPT, '--quick', '--json', str(out),
                            '--markdown', str(md)], cwd=str(tmp_path), env=env,
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout + proc.stderr  # 1: a target was missed
     for k, name in enumerate(SECTIONS, 1):
         assert f'== {k}. ' in proc.stdout and f'[{name}]' in proc.stdout, proc.stdout
     result = json.loads(out.read_text())
@@ -55,3 +56,33 @@ def test_benchmarks_only_selects_sections(tmp_path):
     bad = subprocess.run([sys.executable, SCRIPT, '--only', 'nonsense'],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and 'unknown section' in bad.stderr
+
+
+def _load_run_module():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location('bench_run', SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_benchmarks_exit_status_reports_a_missed_target(tmp_path, monkeypatch):
+    bench = _load_run_module()
+
+    def fake_section(name, quick, blas_one):
+        ok = {'name': 'fast enough', 'value': 0.1, 'threshold': '< 0.2 s', 'unit': 's',
+              'pass': True}
+        info = {**ok, 'name': 'informative', 'pass': None}
+        missed = {**ok, 'name': 'too slow', 'value': 0.5, 'pass': name == 'crlb'}
+        return {'title': name, 'status': 'ok', 'tables': [], 'seconds': 0.0,
+                'targets': [ok, info, missed],
+                'load_average': {'before': None, 'after': None}}
+
+    monkeypatch.setattr(bench, 'run_section', fake_section)
+    assert bench.main(['--quick', '--only', 'crlb']) == 0
+    assert bench.main(['--quick', '--only', 'crlb,scaling']) == 1
+    result = {'sections': {'scaling': fake_section('scaling', True, None),
+                           'crlb': {'status': 'error: RuntimeError: boom'}}}
+    lines = bench.failures(result)
+    assert lines == ['scaling: too slow: 0.5 s (target < 0.2 s)',
+                     'crlb: error: RuntimeError: boom']

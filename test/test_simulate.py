@@ -80,3 +80,21 @@ def test_input_delay_shifts_by_whole_samples():
     base = simulate_batch(p, T, U)['speed'][0]
     out = simulate_batch(p, T, U, effects={'input_delay': {'d': 7}})['speed'][0]
     np.testing.assert_allclose(out[7:], base[:-7], atol=1e-12)
+
+
+@pytest.mark.parametrize('t', [T, np.cumsum(np.random.default_rng(3).uniform(0.005, 0.015,
+                                                                              T.size))])
+def test_linear_fast_paths_match_the_general_kernel(t):
+    rng = np.random.default_rng(4)
+    batch = {k: v * rng.uniform(0.5, 2.0, 5) for k, v in PAPER_MOTOR.to_dict().items()}
+    x0 = rng.standard_normal((5, 2))
+    fast = simulate_batch(batch, t, U, x0=x0)
+    # a zero Coulomb torque routes the same model through the general kernel
+    full = simulate_batch(batch, t, U, effects={'coulomb_friction': {'T_c': 0.0}}, x0=x0)
+    for ch in ('speed', 'current'):
+        assert fast[ch].shape == (5, T.size) and fast[ch].flags['C_CONTIGUOUS']
+        np.testing.assert_allclose(fast[ch], full[ch], rtol=1e-11, atol=1e-12)
+    assert fast['states'].shape == (5, T.size, 2)
+    np.testing.assert_array_equal(fast['states'][..., 0], fast['speed'])
+    np.testing.assert_array_equal(fast['states'][..., 1], fast['current'])
+    np.testing.assert_array_equal(fast['speed'][:, 0], x0[:, 0])
