@@ -13,6 +13,7 @@ from motor_id.errors import ConfigError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import EFFECTS, parse_effect_args
 from motor_id.report import plot_fit, to_jsonable, write_json
+from motor_id.simulate import warm_up
 
 GRID_ONLY = {'input_delay': ('d',), 'speed_quantization': ('q',)}
 """Effect parameters that a least-squares refinement cannot move (integer or steps):
@@ -206,6 +207,7 @@ def identify_and_report(rec, args, extra=None):
 
 def run(args):
     """Read the data, fit, print the table, write JSON / plots."""
+    warm_up()   # load (or compile once) the simulation kernels before the GA's clock starts
     rec = load_from_args(args)
     extra = {'shift_check': rec.meta['shift_check']} if 'shift_check' in rec.meta else None
     identify_and_report(rec, args, extra=extra)

@@ -5,7 +5,6 @@ every ordinary recording, SI over powers of two for data in extreme units.
 """
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds
@@ -382,6 +381,8 @@ class IdentificationProblem:
         def jac(z, w):
             J = self.jacobian_z(z, w)
             return np.where(np.isfinite(J), J, 0.0)
+
+        from scipy.optimize import least_squares  # lazy: 0.6 s of import, used per fit
 
         return least_squares(self.weighted_residuals, z0, jac=jac, bounds=(lo, hi),
                              method='trf', x_scale='jac', max_nfev=max_nfev, xtol=1e-10,

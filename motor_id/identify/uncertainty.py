@@ -7,7 +7,6 @@ a prior on R_m is one more observation, a unit row in that map.
 """
 
 import numpy as np
-from scipy.linalg import qr
 
 NULL_TOL = 1e-7     # singular value ratio below which a direction is structurally unseen
 DETERMINED_TOL = 1e-6  # max projection of a parameter on the unseen directions
@@ -114,6 +113,8 @@ def undetermined_directions(names, Vn, determined, log_mask):
     """
     if not Vn.size:
         return [], ([], [])
+    from scipy.linalg import qr  # lazy: only for undetermined directions
+
     _, _, piv = qr(Vn.T, pivoting=True)
     piv = np.sort(piv[:Vn.shape[1]])
     basis = Vn @ np.linalg.inv(Vn[piv])
