@@ -3,10 +3,6 @@
 Everything here imports rclpy and psutil lazily, so the other sections run without them.
 """
 
-import os
-import signal
-import subprocess
-import sys
 import threading
 import time
 
@@ -17,148 +13,90 @@ from common import REPO
 
 def ros_env(domain):
     """The environment for node processes: LOCALHOST discovery, ``domain``, the repo."""
-    env = dict(os.environ)
-    env.update({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_DOMAIN_ID': str(domain),
-                'PYTHONPATH': REPO + os.pathsep + env.get('PYTHONPATH', ''),
-                'PYTHONUNBUFFERED': '1', 'RCUTILS_COLORIZED_OUTPUT': '0'})
-    env.pop('ROS_STATIC_PEERS', None)
-    return env
+    from motor_id.nodes.procs import ros_env as env_for
+    return env_for(domain, pythonpath=REPO)
 
 
-class Proc:
-    """A child process with its output in files; stopped by SIGINT, killed on failure."""
-
-    def __init__(self, name, args, env, logdir):
-        self.name = name
-        self.log = os.path.join(logdir, f'{name}.log')
-        self._fh = open(self.log, 'wb')
-        self.proc = subprocess.Popen([sys.executable] + args, env=env, stdout=self._fh,
-                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                     start_new_session=True)
-
-    @property
-    def pid(self):
-        return self.proc.pid
-
-    def output(self):
-        with open(self.log, errors='replace') as fh:
-            return fh.read()
-
-    def alive(self):
-        return self.proc.poll() is None
-
-    def stop(self, timeout=15.0):
-        """SIGINT, then SIGKILL of its process group after ``timeout``; returns the code."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait(10)
-        self._fh.close()
-        return self.proc.returncode
+def processes(env, logdir):
+    """Named node processes with logs in ``logdir`` (:class:`motor_id.nodes.procs.Processes`)."""
+    from motor_id.nodes.procs import Processes
+    return Processes(env, logdir)
 
 
-class RosClient:
-    """An rclpy node in its own context, spun in a thread; records what arrives."""
+def rows_counter_client(domain):
+    """A :class:`motor_id.nodes.client.RosClient` that counts samples and keeps diagnostics
+    and estimates (imports rclpy)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import Trigger
 
-    def __init__(self, domain):
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from diagnostic_msgs.msg import DiagnosticArray
-        from std_msgs.msg import Float64MultiArray
-        from motor_id.nodes import messages
+    from motor_id.nodes import messages
+    from motor_id.nodes.client import RosClient
 
-        self.rclpy = rclpy
-        self.messages = messages
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = rclpy.create_node('benchmark_client', context=self.context)
-        self.lock = threading.Lock()
-        self.rows = 0
-        self.batches = 0
-        self.first_rx = None
-        self.seq_first = None
-        self.seq_last = None
-        self.seq_gaps = 0
-        self.diag = {}
-        self.estimates = []
-        self.node.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC,
-                                      self._on_samples, messages.SAMPLES_QOS)
-        self.node.create_subscription(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
-                                      self._on_diag, messages.DIAGNOSTICS_QOS)
-        self.node.create_subscription(DiagnosticArray, '/identifier/estimate',
-                                      self._on_estimate, messages.LATCHED_QOS)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
+    class BenchClient(RosClient):
+        """Records what arrives: sample counts and sequence gaps, diagnostics, estimates."""
 
-    def _spin(self):
-        from rclpy.executors import ExternalShutdownException
-        try:
-            self.executor.spin()
-        except ExternalShutdownException:
-            pass
+        def __init__(self):
+            super().__init__(domain, 'benchmark_client')
+            self.messages = messages
+            self.lock = threading.Lock()
+            self.rows = 0
+            self.batches = 0
+            self.first_rx = None
+            self.seq_first = None
+            self.seq_last = None
+            self.seq_gaps = 0
+            self.diag = {}
+            self.estimates = []
+            self.subscribe(Float64MultiArray, messages.SAMPLES_TOPIC, messages.SAMPLES_QOS,
+                           self._on_samples)
+            self.subscribe(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
+                           messages.DIAGNOSTICS_QOS, self._on_diag)
+            self.subscribe(DiagnosticArray, '/identifier/estimate', messages.LATCHED_QOS,
+                           self._on_estimate)
 
-    def _on_samples(self, msg):
-        rows = self.messages.msg_to_rows(msg)
-        with self.lock:
-            if self.first_rx is None:
-                self.first_rx = time.monotonic()
-            self.rows += rows.shape[0]
-            self.batches += 1
-            seq = rows[:, 0].astype(np.int64)
-            if self.seq_first is None:
-                self.seq_first = int(seq[0])
-            elif seq[0] != self.seq_last + 1:
-                self.seq_gaps += 1
-            self.seq_gaps += int(np.sum(np.diff(seq) != 1))
-            self.seq_last = int(seq[-1])
+        def _on_samples(self, msg):
+            rows = messages.msg_to_rows(msg)
+            with self.lock:
+                if self.first_rx is None:
+                    self.first_rx = time.monotonic()
+                self.rows += rows.shape[0]
+                self.batches += 1
+                seq = rows[:, 0].astype(np.int64)
+                if self.seq_first is None:
+                    self.seq_first = int(seq[0])
+                elif seq[0] != self.seq_last + 1:
+                    self.seq_gaps += 1
+                self.seq_gaps += int(np.sum(np.diff(seq) != 1))
+                self.seq_last = int(seq[-1])
 
-    def _on_diag(self, msg):
-        with self.lock:
+        def _on_diag(self, msg):
+            with self.lock:
+                for st in msg.status:
+                    self.diag[st.name] = {kv.key: kv.value for kv in st.values}
+
+        def _on_estimate(self, msg):
+            values = {}
             for st in msg.status:
-                self.diag[st.name] = {kv.key: kv.value for kv in st.values}
+                values.update({kv.key: kv.value for kv in st.values})
+            with self.lock:
+                self.estimates.append((time.monotonic(), values))
 
-    def _on_estimate(self, msg):
-        values = {}
-        for st in msg.status:
-            values.update({kv.key: kv.value for kv in st.values})
-        with self.lock:
-            self.estimates.append((time.monotonic(), values))
+        def call_identify(self, timeout):
+            """Call ``/identifier/identify``; return (t_call, t_response, response)."""
+            t_call = time.monotonic()
+            res = self.call(Trigger, '/identifier/identify', timeout=timeout)
+            return t_call, time.monotonic(), res
 
-    def call_identify(self, timeout):
-        """Call ``/identifier/identify``; return (t_call, t_response, response)."""
-        from std_srvs.srv import Trigger
-        cli = self.node.create_client(Trigger, '/identifier/identify')
-        if not cli.wait_for_service(timeout_sec=20.0):
-            raise RuntimeError('service /identifier/identify not available')
-        done = threading.Event()
-        t_call = time.monotonic()
-        fut = cli.call_async(Trigger.Request())
-        fut.add_done_callback(lambda _f: done.set())
-        if not done.wait(timeout):
-            raise RuntimeError(f'/identifier/identify did not answer in {timeout} s')
-        t_resp = time.monotonic()
-        self.node.destroy_client(cli)
-        return t_call, t_resp, fut.result()
-
-    def close(self):
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.context)
-        self.thread.join(5.0)
+    return BenchClient()
 
 
 def close_all(client, procs):
-    """End a run: close the client (if any), stop every process still alive."""
+    """End a run: close the client (if any), end every process."""
     if client is not None:
         client.close()
-    for p in procs.values():
-        if p.alive():
-            p.stop(5.0)
+    for proc in procs.values():
+        proc.close()
 
 
 def cpu_times(procs):
@@ -181,12 +119,9 @@ def cpu_percent(a, b):
 
 
 def wait_for(pred, timeout, interval=0.05):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if pred():
-            return True
-        time.sleep(interval)
-    return bool(pred())
+    """Poll ``pred()`` until true or ``timeout`` [s]; return whether it became true."""
+    from motor_id.nodes.procs import wait_until
+    return wait_until(pred, timeout, interval)
 
 
 def num(d, key):

@@ -41,7 +41,7 @@ import numpy as np
 from common import render_table, to_jsonable
 from motor_id.errors import MotorIdError
 from motor_id.model import MotorParams, PAPER_MOTOR
-from rosproc import close_all, num, Proc, ros_env, RosClient, wait_for
+from rosproc import close_all, num, processes, ros_env, rows_counter_client, wait_for
 
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
                     R_m=PAPER_MOTOR.R_m)
@@ -109,23 +109,24 @@ def rss_mib(procs):
 
 def start(args, tmp, env, domain):
     """Start identifier, client, driver, then the card; return (procs, client, bag)."""
-    procs = {}
+    procs = processes(env, tmp)
     bag = os.path.join(tmp, 'soak.mcap')
     link = os.path.join(tmp, 'card')
     pfile = os.path.join(tmp, 'motor.json')
     with open(pfile, 'w') as fh:
         json.dump(MOTOR.to_dict(), fh)
-    procs['identifier'] = Proc('identifier', [
+    procs.start('identifier', [
         '-m', 'motor_id.nodes.identifier', '--ros-args', '-p', f'window_s:={args.window}',
         '-p', f'max_samples:={args.max_samples}', '-p', 'allow_gaps:=true',
-        '-p', f'R_m:={MOTOR.R_m}'], env, tmp)
-    client = RosClient(domain)
+        '-p', f'R_m:={MOTOR.R_m}'])
+    client = rows_counter_client(domain)
     duration = args.minutes * 60.0
-    procs['driver'] = Proc('driver', [
+    procs.start('driver', [
         '-m', 'motor_id.nodes.driver', '--ros-args', '-p', f'device:={link}',
         '-p', f'sample_period:={args.period}', '-p', 'excitation:=multisine',
+        '-p', 'autostart:=true',
         '-p', f'duration:={duration + 60.0}', '-p', 'reopen_backoff_max:=0.2',
-        '-p', f'record_path:={bag}'], env, tmp)
+        '-p', f'record_path:={bag}'])
     topic = '/' + client.messages.SAMPLES_TOPIC
     if not wait_for(lambda: client.node.count_publishers(topic) >= 1
                     and client.node.count_subscribers(topic) >= 2, 40.0):
@@ -136,9 +137,9 @@ def start(args, tmp, env, domain):
     for name, p in FAULTS.items():
         faults += ['--fault', f'{name}={p}']
     faults += ['--fault', f'disconnect={args.disconnect_every}:0.5']
-    procs['card'] = Proc('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
-                                  '--period', str(args.period), '--params', pfile,
-                                  '--noise', '0.05,0.005', '--seed', '0'] + faults, env, tmp)
+    procs.start('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
+                         '--period', str(args.period), '--params', pfile,
+                         '--noise', '0.05,0.005', '--seed', '0'] + faults)
     if not wait_for(lambda: client.first_rx is not None or not procs['card'].alive(), 40.0) \
             or not procs['card'].alive():
         raise RuntimeError('no samples from the card through the driver:\n'
@@ -161,7 +162,8 @@ def run(args):
         procs, client, bag = start(args, tmp, env, domain)
         t0 = time.monotonic()
         fill_s = args.max_samples * args.period
-        next_mem, next_call, last_print = 0.0, args.identify_every, -1e9
+        # calls fall between disconnects (both default to a third of a short run)
+        next_mem, next_call, last_print = 0.0, 0.75 * args.identify_every, -1e9
         print(f'soak: {args.minutes:g} min at {1 / args.period:g} Hz, faults '
               + ', '.join(f'{k}={v}' for k, v in FAULTS.items())
               + f', disconnect every {args.disconnect_every:g} s; logs in {tmp}', flush=True)
@@ -178,7 +180,7 @@ def run(args):
                     calls.append({'at_s': round(now, 1), 'success': bool(resp.success),
                                   'seconds': t_resp - t_call,
                                   'message': (resp.message or '').splitlines()[0]})
-                except RuntimeError as exc:
+                except MotorIdError as exc:
                     calls.append({'at_s': round(now, 1), 'success': False, 'seconds': None,
                                   'message': f'no answer: {exc}'})
                 next_call += args.identify_every

@@ -17,8 +17,8 @@ import numpy as np
 
 from common import Skip, target
 from motor_id.model import MotorParams, PAPER_MOTOR
-from rosproc import (close_all, cpu_percent, cpu_times, num, Proc, ros_env, RosClient,
-                     wait_for)
+from rosproc import (close_all, cpu_percent, cpu_times, num, processes, ros_env,
+                     rows_counter_client, wait_for)
 
 TITLE = 'Streaming: card-sim -> driver -> identifier at 1 kHz'
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
@@ -57,7 +57,7 @@ def run(quick=False):
     domain = 1 + (os.getpid() * 7 + 29) % 101
     env = ros_env(domain)
     tmp = tempfile.mkdtemp(prefix='motor_id_bench_')
-    procs = {}
+    procs = processes(env, tmp)
     client = None
     settings = {
         'card': {'period': period, 'noise': '0.05 rad/s, 0.005 A', 'motor': MOTOR.to_dict(),
@@ -75,15 +75,16 @@ def run(quick=False):
         # identifier, client and driver first, so that every sample the card sends
         # reaches matched subscribers; the driver waits for the device with a short
         # backoff, then the card comes up
-        procs['identifier'] = Proc('identifier', [
+        procs.start('identifier', [
             '-m', 'motor_id.nodes.identifier', '--ros-args',
             '-p', f'window_s:={window}', '-p', f'generations:={generations}',
-            '-p', f'R_m:={MOTOR.R_m}'], env, tmp)
-        client = RosClient(domain)
-        procs['driver'] = Proc('driver', [
+            '-p', f'R_m:={MOTOR.R_m}'])
+        client = rows_counter_client(domain)
+        procs.start('driver', [
             '-m', 'motor_id.nodes.driver', '--ros-args', '-p', f'device:={link}',
             '-p', f'sample_period:={period}', '-p', 'excitation:=multisine',
-            '-p', f'duration:={duration + 30.0}', '-p', 'reopen_backoff_max:=0.2'], env, tmp)
+            '-p', 'autostart:=true',
+            '-p', f'duration:={duration + 30.0}', '-p', 'reopen_backoff_max:=0.2'])
         topic = '/' + client.messages.SAMPLES_TOPIC
         if not wait_for(lambda: client.node.count_publishers(topic) >= 1
                      and client.node.count_subscribers(topic) >= 2
@@ -92,9 +93,9 @@ def run(quick=False):
                                + procs['driver'].output()[-1500:]
                                + procs['identifier'].output()[-1500:])
         time.sleep(0.5)
-        procs['card'] = Proc('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
-                                       '--period', str(period), '--params', pfile,
-                                       '--noise', '0.05,0.005', '--seed', '0'], env, tmp)
+        procs.start('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
+                             '--period', str(period), '--params', pfile,
+                             '--noise', '0.05,0.005', '--seed', '0'])
         if not wait_for(lambda: client.first_rx is not None or not procs['card'].alive(), 40.0) \
                 or not procs['card'].alive():
             raise RuntimeError('no samples from the card through the driver:\n'
@@ -228,6 +229,7 @@ def run(quick=False):
             'the driver publishes the samples batch topic (10 rows per message) and, by '
             'default, the voltage/speed/current Float64 topics at the sample rate',
             'CPU: psutil user + system time of each process over the interval / wall time',
-            'the first identify call includes loading the compiled simulation kernel',
+            'the identifier warms its compiled kernels at start-up (a tiny fit before it '
+            'subscribes), so the first identify call does not stall reception',
         ],
     }

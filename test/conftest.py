@@ -31,3 +31,34 @@ def clean_dds_shm():
 def clean_paper():
     """Noise-free speed and current of the paper's motor."""
     return paper_recording()
+
+
+@pytest.fixture(scope='module')
+def ros_domain(request):
+    """The module's ROS_DOMAIN_ID (the same as ``rosutil.domain_id(__name__)``)."""
+    from rosutil import domain_id
+    return domain_id(request.module.__name__)
+
+
+@pytest.fixture(scope='module')
+def client(request, ros_domain):
+    """A threaded ROS client in the test process, one per module."""
+    from rosutil import Client
+    c = Client(ros_domain, request.module.__name__.rsplit('.', 1)[-1] + '_client')
+    yield c
+    c.close()
+
+
+@pytest.fixture
+def launch(tmp_path, ros_domain):
+    """Start node processes (``launch(name, args, **env)``); all are ended at the end."""
+    from rosutil import Process, ros_env
+    procs = []
+
+    def start(name, args, **env):
+        p = Process(args, ros_env(ros_domain, **env), tmp_path, name)
+        procs.append(p)
+        return p
+    yield start
+    for p in procs:
+        p.close()

@@ -30,37 +30,18 @@ from motor_id.excitation import make_excitation
 from motor_id.model import MotorParams, Plant
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from rosutil import (Client, domain_id, latest_status, Process, REPO, ros_env, rows_of,
-                     stop_cleanly, wait_until)
+from rosutil import (domain_id, latest_status, publish_samples, REPO, ros_env, rows_of,
+                     samples_publisher, stop_cleanly, wait_until)
 
 DOMAIN = domain_id(__name__)
 SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
 LOG_LINE = re.compile(r'^\[(WARN|ERROR|FATAL)\]', re.MULTILINE)
+NO_LIMITS = ('max_voltage:=1000.0', 'max_speed:=0.0', 'max_current:=0.0')
+"""The raw-pty streams carry random numbers, not a motor: the safety limits are off."""
 
 
 # ---------------------------------------------------------------------------------------
 # helpers
-
-
-@pytest.fixture(scope='module')
-def client():
-    c = Client(DOMAIN, 'test_faults_client')
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def launch(tmp_path):
-    """Start processes (``launch(name, args)``); all are killed at the end of the test."""
-    procs = []
-
-    def start(name, args, **env):
-        p = Process(args, ros_env(DOMAIN, **env), tmp_path, name)
-        procs.append(p)
-        return p
-    yield start
-    for p in procs:
-        p.close()
 
 
 def node_args(module, *params):
@@ -285,7 +266,8 @@ def test_driver_counts_every_fault_on_a_raw_pty(client, launch, raw_pty):
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
     samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
     drv = launch('driver', node_args('driver', f'device:={raw_pty.path}',
-                                     'excitation:=external', 'publish_channels:=false'))
+                                     'excitation:=external', 'publish_channels:=false',
+                                     *NO_LIMITS))
     drv.wait_for('device .* open')
     assert wait_until(lambda: client.node.count_subscribers('/samples') >= 1 and
                       client.node.count_publishers('/samples') >= 1, 20.0)
@@ -375,7 +357,8 @@ def test_driver_warns_once_on_a_baud_rate_mismatch_and_recovers(client, launch, 
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
     samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
     drv = launch('driver', node_args('driver', f'device:={raw_pty.path}',
-                                     'excitation:=external', 'publish_channels:=false'))
+                                     'excitation:=external', 'publish_channels:=false',
+                                     *NO_LIMITS))
     drv.wait_for('device .* open')
     assert wait_until(lambda: client.node.count_publishers('/samples') >= 1, 20.0)
     time.sleep(0.5)
@@ -481,22 +464,8 @@ def prbs_rows(n, period=0.01, seed=0):
                             np.zeros(n)])
 
 
-def samples_publisher(client):
-    pub = getattr(client, '_samples_pub', None)
-    if pub is None:
-        pub = client.node.create_publisher(Float64MultiArray, 'samples',
-                                           messages.SAMPLES_QOS)
-        client._samples_pub = pub
-    own = sum(1 for info in client.node.get_subscriptions_info_by_topic('/samples')
-              if info.node_name == client.node.get_name())
-    assert wait_until(lambda: pub.get_subscription_count() > own, 20.0)
-    return pub
-
-
 def publish(client, rows, batch=100):
-    pub = samples_publisher(client)
-    for k in range(0, rows.shape[0], batch):
-        pub.publish(messages.rows_to_msg(rows[k:k + batch]))
+    publish_samples(client, rows, batch)
 
 
 def identify(client):

@@ -18,10 +18,9 @@ from motor_id.excitation import paper_steps
 from motor_id.model import MotorParams, Plant, transfer_coefficients
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from rosutil import (Client, domain_id, latest_status, Process, REPO, ros_env, rows_of,
-                     stop_cleanly, wait_until)
+from rosutil import (latest_status, publish_samples, REPO, rows_of, stop_cleanly,
+                     wait_until)
 
-DOMAIN = domain_id(__name__)
 T = np.arange(4000) * 0.01
 
 
@@ -34,27 +33,6 @@ def paper_rows(n=4000, seq0=0):
     return rows[:n]
 
 
-@pytest.fixture(scope='module')
-def client():
-    c = Client(DOMAIN, 'test_nodes_client')
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def launch(tmp_path):
-    """Start node processes (``launch(name, args)``); all are killed at the end."""
-    procs = []
-
-    def start(name, args, **env):
-        p = Process(args, ros_env(DOMAIN, **env), tmp_path, name)
-        procs.append(p)
-        return p
-    yield start
-    for p in procs:
-        p.close()
-
-
 def identifier_args(*params):
     args = ['-m', 'motor_id.nodes.identifier', '--ros-args']
     for p in params:
@@ -64,16 +42,7 @@ def identifier_args(*params):
 
 def publish(client, rows, batch=100):
     """Publish rows on `samples` in batches once the identifier subscribes."""
-    pub = getattr(client, '_samples_pub', None)
-    if pub is None:
-        pub = client.node.create_publisher(Float64MultiArray, 'samples',
-                                           messages.SAMPLES_QOS)
-        client._samples_pub = pub
-    own = sum(1 for info in client.node.get_subscriptions_info_by_topic('/samples')
-              if info.node_name == client.node.get_name())
-    assert wait_until(lambda: pub.get_subscription_count() > own, 20.0)
-    for k in range(0, rows.shape[0], batch):
-        pub.publish(messages.rows_to_msg(rows[k:k + batch]))
+    publish_samples(client, rows, batch)
 
 
 def identify(client, node='identifier', timeout=60.0):

@@ -3,9 +3,6 @@
 import json
 import os
 import random
-import signal
-import subprocess
-import sys
 import time
 
 from motor_id.contracts import profile_span
@@ -32,51 +29,6 @@ def add_arguments(parser):
     parser.add_argument('--domain', type=int, help='ROS_DOMAIN_ID (default: random 1..101)')
 
 
-class _Children:
-    """Child processes with logs in the output folder; all stopped on exit."""
-
-    def __init__(self, out, env):
-        self.out = out
-        self.env = env
-        self.procs = {}
-
-    def start(self, name, args):
-        log = open(os.path.join(self.out, f'{name}.log'), 'wb')
-        proc = subprocess.Popen([sys.executable] + args, env=self.env, stdout=subprocess.PIPE
-                                if name == 'card' else log, stderr=log,
-                                stdin=subprocess.DEVNULL, start_new_session=True)
-        self.procs[name] = (proc, log)
-        return proc
-
-    def log(self, name):
-        with open(os.path.join(self.out, f'{name}.log'), errors='replace') as fh:
-            return fh.read()
-
-    def check(self):
-        for name, (proc, _) in self.procs.items():
-            if proc.poll() is not None:
-                raise MotorIdError(f'the {name} process exited ({proc.returncode}); '
-                                   f'see {os.path.join(self.out, name + ".log")}: '
-                                   + self.log(name).strip().splitlines()[-1:][0]
-                                   if self.log(name).strip() else '')
-
-    def stop(self, name, timeout=10.0):
-        proc, log = self.procs.pop(name)
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-        log.close()
-        return proc.returncode
-
-    def stop_all(self):
-        for name in list(self.procs):
-            self.stop(name)
-
-
 def _say(text):
     print(text, flush=True)
 
@@ -95,10 +47,9 @@ def run(args):
     domain = args.domain or random.SystemRandom().randint(1, 101)
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain must be in 0..232, got {domain}')
-    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1', RCUTILS_COLORIZED_OUTPUT='0')
-    env.pop('ROS_STATIC_PEERS', None)
-    os.environ.update({k: env[k] for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')})
+    from motor_id.nodes.procs import Processes, ros_env, use_ros_env
+    env = ros_env(domain)
+    use_ros_env(domain)
     from motor_id.nodes.shm import clean_stale_shm
     cleaned = clean_stale_shm()   # Fast DDS files that killed processes left behind
     bag = os.path.join(out, 'demo.mcap')
@@ -113,7 +64,7 @@ def run(args):
                              'effects': {}}}, fh)
     speedup = '40' if args.fast else '10'
     link = os.path.join(out, 'card')
-    kids = _Children(out, env)
+    kids = Processes(env, out)
     from motor_id.nodes.demo_client import DemoClient
     client = None
     try:
@@ -123,10 +74,7 @@ def run(args):
         card = kids.start('card', ['-m', 'motor_id.cli', 'card-sim', '--params', params_file,
                                    '--link', link, '--speedup', speedup, '--noise', args.noise,
                                    '--seed', str(args.seed)])
-        line = card.stdout.readline().decode().strip()
-        if not line:
-            kids.check()
-            raise MotorIdError('the card simulator printed no device path')
+        line = card.wait_for(r'^\S+$', timeout=30.0, stream='stdout').group(0)
         _say(f'card:       simulated card on {line} ({speedup}x real time)')
         kids.start('identifier', ['-m', 'motor_id.nodes.identifier', '--ros-args',
                                   '-p', f'R_m:={truth.R_m}', '-p', 'select:=profile',
@@ -138,7 +86,7 @@ def run(args):
         if not client.wait_identifier_receiving(40.0):
             kids.check()
             raise MotorIdError('the identifier received no samples within 40 s; see the logs')
-        ok, text = client.call('/driver/start', wait_service=30.0)
+        ok, text = client.trigger('/driver/start', wait_service=30.0)
         if not ok:
             raise MotorIdError(f'the driver could not start the profile: {text}')
         _say('driver:     paper_steps profile started (0 / 3.8 / 7 / 9 V at 0, 3, 16, 28 s)')
@@ -166,7 +114,7 @@ def run(args):
     finally:
         if client is not None:
             client.close()
-        kids.stop_all()
+        kids.close()
     report['truth'] = truth.to_dict()
     report['demo'] = {'bag': bag, 'domain_id': domain, 'speedup': float(speedup),
                       'service_latency_s': latency,

@@ -1,4 +1,4 @@
-"""Shared node plumbing: table-driven parameters with ranges, and the spin/shutdown main."""
+"""Shared node plumbing: parameters with ranges, the stop signal, topic checks, the main."""
 
 from dataclasses import dataclass
 import functools
@@ -15,13 +15,10 @@ import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
                               SingleThreadedExecutor)
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.signals import SignalHandlerOptions
-from rclpy.task import Future
 
 from motor_id.errors import ConfigError
-
-RCLError = _rclpy.RCLError
+from motor_id.nodes.rclshim import RCLError  # noqa: F401  (re-exported for the nodes)
 
 
 @dataclass(frozen=True)
@@ -174,33 +171,115 @@ class InFlight:
             return self._cond.wait_for(lambda: self._count == 0, timeout)
 
 
-def _callback_key(callback):
-    """What makes two done-callbacks the same: their code and what their closure holds."""
-    code = getattr(callback, '__code__', None)
-    if code is None:
-        return id(callback)
-    return code, tuple(id(cell.cell_contents) for cell in callback.__closure__ or ())
+class StopSignal:
+    """A stop request that ends :meth:`spin` of an executor, from any thread.
 
-
-class StopFuture(Future):
-    """A future to spin on for as long as a node lives.
-
-    Jazzy's ``Executor.spin_until_future_complete`` adds a new ``lambda x: self.wake()``
-    done-callback to the future on every spin, so a future that lives as long as the
-    node gains one callback per callback the executor runs (measured: +1.5 MiB per
-    minute in the identifier at 100 messages/s). Here a callback that repeats one
-    already added (the same code with the same closure, i.e. the same executor's wake)
-    replaces it; other callbacks are kept.
+    :meth:`spin` runs ``executor.spin_once()`` until :meth:`set` is called (or the
+    context shuts down). :meth:`set` first sets an event, then triggers a guard condition
+    on every attached node, so the executor wakes, runs the (empty) guard callback and
+    returns from ``spin_once``; the loop then sees the event. Nothing is added per spin
+    (``Executor.spin_until_future_complete`` adds a done-callback to its future on every
+    spin, which grows without bound for a future that lives as long as the node), and a
+    request made before spinning starts, even before the node exists, is not lost.
     """
 
-    def add_done_callback(self, callback):
+    def __init__(self):
+        self._event = threading.Event()
+        self._lock = threading.Lock()
+        self._guards = []
+
+    def attach(self, node):
+        """Make :meth:`set` wake the executor that spins ``node``."""
+        guard = node.create_guard_condition(_no_op)
         with self._lock:
-            if self._pending():
-                key = _callback_key(callback)
-                self._callbacks = [c for c in self._callbacks if _callback_key(c) != key]
-                self._callbacks.append(callback)
+            self._guards.append(guard)
+            if self._event.is_set():
+                guard.trigger()
+
+    def detach(self):
+        """Forget the guard conditions (call before destroying the attached nodes)."""
+        with self._lock:
+            self._guards = []
+
+    def set(self):
+        """Request the stop (idempotent; thread-safe)."""
+        with self._lock:
+            if self._event.is_set():
                 return
-        super().add_done_callback(callback)
+            self._event.set()
+            for guard in self._guards:
+                guard.trigger()
+
+    def is_set(self):
+        """Whether the stop was requested."""
+        return self._event.is_set()
+
+    def wait(self, timeout=None):
+        """Block until the stop is requested; return whether it was."""
+        return self._event.wait(timeout)
+
+    def spin(self, executor):
+        """Spin ``executor`` until the stop is requested or its context shuts down."""
+        while not self._event.is_set() and executor.context.ok():
+            executor.spin_once()
+
+
+def _no_op():
+    """Guard-condition callback: waking the executor is all it is for."""
+
+
+class TopicWatch:
+    """Watch what a topic carries until a publisher of the expected type is found.
+
+    A subscription to a topic of another type (``samples`` remapped to a JointState
+    topic, say) matches nothing and says nothing; :meth:`check`, called from a timer,
+    asks the graph (``get_topic_names_and_types``, then the publishers' types, since
+    the graph also lists this node's own subscription) and warns once naming the type
+    the publishers have. When a publisher of the right type appears, ``on_found(endpoints)`` is
+    called once with its ``TopicEndpointInfo`` list and the timer is cancelled.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+    topic : str
+        Name as subscribed (relative names resolve in the node's namespace).
+    type_name : str
+        E.g. ``'std_msgs/msg/Float64MultiArray'``.
+    on_found : callable, optional
+    period_s : float
+        How often to look [s].
+    """
+
+    def __init__(self, node, topic, type_name, on_found=None, period_s=1.0):
+        self.node = node
+        self.name = node.resolve_topic_name(topic)
+        self.type_name = type_name
+        self.on_found = on_found
+        self.found = False
+        self.wrong_type = None
+        self._timer = node.create_timer(period_s, self.check)
+
+    def check(self):
+        """Look once; return whether a publisher of the right type was found."""
+        if self.found:
+            return True
+        if self.name not in dict(self.node.get_topic_names_and_types()):
+            return False
+        publishers = self.node.get_publishers_info_by_topic(self.name)
+        endpoints = [e for e in publishers if e.topic_type == self.type_name]
+        types = sorted({e.topic_type for e in publishers})
+        if not endpoints and types and self.wrong_type != types:
+            self.wrong_type = types
+            self.node.get_logger().warning(
+                f'topic {self.name} has type {", ".join(types)}, not {self.type_name}: '
+                f'nothing from it is received; remap to a topic of type {self.type_name}')
+        if not endpoints:
+            return False
+        self.found = True
+        self._timer.cancel()
+        if self.on_found is not None:
+            self.on_found(endpoints)
+        return True
 
 
 def _ignore_handler(signum, frame):
@@ -215,9 +294,9 @@ class SignalWatcher:
     destroys the guard condition that a running ``spin`` waits on (Jazzy). Instead
     :meth:`install` sets no-op Python handlers and :func:`signal.set_wakeup_fd`: the
     interpreter's C-level handler writes the signal number to a socket whichever thread
-    the kernel delivers it to, and a thread reading that socket resolves :attr:`stop`,
-    a future the main thread spins on. ``spin_until_future_complete`` then returns, the
-    node stops and is destroyed, and only then the context. A second signal while
+    the kernel delivers it to, and a thread reading that socket sets :attr:`stop`, the
+    :class:`StopSignal` the main thread spins on. The spin then returns, the node stops
+    and is destroyed, and only then the context. A second signal while
     shutting down ends the process at once (exit code 128 + signal number).
     """
 
@@ -225,7 +304,7 @@ class SignalWatcher:
 
     def __init__(self):
         self.received = None
-        self.stop = StopFuture()
+        self.stop = StopSignal()
         self._read = self._write = None
 
     def install(self):
@@ -253,7 +332,7 @@ class SignalWatcher:
         self.received = self._next_signal()
         if self.received is None:
             return
-        self.stop.set_result(self.received)
+        self.stop.set()
         again = self._next_signal()
         if again is not None:
             os._exit(128 + again)
@@ -301,8 +380,9 @@ def run_node(factory, name, num_threads=4, args=None):
         executor = (SingleThreadedExecutor() if num_threads == 1 else
                     MultiThreadedExecutor(num_threads=num_threads))
         executor.add_node(node)
+        signals.stop.attach(node)
         try:
-            executor.spin_until_future_complete(signals.stop)
+            signals.stop.spin(executor)
         except (KeyboardInterrupt, ExternalShutdownException):
             pass
         except RCLError:
@@ -315,6 +395,7 @@ def run_node(factory, name, num_threads=4, args=None):
     except KeyboardInterrupt:
         pass
     finally:
+        signals.stop.detach()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -6,20 +6,23 @@ import time
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
 from motor_id.nodes.common import (declare_parameters, InFlight, ParamSpec, run_node,
-                                   StopFuture)
+                                   StopSignal, TopicWatch)
+from motor_id.nodes.topic_input import TopicInput
 
 FITTED = tuple(n for n in PARAM_NAMES if n != 'R_m')
 
@@ -77,7 +80,30 @@ PARAMETERS = (
     ParamSpec('seed', 0, 'GA random seed', low=0, high=2 ** 31 - 1),
     ParamSpec('period_s', 0.0, 're-identify every this many seconds (0: only on request)',
               low=0.0, high=86400.0),
+    ParamSpec('hardware_id', '', 'hardware_id of the diagnostics and the estimate, e.g. '
+              "the driver's device (empty: the node's namespace)"),
+    ParamSpec('warm_up', True, 'run a tiny fit at start-up, before serving, so that the '
+              'first ~/identify does not load the compiled kernels'),
+    ParamSpec('input', 'samples', 'where samples come from: samples (the driver\'s batch '
+              'topic) or topics (the robot\'s joint_states and input_topic)',
+              choices=('samples', 'topics')),
+    ParamSpec('joint_name', '', 'input topics: the JointState joint (empty: the only one)'),
+    ParamSpec('input_topic', 'voltage_command', 'input topics: the plant input command '
+              '(std_msgs/Float64, V), zero-order held onto the JointState samples'),
+    ParamSpec('speed_field', 'velocity', 'input topics: JointState field with the speed '
+              '[rad/s]', choices=messages.JOINT_FIELDS),
+    ParamSpec('current_field', 'effort', 'input topics: JointState field with the current '
+              "or torque ('' for none)", choices=messages.JOINT_FIELDS + ('',)),
+    ParamSpec('effort_is', 'current', 'input topics: what current_field holds: current '
+              '[A], or torque [N m], which is then the plant input (no input_topic)',
+              choices=('current', 'torque')),
+    ParamSpec('align', 'hold', 'input topics: a sample takes the command in force at its '
+              'time (hold) or the last one before the next sample (next)',
+              choices=ALIGN_RULES),
 )
+
+OUTPUT_PREFIXES = ('estimate.', 'controller.')
+"""Parameters the node sets after each fit (read-only for users, by convention)."""
 
 
 class IdentifierNode(Node):
@@ -91,6 +117,19 @@ class IdentifierNode(Node):
     by its own MultiThreadedExecutor in a second thread; a fit works on a snapshot
     copied under the buffer's lock. Only one fit runs at a time: a second request
     while one runs is answered at once with ``success=False``.
+
+    Input: ``input: samples`` subscribes the driver's ``samples`` batches; ``input:
+    topics`` builds the same rows from the robot's ``joint_states`` and ``input_topic``
+    (:class:`motor_id.nodes.topic_input.TopicInput`). Either way a topic of the wrong
+    type is reported with the type found (:class:`motor_id.nodes.common.TopicWatch`).
+
+    Outputs after each fit: ``~/estimate`` (values with ``_std`` and ``_unit`` keys,
+    ``hardware_id`` set), ``~/report`` (the fit JSON with ``"controller"``, ``"units"``,
+    ``"hardware_id"``), both latched, and the parameters ``estimate.<P>``,
+    ``estimate.<P>_std`` and ``controller.*`` (NaN: unknown), which a late joiner can
+    read at any time; they are outputs, and a user's set is refused.
+    All topic and service names are relative, so a namespace keeps motors apart;
+    only ``/diagnostics`` is global.
     """
 
     def __init__(self):
@@ -107,11 +146,28 @@ class IdentifierNode(Node):
         self._last = 'no fit yet'
         self.in_flight = InFlight()
         guard = self.in_flight.wrap
-        self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC, self._on_samples,
-                                 messages.SAMPLES_QOS)
-        self.estimate_pub = self.create_publisher(DiagnosticArray, '~/estimate',
+        self.hardware_id = (self.settings['hardware_id'] or self.get_namespace().strip('/')
+                            or self.get_name())
+        self._setting_outputs = threading.local()
+        self._outputs = set()
+        self.input_kind = self.settings['input_kind']
+        if self.settings['input'] == 'topics' and self.settings['effort_is'] == 'torque':
+            self.input_kind = 'torque'
+        if self.settings['warm_up']:
+            self._warm_up()
+        self.topic_input = None
+        if self.settings['input'] == 'topics':
+            self.topic_input = TopicInput(self, self.buffer, self.settings)
+        else:
+            self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC,
+                                     self._on_samples, messages.SAMPLES_QOS)
+            self.samples_watch = TopicWatch(self, messages.SAMPLES_TOPIC,
+                                            messages.TYPE_NAMES[Float64MultiArray])
+        self.estimate_pub = self.create_publisher(DiagnosticArray,
+                                                  '~/' + messages.ESTIMATE_TOPIC,
                                                   messages.LATCHED_QOS)
-        self.report_pub = self.create_publisher(String, '~/report', messages.LATCHED_QOS)
+        self.report_pub = self.create_publisher(String, '~/' + messages.REPORT_TOPIC,
+                                                messages.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
         self.create_timer(1.0, self._publish_diagnostics)
@@ -127,17 +183,45 @@ class IdentifierNode(Node):
                                        callback_group=fit_group)
         self._fit_executor = MultiThreadedExecutor(num_threads=2, context=self.context)
         self._fit_executor.add_node(self.fit_node)
-        self._fit_done = StopFuture()
+        self._fit_done = StopSignal()
+        self._fit_done.attach(self.fit_node)
         self._fit_thread = threading.Thread(
-            target=self._fit_executor.spin_until_future_complete, args=(self._fit_done,),
-            name='fit-executor', daemon=True)
+            target=self._fit_done.spin, args=(self._fit_executor,), name='fit-executor',
+            daemon=True)
         self._fit_thread.start()
         self.get_logger().info(
             f'identifier ready: method {self.settings["method"]}, window '
-            f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm')
+            f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm, input '
+            f'{self.settings["input"]}')
+
+    def _warm_up(self):
+        """Load the compiled kernels and run a tiny fit on synthetic data before serving,
+        so that the first ~/identify does not stall reception (logged)."""
+        from motor_id import simulate
+        from motor_id.model import Plant
+        started = time.perf_counter()
+        kernels = simulate.warm_up()   # every kernel: regular, irregular, with effects
+        t = np.arange(200) * 0.01
+        u = np.where((t // 0.25) % 2 > 0, 6.0, -3.0)
+        rec = simulate.simulate_recording(Plant(input_kind=self.input_kind), t, u, 0.01,
+                                          0.01, random_state=0)
+        tie = None if self.settings['tie_kt_kb'] == 'auto' else bool(self.settings['tie_kt_kb'])
+        try:
+            Identifier(method=self.settings['method'], R_m=self.settings['R_m'], tie=tie,
+                       population=4, generations=2, random_state=0).fit(rec)
+        except MotorIdError as exc:
+            self.get_logger().warning(f'warm-up fit: {exc}')
+        self.get_logger().info(
+            f'warmed up in {time.perf_counter() - started:.2f} s (kernels '
+            f'{kernels["seconds"]:.2f} s, {kernels["compiled"]} compiled; a tiny fit)')
 
     # ------------------------------------------------------------- callbacks
     def _on_set(self, params):
+        internal = getattr(self._setting_outputs, 'active', False)
+        for p in params:
+            if p.name.startswith(OUTPUT_PREFIXES) and not internal:
+                return SetParametersResult(successful=False, reason=(
+                    f'{p.name} is an output of the identifier (read-only)'))
         for p in params:
             if p.name == 'window_s':
                 self.buffer.window_s = float(p.value)
@@ -167,8 +251,11 @@ class IdentifierNode(Node):
                   'malformed_messages': self._bad_messages, 'fits_ok': self._fits['ok'],
                   'fits_failed': self._fits['failed'],
                   'fit_running': self._fit_lock.locked()}
+        if self.topic_input is not None:
+            values.update(self.topic_input.counts())
         level = messages.OK if snap_rows else messages.WARN
-        st = messages.status('motor_id: identifier', level, self._last, values)
+        st = messages.status('motor_id: identifier', level, self._last, values,
+                             self.hardware_id)
         self._publish(self.diag_pub,
                       messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
 
@@ -193,7 +280,7 @@ class IdentifierNode(Node):
             snap = self.buffer.snapshot()
             if p['select'] == 'profile' and len(snap):
                 snap = snap.profile_segment()
-            rec = snap.recording(p['min_samples'], p['allow_gaps'], p['input_kind'],
+            rec = snap.recording(p['min_samples'], p['allow_gaps'], self.input_kind,
                                  {'source': 'identifier node'})
             tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])
             est = Identifier(method=p['method'], R_m=p['R_m'], tie=tie,
@@ -213,16 +300,23 @@ class IdentifierNode(Node):
             return self._failed('cancelled: the node is shutting down')
         res = est.result_
         report = res.to_dict()
-        report['data'] = {'source': 'samples topic', 'samples': len(rec),
+        source = ('samples topic' if self.topic_input is None else
+                  'joint_states and input topics')
+        report['data'] = {'source': source, 'samples': len(rec),
                           'sample_period': rec.sample_period, 'regular': rec.is_regular,
                           'channels': list(rec.channels()), 'input_kind': rec.input_kind,
                           'seq_first': rec.meta['seq_first'],
                           'seq_last': rec.meta['seq_last'],
                           't_first': float(rec.time[0]), 't_last': float(rec.time[-1]),
                           'gaps_skipped': len(snap.gaps)}
+        report['hardware_id'] = self.hardware_id
+        report['units'] = messages.units_of(rec.input_kind)
+        report['controller'] = self._controller(report, rec)
         summary = res.summary()
         stamp = self.get_clock().now().to_msg()
-        self._publish(self.estimate_pub, messages.estimate_to_msg(stamp, report, summary))
+        self._set_outputs(report)
+        self._publish(self.estimate_pub, messages.estimate_to_msg(
+            stamp, report, summary, hardware_id=self.hardware_id))
         self._publish(self.report_pub, messages.report_msg(report))
         self._fits['ok'] += 1
         head = (f'identified from {len(rec)} samples in '
@@ -230,6 +324,44 @@ class IdentifierNode(Node):
         self._last = head
         self.get_logger().info(head + '\n' + summary)
         return True, head + '\n' + summary
+
+    def _controller(self, report, rec):
+        """The controller design from the fit (the report's "controller" block)."""
+        from motor_id.controller import from_identification
+        try:
+            kw = {'sample_period': rec.sample_period} if rec.is_regular else {}
+            return from_identification(report, **kw).to_dict()
+        except MotorIdError as exc:
+            self.get_logger().warning(f'no controller design: {exc}')
+            return {'error': str(exc)}
+
+    def _set_outputs(self, report):
+        """Set ``estimate.*`` and ``controller.*`` parameters (NaN: unknown)."""
+        from motor_id.controller import to_ros_parameters
+        units = report['units']
+        values = {}
+        for name, p in report.get('parameters', {}).items():
+            for key, v in ((name, p.get('value')), (f'{name}_std', p.get('std'))):
+                values[f'estimate.{key}'] = (float('nan') if v is None else float(v),
+                                             f'{name} estimate [{units.get(name, "")}]')
+        design = report['controller']
+        flat = {}
+        if 'error' not in design:
+            flat = next(iter(to_ros_parameters(design, 'x').values()))['ros__parameters']
+        for name in {n for n in self._outputs if n.startswith('controller.')} | set(flat):
+            values[name] = (float(flat.get(name, float('nan'))),
+                            'controller design from the latest estimate (NaN: unknown)')
+        self._setting_outputs.active = True
+        try:
+            for name, (value, text) in values.items():
+                if name not in self._outputs:
+                    self._outputs.add(name)
+                    self.declare_parameter(name, value, ParameterDescriptor(
+                        description=text + ' - set by the identifier, read-only for users'))
+                else:
+                    self.set_parameters([Parameter(name, Parameter.Type.DOUBLE, value)])
+        finally:
+            self._setting_outputs.active = False
 
     def _failed(self, reason):
         self._fits['failed'] += 1
@@ -245,8 +377,9 @@ class IdentifierNode(Node):
         self._stopping.set()
         if not self.in_flight.wait_idle(10.0):
             self.get_logger().warning('a fit is still running at shutdown')
-        self._fit_done.set_result(True)
+        self._fit_done.set()
         self._fit_thread.join(5.0)
+        self._fit_done.detach()
         self._fit_executor.shutdown(timeout_sec=1.0)
         self.fit_node.destroy_node()
 

@@ -6,13 +6,15 @@ import math
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
 
 from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the nodes)
-    CHANNEL_DEPTH, CHANNEL_TOPICS, DIAGNOSTICS_DEPTH, DIAGNOSTICS_TOPIC, LATCHED_DEPTH,
+    CHANNEL_DEPTH, CHANNEL_TOPICS, DIAGNOSTICS_DEPTH, DIAGNOSTICS_TOPIC, ESTIMATE_TOPIC,
+    LATCHED_DEPTH, REPORT_TOPIC,
     SAMPLE_COLUMNS as COLUMNS, SAMPLES_DEPTH, SAMPLES_LABEL as ROW_LABEL, SAMPLES_TOPIC,
     VOLTAGE_COMMAND_TOPIC)
-from motor_id.contracts import batch_rows
+from motor_id.contracts import batch_rows, JOINT_STATES_TOPIC, TORQUE_UNITS, UNITS  # noqa: F401
 from motor_id.errors import DataError
 
 SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLES_DEPTH,
@@ -29,6 +31,47 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=LATCHED_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """Results (estimate, report): a late subscriber still gets the last one."""
+
+ROBOT_DEPTH = 1000
+"""Queue of the robot's own topics (JointState, command) for the live topics input."""
+
+
+def robot_qos(reliable):
+    """QoS for a robot topic: reliable only when every publisher found is reliable.
+
+    A reliable subscription never matches a best-effort (sensor-data) publisher; a
+    best-effort one matches both, so it is the choice whenever any publisher is
+    best-effort.
+    """
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=ROBOT_DEPTH,
+                      reliability=(ReliabilityPolicy.RELIABLE if reliable
+                                   else ReliabilityPolicy.BEST_EFFORT),
+                      durability=DurabilityPolicy.VOLATILE)
+
+
+def all_reliable(endpoints):
+    """Whether every endpoint (``TopicEndpointInfo``) offers reliable delivery."""
+    return bool(endpoints) and all(
+        e.qos_profile.reliability == ReliabilityPolicy.RELIABLE for e in endpoints)
+
+
+TYPE_NAMES = {Float64MultiArray: 'std_msgs/msg/Float64MultiArray',
+              Float64: 'std_msgs/msg/Float64', JointState: 'sensor_msgs/msg/JointState'}
+"""The graph's names of the message types the identifier subscribes."""
+
+JOINT_FIELDS = ('position', 'velocity', 'effort')
+
+
+def joint_value(msg, index, field):
+    """``msg.<field>[index]`` of a JointState as float, NaN when the array is short."""
+    values = getattr(msg, field)
+    return float(values[index]) if index < len(values) else math.nan
+
+
+def stamp_seconds(stamp):
+    """A ``builtin_interfaces/Time`` in seconds (0.0 for an unset stamp)."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
 
 DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DIAGNOSTICS_DEPTH,
                              reliability=ReliabilityPolicy.RELIABLE,
@@ -107,16 +150,27 @@ def diagnostic_array(stamp, statuses):
     return msg
 
 
+def units_of(input_kind='voltage'):
+    """SI units by parameter name for a ``voltage`` or ``torque`` plant."""
+    units = dict(UNITS)
+    if input_kind == 'torque':
+        units.update(TORQUE_UNITS)
+    return units
+
+
 def estimate_values(report):
     """Flatten a fit report dict into ordered key/values.
 
-    Keys are ``NAME``, ``NAME_std``, ``NAME_determined`` for each parameter, then
+    Keys are ``NAME``, ``NAME_std``, ``NAME_unit`` (SI, from
+    :data:`motor_id.contracts.UNITS`), ``NAME_determined`` for each parameter, then
     ``fit_percent_<channel>``, ``method`` and ``samples`` when present.
     """
     values = {}
+    units = units_of(report.get('input_kind', 'voltage'))
     for name, p in report.get('parameters', {}).items():
         values[name] = p.get('value')
         values[f'{name}_std'] = p.get('std')
+        values[f'{name}_unit'] = units.get(name, '')
         values[f'{name}_determined'] = bool(p.get('determined'))
     for ch, m in report.get('fit', {}).get('channels', {}).items():
         if 'fit_percent' in m:
@@ -129,7 +183,7 @@ def estimate_values(report):
     return values
 
 
-def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate'):
+def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate', hardware_id=''):
     """The latched estimate: a DiagnosticArray with one status holding the parameters."""
     values = estimate_values(report)
     undetermined = [k for k, p in report.get('parameters', {}).items()
@@ -139,7 +193,7 @@ def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate'):
                else f'not determined by the data: {", ".join(undetermined)}')
     if summary:
         values['summary'] = summary
-    return diagnostic_array(stamp, [status(name, level, message, values)])
+    return diagnostic_array(stamp, [status(name, level, message, values, hardware_id)])
 
 
 def msg_to_estimate(msg):
@@ -151,5 +205,6 @@ def msg_to_estimate(msg):
 
 def report_msg(report):
     """The full fit report as JSON in a ``std_msgs/String`` (NaN/inf become null)."""
-    from motor_id.report import _clean
-    return String(data=json.dumps(_clean(report)))
+    from motor_id import report as reports
+    clean = getattr(reports, 'to_jsonable', None) or reports._clean   # renamed (API.md 6)
+    return String(data=json.dumps(clean(report)))

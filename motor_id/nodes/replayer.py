@@ -8,7 +8,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from motor_id.nodes import messages
-from motor_id.nodes.common import SignalWatcher, StopFuture
+from motor_id.nodes.common import SignalWatcher, StopSignal
 
 
 class Replayer(Node):
@@ -36,13 +36,14 @@ class Replayer(Node):
                                          messages.SAMPLES_QOS)
         self.next = 0
         self.t0_wall = None
-        self.done = StopFuture()
+        self.done = StopSignal()
+        self.done.attach(self)
         self.subscribers = subscribers or 1
         self._wait_until = time.monotonic() + (5.0 if subscribers is None else 30.0)
         self.timer = self.create_timer(0.005, self._tick)
 
     def _tick(self):
-        if self.done.done():
+        if self.done.is_set():
             return
         if self.t0_wall is None:
             if self.pub.get_subscription_count() < self.subscribers and \
@@ -62,8 +63,7 @@ class Replayer(Node):
 
     def stop(self):
         """End the replay (at the end of the rows, or early on a signal)."""
-        if not self.done.done():
-            self.done.set_result(self.next)
+        self.done.set()
 
 
 def replay(rows, rate, batch=10, subscribers=None):
@@ -78,9 +78,10 @@ def replay(rows, rate, batch=10, subscribers=None):
     node = Replayer(rows, rate, batch, subscribers)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
-    signals.stop.add_done_callback(lambda _f: node.stop())
+    signals.stop.attach(node)
     try:
-        executor.spin_until_future_complete(node.done)
+        while not (node.done.is_set() or signals.stop.is_set()) and executor.context.ok():
+            executor.spin_once()
         if signals.received is None:
             time.sleep(0.5)  # let reliable transport deliver the last batches
             executor.spin_once(timeout_sec=0.1)
@@ -88,6 +89,8 @@ def replay(rows, rate, batch=10, subscribers=None):
         pass
     finally:
         sent = node.next
+        signals.stop.detach()
+        node.done.detach()
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()

@@ -1,0 +1,92 @@
+"""A ROS client for scripts and tests: a node in its own context, spun in a thread."""
+
+import threading
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from std_srvs.srv import Trigger
+
+from motor_id.errors import MotorIdError
+from motor_id.nodes.procs import use_ros_env
+
+
+class RosClient:
+    """An rclpy node bound to ``domain``, spun by a background executor.
+
+    Every call waits on its own future, never by spinning in the caller's thread, so
+    the client can be used from any thread while callbacks keep running.
+
+    Parameters
+    ----------
+    domain : int
+        ROS_DOMAIN_ID (LOCALHOST discovery is selected before rclpy initialises).
+    name : str
+        Node name.
+    """
+
+    def __init__(self, domain, name='motor_id_client'):
+        use_ros_env(domain)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, name=f'{name}-spin', daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        try:
+            self.executor.spin()
+        except ExternalShutdownException:
+            pass
+
+    def subscribe(self, msg_type, topic, qos, callback):
+        """Subscribe ``callback`` to ``topic``."""
+        return self.node.create_subscription(msg_type, topic, callback, qos)
+
+    def collect(self, msg_type, topic, qos):
+        """Subscribe and return a list that fills with the received messages."""
+        box = []
+        self.subscribe(msg_type, topic, qos, box.append)
+        return box
+
+    def call_async(self, srv_type, name, request=None, wait_service=20.0):
+        """Start a service call; return its future.
+
+        Raises
+        ------
+        MotorIdError
+            The service did not appear within ``wait_service`` [s].
+        """
+        cli = self.node.create_client(srv_type, name)
+        if not cli.wait_for_service(timeout_sec=wait_service):
+            self.node.destroy_client(cli)
+            raise MotorIdError(f'service {name} did not appear in {wait_service:g} s')
+        return cli.call_async(request if request is not None else srv_type.Request())
+
+    def call(self, srv_type, name, request=None, timeout=60.0, wait_service=20.0):
+        """Call a service and wait for the response.
+
+        Raises
+        ------
+        MotorIdError
+            The service did not appear, or did not answer within ``timeout`` [s].
+        """
+        future = self.call_async(srv_type, name, request, wait_service)
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout):
+            raise MotorIdError(f'service {name} did not answer in {timeout:g} s')
+        return future.result()
+
+    def trigger(self, name, timeout=60.0, wait_service=20.0):
+        """Call a ``std_srvs/Trigger`` service; return ``(success, message)``."""
+        res = self.call(Trigger, name, timeout=timeout, wait_service=wait_service)
+        return res.success, res.message
+
+    def close(self):
+        """Stop spinning, destroy the node and shut its context down."""
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(5.0)

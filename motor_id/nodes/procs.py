@@ -1,0 +1,227 @@
+"""Node processes and their ROS environment, for the demo, the benchmarks and the tests.
+
+Imports no rclpy: a parent that only starts and stops nodes needs no ROS in itself.
+"""
+
+import atexit
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import zlib
+
+from motor_id.errors import MotorIdError
+
+_LIVE = set()
+
+
+@atexit.register
+def _kill_leftovers():
+    """Never leave node processes behind, even when the parent dies of an error."""
+    for proc in list(_LIVE):
+        proc.kill()
+
+
+def domain_id(name, low=1, high=101):
+    """A ROS_DOMAIN_ID in ``low..high`` for ``name``, varied by process id.
+
+    Different names and concurrent runs get different ids (with high probability); the
+    same name in the same process always gets the same id.
+    """
+    return low + (zlib.crc32(name.encode()) + os.getpid() * 7) % (high - low + 1)
+
+
+def ros_env(domain, pythonpath=None, **extra):
+    """The environment of a node process: LOCALHOST discovery and ``domain``.
+
+    Parameters
+    ----------
+    domain : int
+        ROS_DOMAIN_ID.
+    pythonpath : str, optional
+        Put first on PYTHONPATH (e.g. a source checkout).
+    **extra
+        More variables (values converted to str).
+
+    Returns
+    -------
+    dict
+        A copy of ``os.environ`` with unbuffered Python output, uncoloured ROS logs and
+        the Python stacks printed on a crash.
+    """
+    env = dict(os.environ)
+    env.pop('ROS_STATIC_PEERS', None)
+    env.update({'ROS_AUTOMATIC_DISCOVERY_RANGE': 'LOCALHOST', 'ROS_DOMAIN_ID': str(domain),
+                'PYTHONUNBUFFERED': '1', 'PYTHONFAULTHANDLER': '1',
+                'RCUTILS_COLORIZED_OUTPUT': '0'})
+    if pythonpath:
+        env['PYTHONPATH'] = pythonpath + os.pathsep + env.get('PYTHONPATH', '')
+    env.update({k: str(v) for k, v in extra.items()})
+    return env
+
+
+def use_ros_env(domain):
+    """Select LOCALHOST discovery and ``domain`` for rclpy in this process."""
+    os.environ.pop('ROS_STATIC_PEERS', None)
+    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    os.environ['ROS_DOMAIN_ID'] = str(domain)
+
+
+def wait_until(predicate, timeout=20.0, interval=0.05):
+    """Poll ``predicate()`` until true or ``timeout`` [s]; return whether it became true."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())
+
+
+class Process:
+    """A child process in its own session, its stdout and stderr in files.
+
+    Parameters
+    ----------
+    args : list of str
+        Command line; ``sys.executable`` is put first when it starts with ``-m``.
+    env : dict
+    logdir : path
+        Where ``<name>.out`` and ``<name>.err`` go.
+    name : str
+    """
+
+    def __init__(self, args, env, logdir, name):
+        if args[0] == '-m':
+            args = [sys.executable] + list(args)
+        self.name = name
+        self.args = args
+        self.killed = False
+        self.out_path = os.path.join(str(logdir), f'{name}.out')
+        self.err_path = os.path.join(str(logdir), f'{name}.err')
+        self._out = open(self.out_path, 'wb')
+        self._err = open(self.err_path, 'wb')
+        self.proc = subprocess.Popen(args, env=env, stdout=self._out, stderr=self._err,
+                                     stdin=subprocess.DEVNULL, start_new_session=True)
+        _LIVE.add(self)
+
+    @property
+    def pid(self):
+        return self.proc.pid
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def stdout(self):
+        with open(self.out_path, errors='replace') as fh:
+            return fh.read()
+
+    def stderr(self):
+        with open(self.err_path, errors='replace') as fh:
+            return fh.read()
+
+    def output(self):
+        """stdout and stderr together (ROS logs go to stderr)."""
+        return self.stdout() + self.stderr()
+
+    def last_line(self):
+        """The last non-empty line of the output ('' if none)."""
+        lines = self.output().strip().splitlines()
+        return lines[-1] if lines else ''
+
+    def wait_for(self, pattern, timeout=20.0, stream='output'):
+        """Wait until ``pattern`` (regex) appears in ``stream``; return the match.
+
+        Raises
+        ------
+        MotorIdError
+            The process exited first, or ``timeout`` [s] passed; with the output.
+        """
+        deadline = time.monotonic() + timeout
+        rx = re.compile(pattern, re.MULTILINE)
+        while True:
+            m = rx.search(getattr(self, stream)())
+            if m:
+                return m
+            if self.proc.poll() is not None:
+                raise MotorIdError(f'{self.name} exited ({self.proc.returncode}) before '
+                                   f'{pattern!r}:\n{self.output()}')
+            if time.monotonic() > deadline:
+                raise MotorIdError(f'{self.name}: no {pattern!r} in {timeout} s:\n'
+                                   f'{self.output()}')
+            time.sleep(0.05)
+
+    def check(self):
+        """Raise :class:`MotorIdError` with the last log line if the process has exited."""
+        if self.proc.poll() is not None:
+            raise MotorIdError(f'the {self.name} process exited ({self.proc.returncode}): '
+                               f'{self.last_line()}')
+
+    def wait(self, timeout=20.0):
+        """Wait for exit and return the code (raises ``subprocess.TimeoutExpired``)."""
+        return self.proc.wait(timeout)
+
+    def stop(self, sig=signal.SIGINT, timeout=15.0):
+        """Send ``sig`` and return the exit code; after ``timeout`` [s] kill the group
+        (then :attr:`killed` is true)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.killed = True
+                self.kill()
+        return self.proc.returncode
+
+    def kill(self):
+        """Kill the process group."""
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.proc.wait(10)
+
+    def close(self):
+        """End the process: SIGINT first, so that it leaves the ROS graph at once (a
+        killed participant's endpoints linger in its peers until their lease expires and
+        would match the next run's publishers and clients); SIGKILL if it hangs."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                pass
+        self.kill()
+        _LIVE.discard(self)
+        self._out.close()
+        self._err.close()
+
+
+class Processes(dict):
+    """Named :class:`Process` es sharing an environment and a log folder."""
+
+    def __init__(self, env, logdir):
+        super().__init__()
+        self.env = env
+        self.logdir = str(logdir)
+
+    def start(self, name, args):
+        """Start ``args`` as process ``name``; return it."""
+        self[name] = Process(args, self.env, self.logdir, name)
+        return self[name]
+
+    def check(self):
+        """Raise :class:`MotorIdError` if any process has exited."""
+        for proc in self.values():
+            proc.check()
+
+    def stop(self, *names, timeout=15.0):
+        """SIGINT the named processes in turn; return ``{name: exit code}``."""
+        return {name: self[name].stop(timeout=timeout) for name in names}
+
+    def close(self):
+        """End every process (see :meth:`Process.close`)."""
+        for proc in self.values():
+            proc.close()
