@@ -16,10 +16,10 @@ setup(
         ('share/' + package_name + '/bags', glob('bags/*.mcap') + glob('bags/*.md')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
-                      'mcap', 'mcap-ros2-support', 'control', 'PyYAML', 'rosbags'],
+                      'mcap', 'control', 'PyYAML', 'rosbags'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'rosbags', 'colcon-common-extensions', 'pygad', 'cma',
-                 'psutil'],
+        'test': ['pytest', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
+                 'import-linter', 'pygad', 'cma', 'psutil'],
         'bench': ['pygad', 'cma', 'psutil'],
     },
     zip_safe=True,

@@ -16,6 +16,7 @@ from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the
     VOLTAGE_COMMAND_TOPIC)
 from motor_id.contracts import batch_rows, JOINT_STATES_TOPIC, TORQUE_UNITS, UNITS  # noqa: F401
 from motor_id.errors import DataError
+from motor_id.report import to_jsonable
 
 SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLES_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,
@@ -205,6 +206,4 @@ def msg_to_estimate(msg):
 
 def report_msg(report):
     """The full fit report as JSON in a ``std_msgs/String`` (NaN/inf become null)."""
-    from motor_id import report as reports
-    clean = getattr(reports, 'to_jsonable', None) or reports._clean   # renamed (API.md 6)
-    return String(data=json.dumps(clean(report)))
+    return String(data=json.dumps(to_jsonable(report)))
