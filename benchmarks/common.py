@@ -228,21 +228,3 @@ def target(name, value, threshold, passed, unit=''):
     return {'name': name, 'value': None if value is None else float(value),
             'threshold': threshold, 'unit': unit,
             'pass': None if passed is None else bool(passed)}
-
-
-def to_jsonable(obj):
-    """Recursively convert numpy scalars/arrays (and tuples) to plain JSON types."""
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if np.isfinite(v) else None
-    return obj

@@ -227,7 +227,8 @@ def main(argv=None):
     names = [s for s in SECTIONS if not only or s in only]
 
     from functools import partial
-    from common import blas_limit, to_jsonable
+    from common import blas_limit
+    from motor_id.report import to_jsonable
     try:
         import threadpoolctl  # noqa: F401
         blas_one = partial(blas_limit, 1)

@@ -38,9 +38,10 @@ import time
 
 import numpy as np
 
-from common import render_table, to_jsonable
+from common import render_table
 from motor_id.errors import MotorIdError
 from motor_id.model import MotorParams, PAPER_MOTOR
+from motor_id.report import to_jsonable
 from rosproc import close_all, num, processes, ros_env, rows_counter_client, wait_for
 
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,

@@ -5,7 +5,6 @@ import re
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
-import pytest
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
@@ -16,33 +15,10 @@ from motor_id.card.profile import profile_samples
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.nodes import messages
 from motor_id.nodes.driver import PARAMETERS
-from rosutil import (Client, domain_id, latest_status, Process, REPO, ros_env, rows_of,
-                     stop_cleanly, wait_until)
+from rosutil import latest_status, REPO, rows_of, stop_cleanly, wait_until
 
-DOMAIN = domain_id(__name__)
 DRIVER = 'motor_id: driver'
 BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-
-
-@pytest.fixture(scope='module')
-def client():
-    c = Client(DOMAIN, 'test_driver_safety_client')
-    yield c
-    c.close()
-
-
-@pytest.fixture
-def launch(tmp_path):
-    """Start processes (``launch(name, args)``); all are ended at the end of the test."""
-    procs = []
-
-    def start(name, args, **env):
-        p = Process(args, ros_env(DOMAIN, **env), tmp_path, name)
-        procs.append(p)
-        return p
-    yield start
-    for p in procs:
-        p.close()
 
 
 def driver_args(*params, ros_args=()):

@@ -5,8 +5,9 @@ import signal
 import threading
 
 from motor_id.card.simulator import CardSimulator, FaultConfig
+from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.errors import ConfigError
-from motor_id.model import METHODS, parse_effect_args, Plant
+from motor_id.model import METHODS
 
 
 def add_arguments(parser):
@@ -42,15 +43,8 @@ def add_arguments(parser):
 
 def simulator_from_args(args):
     """Build a (not yet started) :class:`CardSimulator` from parsed CLI arguments."""
-    plant = Plant.from_json(args.params) if args.params else Plant()
-    if args.effect:
-        plant = Plant(plant.params, plant.input_kind,
-                      {**plant.effects, **parse_effect_args(args.effect)})
-    try:
-        parts = [float(x) for x in args.noise.split(',')]
-    except ValueError:
-        raise ConfigError(f'--noise takes SPEED[,CURRENT] std values, got {args.noise!r}') \
-            from None
+    plant = plant_from_args(args.params, args.effect)
+    parts = parse_noise(args.noise, 'std values')
     speed_noise, current_noise = (parts + [0.0])[:2]
     faults = FaultConfig.parse(args.fault)
     if faults.disconnect_every and not args.link:

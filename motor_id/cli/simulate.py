@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 
+from motor_id.cli.common import parse_noise, plant_from_args
+from motor_id.data.csv_io import write_csv
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
-from motor_id.model import parse_effect_args, Plant
-from motor_id.data.csv_io import write_csv
 from motor_id.simulate import simulate_recording
 
 
@@ -31,15 +31,8 @@ def add_arguments(parser):
 
 def run(args):
     """Simulate and write the CSV."""
-    plant = Plant.from_json(args.params) if args.params else Plant()
-    if args.effect:
-        plant = Plant(plant.params, plant.input_kind,
-                      {**plant.effects, **parse_effect_args(args.effect)})
-    try:
-        parts = [float(x) for x in args.noise.split(',')]
-    except ValueError:
-        raise ConfigError(f'--noise takes SPEED[,CURRENT] fractions, got {args.noise!r}') \
-            from None
+    plant = plant_from_args(args.params, args.effect)
+    parts = parse_noise(args.noise, 'fractions')
     s_noise, c_noise = (parts + [parts[0]])[:2]
     if args.samples < 2 or args.period <= 0:
         raise ConfigError('--samples must be >= 2 and --period > 0')

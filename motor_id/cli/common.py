@@ -1,0 +1,21 @@
+"""Argument helpers shared by the subcommands that build a plant (simulate, card-sim)."""
+
+from motor_id.errors import ConfigError
+from motor_id.model import parse_effect_args, Plant
+
+
+def plant_from_args(params_path, effect_items):
+    """The plant of ``--params FILE`` (default: the paper's motor) plus ``--effect`` items."""
+    plant = Plant.from_json(params_path) if params_path else Plant()
+    if effect_items:
+        plant = Plant(plant.params, plant.input_kind,
+                      {**plant.effects, **parse_effect_args(effect_items)})
+    return plant
+
+
+def parse_noise(text, what):
+    """``SPEED[,CURRENT]`` -> list of floats; ``what`` names the unit in the message."""
+    try:
+        return [float(x) for x in text.split(',')]
+    except ValueError:
+        raise ConfigError(f'--noise takes SPEED[,CURRENT] {what}, got {text!r}') from None
