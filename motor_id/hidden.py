@@ -20,16 +20,26 @@ input_delay            d in 2 .. 8 samples
 voltage_saturation     V_max in [0.5, 0.85] x A
 sensor_lag             tau_s in [0.05, 0.3] x mechanical time constant J R_m / K_T^2
 speed_quantization     q in [0.02, 0.06] x w_nl
+current_quantization   q_i in [0.1, 0.4] x std of the true current
 resistance_drift       tau_th in [0.2, 0.6] x record length, steady rise dR in
                        [0.2, 1.0] x R_m at the record's RMS current
 resonance              r in [0.3, 3], f_r in [0.5, 5] Hz, zeta in [0.02, 0.1]
 =====================  ===============================================================
 
+Measurement effects (quantisation) act after the noise, as a sensor's counter or ADC
+does: the reported values sit exactly on the grid.
+
+The resistance a user knows comes from an ohmmeter: ``case.known['R_m']`` is the true
+R_m off by a seeded 2 to 5 %, either sign (``r_m_error=None``; pass a number to fix
+the relative error, 0 for the true value).
+
 Some excitations cannot reveal an effect at all, and cases with it draw from the other
 profiles: a binary input (PRBS) only ever takes two values, so a static input map (dead
 zone, saturation) acts on it as a plain gain; the paper's steps only ever go up, so the
 current never reverses and a brush drop (``V_b sgn(i)``) and a dead zone
-(``V_dz sgn(V)``) are the same term.
+(``V_dz sgn(V)``) are the same term; under a binary input the current's sign follows the
+input's except for short reversal transients, so a brush drop is a plain input gain
+there, too.
 """
 
 from dataclasses import asdict, dataclass, field
@@ -39,7 +49,7 @@ import numpy as np
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
 from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR, Plant
-from motor_id.recording import Recording, write_csv
+from motor_id.recording import Recording
 from motor_id.simulate import simulate_batch
 
 VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
@@ -48,7 +58,7 @@ VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
 NOT_REVEALED_BY = {
     'dead_zone': ('prbs', 'paper_steps'),
     'voltage_saturation': ('prbs',),
-    'brush_drop': ('paper_steps',),
+    'brush_drop': ('paper_steps', 'prbs'),
 }
 """Excitations under which an effect is identical to another one (see the module notes)."""
 
@@ -134,6 +144,9 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
         return {'tau_s': max(_loguniform(rng, 0.05, 0.3) * tau_m, 1.5 * dt)}
     if name == 'speed_quantization':
         return {'q': _loguniform(rng, 0.02, 0.06) * w_nl}
+    if name == 'current_quantization':
+        out = simulate_batch(motor.to_dict(), t, u, 'voltage')
+        return {'q_i': _loguniform(rng, 0.1, 0.4) * float(np.std(out['current'][0]))}
     if name == 'resistance_drift':
         out = simulate_batch(motor.to_dict(), t, u, 'voltage')
         i_rms = float(np.sqrt(np.mean(out['current'][0] ** 2))) or 1.0
@@ -147,7 +160,7 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
 
 
 def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=0.01,
-              noise=(0.005, 0.01)):
+              noise=(0.005, 0.01), r_m_error=None):
     """Generate one case.
 
     Parameters
@@ -165,6 +178,9 @@ def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=
     noise : (float, float)
         Speed and current noise standard deviations as fractions of each channel's
         standard deviation.
+    r_m_error : float, optional
+        Relative error of the known R_m; None draws 2 to 5 %, either sign, from the seed
+        (after everything else, so the data do not depend on it).
 
     Returns
     -------
@@ -190,19 +206,32 @@ def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=
     params = {} if effect == 'none' else effect_magnitude(effect, rng, motor, amplitude, t, u)
     effects = {} if effect == 'none' else {effect: params}
     plant = Plant(motor, 'voltage', effects)
-    out = simulate_batch(motor.to_dict(), t, u, 'voltage', 'zoh', plant.effects)
-    speed = out['speed'][0]
-    current = out['current'][0]
-    speed = speed + noise[0] * np.std(speed) * rng.standard_normal(n_samples)
-    current = current + noise[1] * np.std(current) * rng.standard_normal(n_samples)
+    speed, current = _measure(plant, t, u, noise, rng)
+    if r_m_error is None:
+        r_m_error = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.02, 0.05))
     rec = Recording(t, u, speed, current, 'voltage',
                     {'source': 'motor_id.hidden', 'seed': int(seed)})
     case = HiddenCase(int(seed), effect, params, motor.to_dict(), excitation, amplitude,
                       sample_period, n_samples, {'speed': noise[0], 'current': noise[1]},
-                      {'R_m': motor.R_m})
+                      {'R_m': motor.R_m * (1.0 + r_m_error), 'R_m_error': r_m_error})
     return rec, case
 
 
-def write_case(rec, path):
-    """Write a generated recording as CSV (no truth in the file)."""
-    write_csv(rec, path, {'source': 'motor_id.hidden', 'seed': rec.meta.get('seed')})
+def _measure(plant, t, u, noise, rng):
+    """Simulated speed and current with white noise, then the sensors' grids."""
+    dynamic = {e: v for e, v in plant.effects.items() if EFFECTS[e].category == 'dynamic'}
+    out = simulate_batch(plant.params.to_dict(), t, u, 'voltage', 'zoh', dynamic)
+    speed, current = out['speed'][0], out['current'][0]
+    n = t.size
+    speed = speed + noise[0] * np.std(speed) * rng.standard_normal(n)
+    current = current + noise[1] * np.std(current) * rng.standard_normal(n)
+    if 'speed_quantization' in plant.effects:
+        speed = _on_grid(speed, plant.effects['speed_quantization']['q'])
+    if 'current_quantization' in plant.effects:
+        current = _on_grid(current, plant.effects['current_quantization']['q_i'])
+    return speed, current
+
+
+def _on_grid(y, q):
+    """Round to a grid of step q (a counter or an ADC)."""
+    return q * np.round(y / q)

@@ -71,7 +71,7 @@ PAPER_MOTOR = MotorParams()
 
 
 SCALES = ('one', 'torque', 'input', 'speed', 'torque/speed^2', 'record', 'sample',
-          'per_record', 'per_sample', 'heating', 'max_delay', 'current')
+          'per_record', 'per_sample', 'heating', 'max_delay', 'current', 'lag_floor')
 """Data scales an effect parameter's start grid and search range are stated in.
 
 The analysis measures them on each recording: ``torque`` the stall torque K_T A / R_m
@@ -79,7 +79,9 @@ The analysis measures them on each recording: ``torque`` the stall torque K_T A 
 ``torque/speed^2`` their ratio, ``record`` the record length and ``sample`` the sample
 period [s], ``per_record`` / ``per_sample`` their inverses [Hz], ``heating``
 R_m / (i_rms^2 record) [Ohm/(A^2 s)], ``max_delay`` the longest delay tried [samples],
-``current`` the current's spread [A]; ``one`` is 1.
+``current`` the current's spread [A], ``lag_floor`` the shortest sensor lag that is more
+than the sampling itself (half a sample period; a whole one when the speed is counted
+by an encoder, whose count difference averages over the period); ``one`` is 1.
 """
 
 
@@ -207,7 +209,7 @@ EFFECTS = {e.name: e for e in (
                (EffectParam('tau_s', 's', 0.05, 0.0, 10.0, 'sample', (0.5, (0.1, 'record'), 16),
                             (0.0, (0.2, 'record'))),),
                description='first-order lag of the speed measurement',
-               min_fraction=(('tau_s', (0.5, 'sample')),)),
+               min_fraction=(('tau_s', (1.0, 'lag_floor')),)),
     EffectSpec('speed_quantization', 'y = q round(w / q)',
                (EffectParam('q', 'rad/s per count', 0.3, 0.0, 1e3, 'speed'),),
                description='encoder counts per sample period: the speed sits on a grid',

@@ -1,51 +1,70 @@
-"""Hidden-effect tests: the analysis, told nothing, must name the effect; clean data: none."""
+"""Hidden-effect tests: the analysis, told R_m 2-5 % off and nothing else, names the effect.
+
+Cases come from :func:`motor_id.hidden.make_case` (0.5 % speed / 1 % current noise, R_m
+given off by a seeded 2 to 5 %, either sign). A case is *named* when the hidden effect is
+in the verdict or in ``ambiguous_with``; a *false alarm* is any effect named on a clean
+case; a *spurious second effect* is a dynamic combination when one effect was hidden.
+The asserted numbers are the measured ones (``pytest -s`` prints the table).
+"""
 
 import json
 
 import numpy as np
 import pytest
 
-from motor_id.discrepancy import DiscrepancyAnalysis
-from motor_id.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS, write_case
-from motor_id.recording import read_csv
+from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.data.csv_io import read_csv, write_csv
+from motor_id.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS
 
-SEEDS_PER_EFFECT = 2
-CLEAN_SEEDS = tuple(range(900, 908))
-SLOW_SEEDS_PER_EFFECT = 8
-SLOW_CLEAN_SEEDS = tuple(range(900, 930))
+QUICK = ('speed_quantization', 'resistance_drift', 'brush_drop', 'none')
+SLOW_SEEDS_PER_EFFECT = 3
+SLOW_CLEAN_SEEDS = tuple(range(900, 912))
+PARAM_TOLERANCE = {'speed_quantization.q': 0.01, 'current_quantization.q_i': 0.01,
+                   'coulomb_friction.T_c': 0.25, 'load_torque.T_L': 0.25,
+                   'brush_drop.V_b': 0.25, 'dead_zone.V_dz': 0.25,
+                   'voltage_saturation.V_max': 0.1, 'input_delay.d': 0.0}
+"""Relative tolerance of a found parameter against the hidden one (where it is one
+number that the data pin down)."""
 
 
 def _seed(effect, k):
-    return 100 * (VOLTAGE_EFFECTS.index(effect) + 1) + k
+    return 100 * (list(VOLTAGE_EFFECTS).index(effect) + 1) + k if effect != 'none' \
+        else 900 + k
 
 
-def _analyse(seed, effect):
+def _analyse(effect, seed):
     rec, case = make_case(seed, effect)
     report = DiscrepancyAnalysis(R_m=case.known['R_m']).fit(rec).report_
-    named = {report.verdict} | {a['name'] for a in report.ambiguous_with}
-    return case, report, named
+    return case, report
 
 
-def _sweep(seeds_per_effect, clean_seeds):
-    rows, hits, listed, alarms = [], 0, 0, 0
-    for effect in VOLTAGE_EFFECTS:
-        for k in range(seeds_per_effect):
-            case, rep, named = _analyse(_seed(effect, k), effect)
-            hits += rep.verdict == effect
-            listed += effect in named
-            rows.append((effect, case.excitation, rep.verdict, rep.seconds))
-    for seed in clean_seeds:
-        case, rep, _ = _analyse(seed, 'none')
-        alarms += rep.verdict != 'none'
-        rows.append(('none', case.excitation, rep.verdict, rep.seconds))
-    n = len(VOLTAGE_EFFECTS) * seeds_per_effect
-    for effect, exc, verdict, sec in rows:
-        mark = 'ok ' if verdict == effect else 'XX '
-        print(f'{mark}{effect:<20}{exc:<15}-> {verdict:<36}{sec:5.1f} s')
-    print(f'hit rate {hits}/{n} = {100 * hits / n:.0f} % (named or listed as ambiguous: '
-          f'{listed}/{n}); false alarms {alarms}/{len(clean_seeds)}; '
-          f'mean analysis time {np.mean([r[3] for r in rows]):.2f} s')
-    return hits / n, alarms
+def _score(cases):
+    """Run the cases; print a table; return named, false alarms, spurious, param misses."""
+    named = alarms = spurious = 0
+    misses = []
+    for effect, seed in cases:
+        case, rep = _analyse(effect, seed)
+        names = set(rep.verdict.split('+')) | {a['name'] for a in rep.ambiguous_with}
+        if effect == 'none':
+            alarms += rep.verdict != 'none'
+            ok = rep.verdict == 'none'
+        else:
+            ok = effect in names
+            named += ok
+            spurious += '+' in rep.chosen['name']
+            for p, truth in case.effect_params.items():
+                key, tol = f'{effect}.{p}', PARAM_TOLERANCE.get(f'{effect}.{p}')
+                if ok and tol is not None and key in rep.parameters:
+                    found = rep.parameters[key]['value']
+                    if abs(found - truth) > tol * abs(truth) + 1e-12:
+                        misses.append((key, truth, found))
+        print(f'{"ok " if ok else "XX "}{effect:<22}{case.excitation:<15}R_m '
+              f'{100 * case.known["R_m_error"]:+.1f} % -> {rep.verdict:<40}'
+              f'{rep.seconds:5.1f} s')
+    n = sum(e != 'none' for e, _ in cases)
+    print(f'named {named}/{n}; false alarms {alarms}/{len(cases) - n}; spurious second '
+          f'effects {spurious}/{n}; parameter misses {misses}')
+    return named, alarms, spurious, misses
 
 
 def test_generator_is_seeded_and_keeps_the_truth_apart(tmp_path):
@@ -56,7 +75,7 @@ def test_generator_is_seeded_and_keeps_the_truth_apart(tmp_path):
     assert case1.effect in VOLTAGE_EFFECTS
     assert 'truth' not in rec1.meta and set(rec1.meta) == {'source', 'seed'}
     path = tmp_path / 'case.csv'
-    write_case(rec1, path)
+    write_csv(rec1, path, {'source': 'motor_id.hidden', 'seed': rec1.meta['seed']})
     text = path.read_text()
     assert case1.effect not in text and 'truth' not in text
     back = read_csv(path)
@@ -64,26 +83,46 @@ def test_generator_is_seeded_and_keeps_the_truth_apart(tmp_path):
     json.dumps(case1.to_dict())
 
 
-def test_generator_draws_every_effect_inside_its_range():
+def test_generator_draws_every_effect_inside_its_range_and_a_wrong_r_m():
+    errors = []
     for k, effect in enumerate(VOLTAGE_EFFECTS):
         rec, case = make_case(50 + k, effect)
         assert case.effect == effect and case.effect_params
         rec.validate()
         assert case.excitation not in NOT_REVEALED_BY.get(effect, ())
-    _, clean = make_case(3, 'none')
-    assert clean.effect_params == {}
+        errors.append(case.known['R_m_error'])
+        assert case.known['R_m'] == pytest.approx(case.motor['R_m'] *
+                                                  (1 + case.known['R_m_error']), rel=1e-12)
+    assert all(0.02 <= abs(e) <= 0.05 for e in errors)
+    assert min(errors) < 0 < max(errors)
+    _, exact = make_case(3, 'none', r_m_error=0.0)
+    assert exact.known['R_m'] == exact.motor['R_m'] and exact.effect_params == {}
 
 
-def test_hidden_effects_are_named_and_clean_data_gives_none():
-    """22 hidden-effect cases (2 per effect) and 8 clean cases, fixed seeds."""
-    hit_rate, alarms = _sweep(SEEDS_PER_EFFECT, CLEAN_SEEDS)
-    assert hit_rate >= 0.8
-    assert alarms <= 1
+def test_quantised_channels_sit_exactly_on_their_grid():
+    rec, case = make_case(11, 'speed_quantization')
+    q = case.effect_params['q']
+    np.testing.assert_allclose(rec.speed / q, np.round(rec.speed / q), atol=1e-9)
+    rec, case = make_case(12, 'current_quantization')
+    q = case.effect_params['q_i']
+    np.testing.assert_allclose(rec.current / q, np.round(rec.current / q), atol=1e-9)
+
+
+def test_hidden_effects_quick_set():
+    """An encoder grid, heating, a brush drop and a clean case, R_m 2-5 % off."""
+    named, alarms, spurious, misses = _score([(e, _seed(e, 0)) for e in QUICK])
+    assert named == len(QUICK) - 1
+    assert alarms == 0 and spurious == 0 and misses == []
 
 
 @pytest.mark.slow
 def test_hidden_effects_sweep():
-    """88 hidden-effect cases (8 per effect) and 30 clean cases."""
-    hit_rate, alarms = _sweep(SLOW_SEEDS_PER_EFFECT, SLOW_CLEAN_SEEDS)
-    assert hit_rate >= 0.8
-    assert alarms <= 1
+    """3 cases per effect (36) and 12 clean cases, R_m 2-5 % off."""
+    cases = [(e, _seed(e, k)) for e in VOLTAGE_EFFECTS for k in range(SLOW_SEEDS_PER_EFFECT)]
+    cases += [('none', s) for s in SLOW_CLEAN_SEEDS]
+    named, alarms, spurious, misses = _score(cases)
+    n = len(VOLTAGE_EFFECTS) * SLOW_SEEDS_PER_EFFECT
+    assert named >= n - 2
+    assert alarms == 0
+    assert spurious <= 2
+    assert len(misses) <= 2

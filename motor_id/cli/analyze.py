@@ -4,7 +4,7 @@ import os
 import sys
 
 from motor_id.data.load import load_recording
-from motor_id.discrepancy import DiscrepancyAnalysis, plot_report
+from motor_id.analysis import DiscrepancyAnalysis, plot_report
 from motor_id.errors import ConfigError
 
 def add_arguments(parser):

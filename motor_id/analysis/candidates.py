@@ -1,0 +1,285 @@
+"""Candidate fits: each effect of the catalogue warm-started on the data's own scale.
+
+Every candidate starts from a grid of its parameters (the :class:`motor_id.model.
+EffectParam` start grids, on this recording's scales) simulated in one batch at the
+reference model's parameters; the best distinct points start a least-squares refinement
+of the physical and effect parameters. A fit that cannot produce a finite model (an
+exception of the fitter or the simulator, a diverging simulation) comes back as a
+:class:`ModelScore` with ``failed`` set, never as an exception.
+"""
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from motor_id.analysis.report import ModelScore
+from motor_id.errors import MotorIdError
+from motor_id.identify import Identifier
+from motor_id.model import EFFECTS
+from motor_id.simulate import simulate_batch
+
+FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
+"""What a candidate's fit may raise; each is recorded as a failed candidate."""
+
+
+def grid_only(effect):
+    """Parameters of ``effect`` found by its grid only (integer ones), never refined."""
+    return tuple(p.name for p in EFFECTS[effect].params if p.spacing == 'integer')
+
+
+def data_scales(rec, physical, R_m, T, dt, max_delay, counted=False):
+    """The scales of :data:`motor_id.model.SCALES` measured on one recording.
+
+    ``counted``: the speed sits on an encoder grid (a count difference per period).
+    """
+    u_max = float(np.max(np.abs(rec.input))) or 1.0
+    w_max = float(np.max(np.abs(rec.speed))) or 1.0
+    tau = physical['K_T'] * u_max / physical['R_m'] if rec.input_kind == 'voltage' \
+        else u_max
+    i_rms = float(np.sqrt(np.mean(rec.current ** 2))) if rec.has_current \
+        else u_max / (R_m or 1.0)
+    i_rms = i_rms or 1.0
+    return {'one': 1.0, 'torque': tau, 'input': u_max, 'speed': w_max,
+            'torque/speed^2': tau / w_max ** 2, 'record': T, 'sample': dt,
+            'per_record': 1.0 / T, 'per_sample': 1.0 / dt,
+            'heating': (R_m or 1.0) / (i_rms ** 2 * T), 'max_delay': float(max_delay),
+            'current': float(np.std(rec.current)) if rec.has_current else 1.0,
+            'lag_floor': dt if counted else 0.5 * dt}
+
+
+def _distinct(grid, a, b):
+    """True when grid rows a and b differ by more than a factor 2 in some parameter."""
+    for v in grid.values():
+        x, y = abs(v[a]), abs(v[b])
+        if np.sign(v[a]) != np.sign(v[b]) or max(x, y) > 2 * min(x, y):
+            return True
+    return False
+
+
+class CandidateFitter:
+    """Fits the linear model and its extensions on the training blocks of one split.
+
+    Parameters
+    ----------
+    rec : Recording
+    split : HeldOutSplit
+    R_m : float or None
+        Armature resistance [Ohm] the fits use (voltage plants).
+    random_state : int or None
+        Seed of the linear model's GA.
+    starts : int
+        Distinct grid points each candidate's refinement starts from.
+    max_delay : int
+        Largest input delay tried [samples].
+    R_m_tolerance : float
+        Relative standard deviation of the Identifier's prior on R_m.
+    """
+
+    def __init__(self, rec, split, R_m=None, random_state=0, starts=2, max_delay=40,
+                 R_m_tolerance=0.10):
+        self.rec = rec
+        self.R_m_tolerance = R_m_tolerance
+        self.split = split
+        self.R_m = R_m
+        self.random_state = random_state
+        self.starts = starts
+        self.max_delay = max_delay
+        self.scales = {}
+        self.resistance = None
+        self.extra_starts = {}
+        self.linear_estimator = None
+
+    # ----------------------------------------------------------------- fitting
+    def identifier(self, **kw):
+        """An :class:`Identifier` with this analysis' resistance, its prior and seed."""
+        return Identifier(R_m=self.R_m, random_state=self.random_state,
+                          R_m_tolerance=self.R_m_tolerance, **kw)
+
+    def fit_model(self, effects, free, start, weight=True):
+        """Refine ``effects`` (``free``: 'effect.param' entries) from ``start``."""
+        kw = {}
+        if effects:
+            kw = {'effects': effects, 'free_effects': free}
+        est = self.identifier(start=start, use_ga=False, **kw)
+        bounds = {fe: self.bounds_for(fe) for fe in free}
+        if bounds:
+            est.bounds = bounds
+        sw = self.split.train.astype(float) if weight else None
+        with np.errstate(all='ignore'):
+            est.fit(self.rec, sample_weight=sw)
+        return est
+
+    def bounds_for(self, key):
+        """Search range of ``effect.param`` on this recording's scale."""
+        e, _, p = key.partition('.')
+        spec = {q.name: q for q in EFFECTS[e].params}[p]
+        return spec.search_range(self.scales)
+
+    def score(self, name, est, n_extra, t0):
+        """A :class:`ModelScore` (errors on the split) from a fitted Identifier."""
+        res = est.result_
+        preds = [np.asarray(res.prediction[c]) for c in self.split.channels]
+        e_tr, e_te, sub = self.split.errors(preds)
+        params, eff = {}, {}
+        for e, vals in res.effects.items():
+            eff[e] = {}
+            for p, v in vals.items():
+                if isinstance(v, dict):
+                    params[f'{e}.{p}'] = {'value': v['value'], 'std': v['std'],
+                                          'determined': v['determined']}
+                    eff[e][p] = v['value']
+                else:
+                    eff[e][p] = float(v)
+                    if p in grid_only(e):
+                        params[f'{e}.{p}'] = {'value': float(v), 'std': None,
+                                              'determined': True, 'grid': True}
+        s = ModelScore(name=name, effects=eff, parameters=params, heldout_error=e_te,
+                       train_error=e_tr, n_extra=n_extra, physical=dict(est.params_),
+                       x0=dict(res.fit.get('initial_state', {})),
+                       prediction={'preds': preds, 'sub': sub},
+                       seconds=time.perf_counter() - t0)
+        s.at_bound = self._at_bound(est, eff)
+        if not math.isfinite(e_te):
+            s.failed = 'the simulation diverges (non-finite prediction)'
+        return s
+
+    def _at_bound(self, est, eff):
+        out = []
+        for key, (lo, hi) in (est.bounds or {}).items():
+            e, _, p = key.partition('.')
+            if e not in eff or p not in eff[e]:
+                continue
+            v, tol = eff[e][p], 1e-3 * (hi - lo)
+            if (lo != 0.0 and v <= lo + tol) or v >= hi - tol:
+                out.append(key)
+        return out
+
+    def start(self, ref, effects):
+        """Start values: the physical parameters of ``ref`` plus effect values."""
+        start = dict(ref.physical)
+        for e, vals in effects.items():
+            for p, v in vals.items():
+                start[f'{e}.{p}'] = v
+        return start
+
+    # --------------------------------------------------------------- candidates
+    def fit(self, name, ref, prior=None, seed=None):
+        """Fit ``name`` (on top of the effects of ``prior``); a failure is recorded.
+
+        Parameters
+        ----------
+        name : str
+        ref : ModelScore
+            The linear model (or the model the candidate extends).
+        prior : ModelScore, optional
+            A fitted model whose effects are kept (and refitted) under the new one.
+        seed : ModelScore, optional
+            Supplies the starting physical parameters and initial state instead.
+
+        Returns
+        -------
+        ModelScore
+        """
+        t0 = time.perf_counter()
+        label = '+'.join(([prior.name] if prior else []) + [name])
+        try:
+            with np.errstate(all='ignore'):
+                s = self._fit(name, ref, prior, seed, t0)
+        except FIT_ERRORS as exc:
+            s = ModelScore(name=label, effects={name: {}},
+                           failed=f'{type(exc).__name__}: {str(exc).splitlines()[0][:200]}'
+                           if str(exc) else type(exc).__name__)
+        s.name = label
+        s.seconds = time.perf_counter() - t0
+        return s
+
+    def _fit(self, name, ref, prior, seed, t0):
+        base = prior or ref
+        if seed is not None:
+            base = dataclasses.replace(base, physical=dict(seed.physical), x0=dict(seed.x0))
+        fixed_eff = {e: dict(v) for e, v in (prior.effects if prior else {}).items()}
+        free_prior = [f'{e}.{p}' for e, v in fixed_eff.items() for p in v
+                      if p not in grid_only(e)]
+        if grid_only(name):
+            return self._fit_integer(name, base, fixed_eff, free_prior, t0)
+        grid = EFFECTS[name].start_grid(self.scales)
+        rows = self.grid_best(base, name, grid, fixed_eff, top=self.starts)
+        extra = self.extra_starts.get(name)
+        if extra and set(extra) == set(rows[0] if rows else extra):
+            rows.append({p: float(np.clip(v, *self.bounds_for(f'{name}.{p}')))
+                         for p, v in extra.items()})
+        best = None
+        for row in rows:  # a few distinct starts: some effects have local minima
+            eff = {**fixed_eff, name: row}
+            free = free_prior + [f'{name}.{p}' for p in row]
+            est = self.fit_model(eff, free, self.start(base, eff))
+            s = self.score(name, est, base.n_extra + len(row), t0)
+            if best is None or s.train_error < best.train_error:
+                best = s
+        if best is None:
+            raise ArithmeticError('every start point of the grid gives a non-finite cost')
+        return best
+
+    def _fit_integer(self, name, base, fixed_eff, free_prior, t0):
+        """A grid-only parameter (a delay): the two best grid points, then climb."""
+        pname = grid_only(name)[0]
+        grid = EFFECTS[name].start_grid(self.scales)
+        lo, hi = int(grid[pname].min()), int(grid[pname].max())
+        rows = self.grid_best(base, name, grid, fixed_eff, top=2)
+        tried = {}
+
+        def fit_at(d):
+            if d not in tried and lo <= d <= hi:
+                eff = {**fixed_eff, name: {pname: float(d)}}
+                est = self.fit_model(eff, free_prior, self.start(base, fixed_eff))
+                tried[d] = self.score(name, est, base.n_extra + 1, t0)
+            return tried.get(d)
+
+        for row in rows:
+            fit_at(int(row[pname]))
+        if not tried:
+            raise ArithmeticError('every delay of the grid gives a non-finite cost')
+        while True:  # the grid ran at the reference parameters: climb to the best d
+            d_best = min(tried, key=lambda d: tried[d].train_error)
+            for d in (d_best - 1, d_best + 1):
+                fit_at(d)
+            if min(tried, key=lambda d: tried[d].train_error) == d_best:
+                return tried[d_best]
+
+    def grid_best(self, ref, name, grid, fixed_effects=None, top=1):
+        """Start rows ``[{param: value}]``: the best ``top`` distinct grid points."""
+        P = next(iter(grid.values())).size
+        effects = {e: dict(v) for e, v in (fixed_effects or {}).items()}
+        effects[name] = {**{p: np.full(P, v) for p, v in EFFECTS[name].defaults().items()},
+                         **grid}
+        phys = dict(ref.physical)
+        x0 = np.array(list(ref.x0.values())) if ref.x0 else None
+        with np.errstate(all='ignore'):
+            out = simulate_batch(phys, self.rec.time, self.rec.input, self.rec.input_kind,
+                                 'zoh', effects, x0)
+            cost = np.zeros(P)
+            for c, y, s in zip(self.split.channels, self.split.ys, self.split.scales):
+                r = (out[c] - y[None, :]) / s
+                cost += np.mean(r[:, self.split.train] ** 2, axis=1)
+        cost = np.where(np.isfinite(cost), cost, np.inf)
+        picked = []
+        for k in np.argsort(cost):
+            if len(picked) >= top or not np.isfinite(cost[k]):
+                break
+            if all(_distinct(grid, k, j) for j in picked):
+                picked.append(k)
+        return [{p: float(v[k]) for p, v in grid.items()} for k in picked]
+
+    # --------------------------------------------------------------- linear model
+    def fit_linear(self, generations):
+        """The linear model: GA and refinement on the training blocks."""
+        t0 = time.perf_counter()
+        est = self.identifier(generations=generations)
+        with np.errstate(all='ignore'):
+            est.fit(self.rec, sample_weight=self.split.train.astype(float))
+        s = self.score('linear', est, 0, t0)
+        self.resistance = est.result_.to_dict().get('resistance')
+        self.linear_estimator = est
+        return s

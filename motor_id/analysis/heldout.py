@@ -1,0 +1,186 @@
+"""Held-out split, noise floor and the normalised simulation errors the analysis scores."""
+
+import math
+
+import numpy as np
+
+from motor_id.errors import ConfigError
+
+
+def heldout_mask(n, n_blocks=10, every=3, first=2):
+    """Boolean mask of held-out samples: blocks ``first, first + every, ...``.
+
+    Parameters
+    ----------
+    n : int
+        Number of samples.
+    n_blocks : int
+        Number of equal blocks the record is cut into.
+    every, first : int
+        Every ``every``-th block from block ``first`` on is held out (defaults: blocks
+        2, 5, 8 of 10, i.e. 30 %).
+
+    Returns
+    -------
+    mask : ndarray of bool, shape (n,)
+        True on held-out samples.
+    blocks : list of (start, stop)
+        The held-out blocks.
+    """
+    if n_blocks < 2 or not 0 <= first < n_blocks or every < 1:
+        raise ConfigError('held-out blocks need n_blocks >= 2, 0 <= first < n_blocks, '
+                          'every >= 1')
+    edges = np.linspace(0, n, n_blocks + 1).astype(int)
+    mask = np.zeros(n, dtype=bool)
+    blocks = []
+    for b in range(first, n_blocks, every):
+        mask[edges[b]:edges[b + 1]] = True
+        blocks.append((int(edges[b]), int(edges[b + 1])))
+    return mask, blocks
+
+
+def noise_floor(y):
+    """Robust white-noise level of a smooth signal from its second differences.
+
+    For white noise of variance s^2 the second difference has variance 6 s^2; the median
+    absolute deviation ignores the few large differences at steps. A quantised signal
+    (most differences exactly zero) falls back to a trimmed RMS.
+
+    Parameters
+    ----------
+    y : array_like
+        One channel.
+
+    Returns
+    -------
+    float
+        The noise standard deviation, in the unit of ``y``.
+    """
+    y = np.asarray(y, dtype=float)
+    if y.size < 5:
+        return 0.0
+    with np.errstate(all='ignore'):
+        d2 = y[2:] - 2 * y[1:-1] + y[:-2]
+    d2 = d2[np.isfinite(d2)]
+    if d2.size == 0:
+        return 0.0
+    mad = np.median(np.abs(d2 - np.median(d2)))
+    if mad > 0:
+        return float(1.4826 * mad / math.sqrt(6.0))
+    cut = np.percentile(np.abs(d2), 99)
+    keep = d2[np.abs(d2) <= cut]
+    return float(np.sqrt(np.mean(keep * keep) / 6.0)) if keep.size else 0.0
+
+
+def binned_means(residual, variables, n_bins=8):
+    """Mean residual per bin of each explanatory variable.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (N,)
+    variables : dict of ndarray
+        Name -> values; names starting with ``sign(`` are binned by sign.
+    n_bins : int
+        Quantile bins for continuous variables.
+
+    Returns
+    -------
+    dict
+        Name -> ``{'centers', 'means', 'counts', 'explained'}``; ``explained`` is the
+        share of the residual variance that the binned means account for (0..1).
+    """
+    r = np.asarray(residual, dtype=float)
+    var = float(np.var(r))
+    out = {}
+    for name, x in variables.items():
+        x = np.asarray(x, dtype=float)
+        if name.startswith('sign('):
+            labels = np.sign(x).astype(int) + 1
+            centers = np.array([-1.0, 0.0, 1.0])
+            nb = 3
+        else:
+            edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
+            if edges.size < 2:
+                continue
+            labels = np.clip(np.searchsorted(edges, x, side='right') - 1, 0, edges.size - 2)
+            nb = edges.size - 1
+            centers = 0.5 * (edges[:-1] + edges[1:])
+        counts = np.bincount(labels, minlength=nb)
+        sums = np.bincount(labels, weights=r, minlength=nb)
+        means = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        fitted = np.nan_to_num(means)[labels]
+        explained = float(np.var(fitted) / var) if var > 0 else 0.0
+        keep = counts > 0
+        out[name] = {'centers': centers[keep].tolist(), 'means': means[keep].tolist(),
+                     'counts': counts[keep].tolist(), 'explained': explained}
+    return out
+
+
+class HeldOutSplit:
+    """The split of one recording and the errors of channel predictions on it.
+
+    Parameters
+    ----------
+    rec : Recording
+    n_blocks : int
+        Blocks of the split (see :func:`heldout_mask`).
+    quantization : dict, optional
+        ``{channel: (q, offset)}`` of the measurement grids found: the channel's noise
+        floor is at least ``q / sqrt(12)``, the error of rounding to the grid, and its
+        predictions are scored after rounding them to the grid as the sensor does (so
+        that the rounding error's structure is neither hidden nor taken for dynamics).
+    """
+
+    def __init__(self, rec, n_blocks=10, quantization=None):
+        self.channels = rec.channels()
+        self.ys = [getattr(rec, c) for c in self.channels]
+        self.scales = [float(np.std(y)) or 1.0 for y in self.ys]
+        self.test, self.blocks = heldout_mask(len(rec), n_blocks)
+        self.train = ~self.test
+        subs = []
+        for a, b in self.blocks:
+            e = np.linspace(a, b, 5).astype(int)
+            subs.extend(zip(e[:-1], e[1:]))
+        self.subblocks = subs
+        self.grids = dict(quantization or {})
+        floors = []
+        for c, y, s in zip(self.channels, self.ys, self.scales):
+            q = self.grids.get(c, (0.0, 0.0))[0]
+            floors.append(max(noise_floor(y), q / math.sqrt(12.0)) / s)
+        self.channel_floors = dict(zip(self.channels, floors))
+        self.floor = float(np.sqrt(np.mean(np.square(floors))))
+
+    def errors(self, preds):
+        """Train error, held-out error and per-sub-block SSE of channel predictions.
+
+        Errors are the RMS simulation error per channel divided by that channel's
+        standard deviation, combined as the RMS over channels; a non-finite prediction
+        gives infinite errors.
+        """
+        tr, te = [], []
+        sub = np.zeros(len(self.subblocks))
+        with np.errstate(all='ignore'):
+            for c, y, p, s in zip(self.channels, self.ys, preds, self.scales):
+                if c in self.grids:
+                    q, off = self.grids[c]
+                    p = q * np.round((p - off) / q) + off
+                r2 = ((y - p) / s) ** 2
+                tr.append(np.mean(r2[self.train]))
+                te.append(np.mean(r2[self.test]))
+                sub += [np.sum(r2[a:b]) for a, b in self.subblocks]
+            e_tr, e_te = float(np.sqrt(np.mean(tr))), float(np.sqrt(np.mean(te)))
+        if not (math.isfinite(e_tr) and math.isfinite(e_te)):
+            return math.inf, math.inf, np.full(len(self.subblocks), np.inf)
+        return e_tr, e_te, sub
+
+    def n_eff(self, preds):
+        """Training samples (all channels) reduced for the lag-1 autocorrelation of the
+        speed residual of ``preds``: the sample count of the BIC and the likelihood."""
+        k = self.channels.index('speed')
+        r = (self.ys[k] - preds[k])[self.train]
+        with np.errstate(all='ignore'):
+            rho = float(np.clip(np.corrcoef(r[:-1], r[1:])[0, 1], 0.0, 0.999)) \
+                if r.size > 3 and np.std(r) > 0 else 0.0
+        rho = rho if math.isfinite(rho) else 0.0
+        n = int(np.sum(self.train)) * len(self.channels)
+        return max(n * (1 - rho) / (1 + rho), 2.0)

@@ -1,0 +1,213 @@
+"""Equation-error (inverse dynamics) estimates: the mechanical and the electrical equation.
+
+Both regress a filtered equation on filtered regressors (parallel filtering, as in
+IDIM-LS): no simulation, so no drift of a free-run prediction and no dependence on the
+initial state. The mechanical one gives the published EMPS numbers; the electrical one,
+with the current measured, tells heating, a brush drop and a dead zone apart by the
+shape of the voltage each one removes.
+"""
+
+import numpy as np
+
+from motor_id.errors import ConfigError
+
+
+def _filter(dt, cutoff):
+    from scipy.signal import butter
+    wn = min(cutoff * 2 * dt, 0.99)
+    return butter(4, wn)
+
+
+def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None,
+                     delay=0, min_speed=0.02):
+    """Equation-error (inverse dynamics) least squares for a torque-input plant.
+
+    Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for) with
+    the speed, its derivative and the input all low-pass filtered by the same zero-phase
+    Butterworth filter (parallel filtering, as in IDIM-LS); the first and last 2 % of
+    samples are dropped, and with Coulomb friction the samples near rest.
+
+    Parameters
+    ----------
+    rec : Recording
+        ``input_kind == 'torque'``.
+    terms : sequence of str
+        Any of coulomb_friction, load_torque, quadratic_load.
+    cutoff : float, optional
+        Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
+    delay : int
+        Input delay in samples (from an ``input_delay`` effect).
+    min_speed : float
+        With Coulomb friction, samples slower than this fraction of the top speed are
+        left out (at rest the friction takes any value up to T_c).
+
+    Returns
+    -------
+    dict
+        ``parameters`` (J, B and ``effect.param`` values), ``relative_error`` (norm of the
+        equation residual over norm of the filtered input), ``cutoff``.
+    """
+    from scipy.signal import filtfilt
+
+    if rec.input_kind != 'torque':
+        raise ConfigError('inverse dynamics needs a torque-input recording')
+    t = rec.time
+    dt = float(np.mean(np.diff(t)))
+    cutoff = float(cutoff or 0.05 / dt)
+    b, a = _filter(dt, cutoff)
+    u = rec.input
+    if delay > 0:
+        u = np.concatenate([np.full(delay, u[0]), u[:-delay]])
+    w = filtfilt(b, a, rec.speed)
+    cols = _mechanical_columns(w, t, terms)
+    trim = max(1, int(0.02 * t.size))
+    keep = np.zeros(t.size, dtype=bool)
+    keep[trim:-trim] = True
+    if 'coulomb_friction' in terms:
+        # at rest the friction is anything up to T_c, not T_c sgn(w): leave out the
+        # samples near zero speed
+        keep &= np.abs(w) > min_speed * np.max(np.abs(w))
+    X = np.column_stack(list(cols.values()))[keep]
+    y = filtfilt(b, a, u)[keep]
+    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    res = y - X @ theta
+    cov = np.linalg.pinv(X.T @ X) * float(res @ res) / max(y.size - theta.size, 1)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    params = {k: {'value': float(v), 'std': float(s)} for k, v, s in zip(cols, theta, std)}
+    physical = bool(theta[0] > 0 and theta[1] >= 0 and all(
+        params[k]['value'] >= 0 for k in params if k in ('coulomb_friction.T_c',
+                                                         'quadratic_load.k_q')))
+    return {'parameters': params, 'cutoff': cutoff, 'delay': int(delay),
+            'physical': physical,
+            'relative_error': float(np.linalg.norm(res) / (np.linalg.norm(y) or 1.0)),
+            'model': 'u = J dw/dt + B w' + ''.join(MECHANICAL_TERMS[k] for k in terms
+                                                    if k in MECHANICAL_TERMS)}
+
+
+MECHANICAL_TERMS = {'coulomb_friction': ' + T_c sgn(w)', 'load_torque': ' + T_L',
+                    'quadratic_load': ' + k_q w|w|'}
+"""Torque terms the mechanical equation error can carry, and how they read."""
+
+
+def _mechanical_columns(w, t, terms):
+    """Regressors of ``u = J dw/dt + B w + ...`` from the filtered speed."""
+    cols = {'J': np.gradient(w, t), 'B': w}
+    if 'coulomb_friction' in terms:
+        cols['coulomb_friction.T_c'] = np.sign(w)
+    if 'load_torque' in terms:
+        cols['load_torque.T_L'] = np.ones_like(w)
+    if 'quadratic_load' in terms:
+        cols['quadratic_load.k_q'] = w * np.abs(w)
+    return cols
+
+
+ELECTRICAL_TERMS = ('resistance_drift', 'brush_drop', 'dead_zone')
+"""Voltage-side effects the electrical equation error tells apart."""
+
+
+def _heating_regressor(t, i, tau):
+    """First-order lag of i^2 from zero (a winding that starts cold) times i."""
+    from scipy.signal import lfilter
+    dt = float(np.mean(np.diff(t)))
+    a = np.exp(-dt / tau)
+    h = lfilter([1.0 - a], [1.0, -a], i * i)
+    return h * i
+
+
+def _electrical_columns(rec, scales):
+    """Candidate regressors ``{effect: [(param value, column), ...]}`` (unfiltered)."""
+    t, u, i = rec.time, rec.input, rec.current
+    T = float(t[-1] - t[0])
+    u_max = float(np.max(np.abs(u))) or 1.0
+    cols = {'brush_drop': [(None, np.sign(i))],
+            'dead_zone': [(f * u_max, np.sign(u) * np.minimum(np.abs(u), f * u_max))
+                          for f in (0.02, 0.05, 0.1, 0.2, 0.3, 0.45)],
+            'resistance_drift': [(f * T, _heating_regressor(t, i, f * T))
+                                 for f in (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)]}
+    return cols
+
+
+def electrical_evidence(rec, cutoff=None):
+    """Which voltage-side effect the electrical equation error points to, and R_m.
+
+    Regresses the filtered voltage on the filtered current, its derivative and the
+    speed (``V = R_m i + L_m di/dt + K_b w``), then on each of: the heating term
+    ``h(t) i`` (h a first-order lag of i^2 with time constant tau_th: the voltage error
+    grows with the integral of i^2), the brush term ``sgn(i)`` (follows the current at
+    once) and the dead-zone term ``sgn(V) min(|V|, V_dz)`` (follows the input). A term
+    with a negative coefficient explains nothing.
+
+    Parameters
+    ----------
+    rec : Recording
+        A voltage plant with the current measured.
+    cutoff : float, optional
+        Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
+
+    Returns
+    -------
+    dict
+        ``explained`` (share of the base equation error each term removes),
+        ``favoured`` (the term that removes clearly most, or None), ``R_m`` (the
+        resistance estimate under the favoured term, else the base one), ``R_m_base``,
+        ``parameter`` (tau_th or V_dz of the best grid point), ``start`` (each term's
+        effect parameters from the regression: refinement starts).
+    """
+    from scipy.signal import filtfilt
+
+    if rec.input_kind != 'voltage' or not rec.has_current:
+        raise ConfigError('the electrical equation needs a voltage plant with current')
+    t = rec.time
+    dt = float(np.median(np.diff(t)))
+    b, a = _filter(dt, float(cutoff or 0.05 / dt))
+
+    def f(x):
+        return filtfilt(b, a, x)
+
+    i_f = f(rec.current)
+    base = np.column_stack([i_f, np.gradient(i_f, t), f(rec.speed)])
+    y = f(rec.input)
+    trim = max(1, int(0.02 * t.size))
+    sl = slice(trim, t.size - trim)
+    th0, rss0 = _lstsq(base[sl], y[sl])
+    explained, best, R, starts = {}, {}, {}, {}
+    for name, cols in _electrical_columns(rec, None).items():
+        explained[name], best[name], R[name] = 0.0, None, float(th0[0])
+        coef = 0.0
+        for value, col in cols:
+            with np.errstate(all='ignore'):
+                rho = abs(np.corrcoef(col, rec.input)[0, 1])
+            if rho > 0.995:
+                continue  # a term proportional to the input (a binary input): no evidence
+            X = np.column_stack([base, f(col)])[sl]
+            th, rss = _lstsq(X, y[sl])
+            gain = 1.0 - rss / rss0 if rss0 > 0 else 0.0
+            if th[-1] > 0 and gain > explained[name]:
+                explained[name], best[name], R[name] = float(gain), value, float(th[0])
+                coef = float(th[-1])
+        starts[name] = _start_values(name, best[name], coef)
+    order = sorted(explained, key=lambda k: -explained[k])
+    top, second = explained[order[0]], explained[order[1]]
+    favoured = order[0] if top >= 0.2 and top >= 1.5 * second + 0.05 else None
+    return {'explained': explained, 'favoured': favoured, 'parameter': best,
+            'R_m': R[favoured] if favoured else float(th0[0]), 'R_m_base': float(th0[0]),
+            'start': {k: v for k, v in starts.items() if v and explained[k] > 0},
+            'model': 'V = R_m i + L_m di/dt + K_b w [+ term]'}
+
+
+def _start_values(name, value, coef):
+    """Effect parameters from the equation error's best term (start of a refinement)."""
+    if value is None and name != 'brush_drop':
+        return {}
+    if name == 'brush_drop':
+        return {'V_b': coef} if coef > 0 else {}
+    if name == 'dead_zone':
+        return {'V_dz': value}
+    # the heating regressor has unit DC gain: dR = k_h tau_th h, so coef = k_h tau_th
+    return {'k_h': coef / value, 'tau_th': value}
+
+
+def _lstsq(X, y):
+    theta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    r = y - X @ theta
+    return theta, float(r @ r)

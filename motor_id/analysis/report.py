@@ -1,0 +1,306 @@
+"""Results of the discrepancy analysis: scored models, the report, its summary and plots."""
+
+from dataclasses import dataclass, field
+import math
+
+
+@dataclass
+class ModelScore:
+    """One candidate model (one effect or a combination) and how it did.
+
+    ``failed`` holds the reason when the fit could not produce a finite model (an
+    exception, a diverging simulation); such a model is never significant.
+    ``components`` (combinations) maps each effect to its own gain alone and its
+    marginal gain on top of the others.
+    """
+
+    name: str
+    effects: dict
+    parameters: dict = field(default_factory=dict)
+    gain: float = 0.0
+    heldout_error: float = math.inf
+    train_error: float = math.inf
+    block_wins: float = 0.0
+    n_extra: int = 0
+    delta_bic: float = 0.0
+    significant: bool = False
+    at_bound: list = field(default_factory=list)
+    implausible: str = ''
+    failed: str = ''
+    components: dict = field(default_factory=dict)
+    reference: str = 'linear'
+    gain_over_reference: float = 0.0
+    physical: dict = field(default_factory=dict, repr=False)
+    x0: dict = field(default_factory=dict, repr=False)
+    prediction: dict = field(default_factory=dict, repr=False)
+    seconds: float = 0.0
+
+    def to_dict(self):
+        """The report's ``effects`` entry: name, parameters, gain, evidence."""
+        ev = {'kind': 'dynamic', 'heldout_error': _finite(self.heldout_error),
+              'train_error': _finite(self.train_error),
+              'heldout_blocks_improved': self.block_wins,
+              'extra_parameters': self.n_extra, 'delta_bic': _finite(self.delta_bic),
+              'at_search_limit': self.at_bound, 'implausible': self.implausible,
+              'significant': self.significant, 'seconds': self.seconds}
+        if self.failed:
+            ev['failed'] = self.failed
+        if self.components:
+            ev['components'] = self.components
+            ev['reference'] = self.reference
+            ev['gain_over_reference'] = _finite(self.gain_over_reference)
+        return {'name': self.name, 'parameters': self.parameters,
+                'gain': _finite(self.gain), 'evidence': ev}
+
+
+def _finite(v):
+    """None for a non-finite number (JSON has no inf)."""
+    return float(v) if v is not None and math.isfinite(v) else None
+
+
+@dataclass
+class DiscrepancyReport:
+    """The analysis result; :meth:`to_dict` is the ``--json`` shape.
+
+    ``verdict`` names the chosen dynamic effects and then the measurement effects found,
+    joined by ``+`` (``'none'`` when there are neither); ``effects`` lists the
+    measurement effects first, then every dynamic model tried (chosen first).
+    """
+
+    verdict: str
+    effects: list
+    unexplained: bool
+    ambiguous_with: list
+    parameters: dict
+    baseline: dict
+    chosen: dict
+    diagnostics: dict
+    heldout: dict
+    input_kind: str
+    channels: tuple
+    measurement: dict = field(default_factory=dict)
+    failed: list = field(default_factory=list)
+    inverse_dynamics: dict = None
+    plot_data: dict = field(default_factory=dict, repr=False)
+    seconds: float = 0.0
+
+    def to_dict(self):
+        """JSON-ready dict (the documented keys first)."""
+        d = {'verdict': self.verdict,
+             'effects': [e.to_dict() for e in self.effects],
+             'unexplained': self.unexplained,
+             'ambiguous_with': self.ambiguous_with,
+             'parameters': self.parameters,
+             'baseline': self.baseline,
+             'chosen': self.chosen,
+             'measurement': self.measurement,
+             'failed': self.failed,
+             'diagnostics': self.diagnostics,
+             'heldout': self.heldout,
+             'input_kind': self.input_kind,
+             'channels': list(self.channels),
+             'seconds': self.seconds}
+        if self.inverse_dynamics is not None:
+            d['inverse_dynamics'] = self.inverse_dynamics
+        return d
+
+    def summary(self):
+        """A readable report for people."""
+        lines = _fit_lines(self) + _diagnostic_lines(self.diagnostics)
+        lines += _measurement_lines(self) + _candidate_lines(self)
+        lines += _parameter_lines(self)
+        lines.append(f'analysis time {self.seconds:.2f} s')
+        return '\n'.join(lines)
+
+
+def _fit_lines(rep):
+    h = rep.heldout
+    lines = [f'linear model: held-out error {h["base_error"]:.4g} '
+             f'(noise floor {h["noise_floor"]:.4g}; errors are RMS / channel std)']
+    for ch, m in rep.baseline['fit']['channels'].items():
+        after = ''
+        if rep.chosen.get('fit'):
+            after = (f' -> {rep.chosen["fit"]["channels"][ch]["fit_percent"]:.2f} % '
+                     f'with {rep.chosen["name"]}')
+        lines.append(f'  {ch} fit on all data: {m["fit_percent"]:.2f} %{after}')
+    return lines
+
+
+def _diagnostic_lines(diag):
+    lines = []
+    for ch, dd in diag['residual'].items():
+        lines.append(f'  {ch} residual: {100 * dd["autocorrelation_outside"]:.0f} % of '
+                     f'autocorrelation lags and {100 * dd["cross_correlation_outside"]:.0f}'
+                     f' % of input cross-correlation lags outside the 99 % band')
+        top = sorted(diag['binned'][ch].items(), key=lambda kv: -kv[1]['explained'])[:3]
+        lines.append('    binned means explain ' + ', '.join(
+            f'{k} {100 * v["explained"]:.0f} %' for k, v in top) + ' of its variance')
+    ms = diag['steady_state']
+    if ms.get('n_points'):
+        parts = []
+        for side in ('positive', 'negative'):
+            if side in ms:
+                z = ms[side]['zero_speed_input']
+                parts.append(f'{side} side: speed = {ms[side]["slope"]:.4g} u '
+                             f'{ms[side]["intercept"]:+.4g}' +
+                             ('' if z is None else f' (zero at u = {z:.4g})'))
+        lines.append(f'  steady-state map: {ms["n_points"]} plateau(s)' +
+                     (('; ' + '; '.join(parts)) if parts else ''))
+    el = diag.get('electrical')
+    if el and el.get('favoured'):
+        lines.append(f'  electrical equation error favours {el["favoured"]} among '
+                     f'{", ".join(sorted(el["explained"]))}')
+    return lines
+
+
+def _measurement_lines(rep):
+    lines = []
+    for ch, ev in rep.measurement.items():
+        if ev['found']:
+            lines.append(f'measurement: {ch} on a grid of {ev["q"]:.5g} (coherence '
+                         f'{ev["coherence"]:.3f} over {ev["n_moving"]} moving samples, '
+                         f'p = {ev["p_value"]:.2g})' + (f'; {ev["note"]}' if 'note' in ev
+                                                        else ''))
+        elif ev['q'] > 0 and ev['coherence'] >= 0.5:
+            lines.append(f'measurement: {ch}: {ev["reason"]}')
+    for e in rep.effects:
+        if e.to_dict()['evidence']['kind'] == 'measurement' and 'counts_per_revolution' \
+                in e.extra:
+            lines.append(f'  implied encoder resolution: '
+                         f'{e.extra["counts_per_revolution"]:.4g} counts per revolution')
+    return lines
+
+
+def _candidate_lines(rep):
+    lines = [f'{"candidate":<42}{"gain":>8}{"held-out":>11}  parameters']
+    for e in rep.effects:
+        d = e.to_dict()
+        if d['evidence']['kind'] == 'measurement':
+            continue
+        pv = ', '.join(f'{k.split(".")[-1]}={v["value"]:.4g}'
+                       for k, v in e.parameters.items() if v.get('value') is not None)
+        if e.failed:
+            lines.append(f'{e.name:<42}{"failed":>8}{"":>11}  {e.failed}')
+            continue
+        flag = '' if e.significant else '  (not significant)'
+        lines.append(f'{e.name:<42}{100 * e.gain:>7.1f}%{e.heldout_error:>11.4g}  '
+                     f'{pv}{flag}')
+        for comp, g in e.components.items():
+            lines.append(f'    {comp}: alone {100 * g["alone"]:.1f} %, on top of the '
+                         f'rest {100 * g["marginal"]:.1f} %')
+    lines.append(f'verdict: {rep.verdict}')
+    for a in rep.ambiguous_with:
+        lines.append(f'  cannot be told apart from {a["name"]} with this excitation '
+                     f'(gain {100 * a["gain"]:.1f} %); to separate them: '
+                     f'{a["experiment"]}')
+    h = rep.heldout
+    ratio = h['final_error'] / h['noise_floor'] if h['noise_floor'] > 0 else float('inf')
+    lines.append(f'unexplained structure: {"yes" if rep.unexplained else "no"} '
+                 f'(held-out error {ratio:.2f} x noise floor)')
+    return lines
+
+
+def _parameter_lines(rep):
+    lines = [f'parameters under the chosen model ({rep.chosen.get("estimator", "")}):']
+    for k, v in rep.parameters.items():
+        if v.get('value') is None:
+            lines.append(f'  {k:<24}{"-":>14}  not determined')
+        else:
+            std = '' if v.get('std') is None else f' +- {v["std"]:.3g}'
+            lines.append(f'  {k:<24}{v["value"]:>14.6g}{std}')
+    idm = rep.inverse_dynamics
+    if idm:
+        lines.append(f'inverse dynamics (equation error, {idm["model"]}, filter '
+                     f'{idm["cutoff"]:.3g} Hz): relative error '
+                     f'{100 * idm["relative_error"]:.2f} %' +
+                     ('' if idm['physical'] else
+                      '; NOT physical (negative inertia or friction): the derivative '
+                      'of this speed is too noisy or too coarsely sampled'))
+        for k, v in idm['parameters'].items():
+            lines.append(f'  {k:<24}{v["value"]:>14.6g} +- {v["std"]:.3g}')
+    return lines
+
+
+def plot_report(report, path, title=None):
+    """Residuals before/after, the steady-state map and the gain per candidate, as PNG.
+
+    Parameters
+    ----------
+    report : DiscrepancyReport
+    path : str or Path
+        PNG file to write.
+    title : str, optional
+    """
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    pd = report.plot_data
+    chans = list(pd['channels'])
+    fig, axes = plt.subplots(2, 2, figsize=(13, 9), squeeze=False)
+    for k, ch in enumerate(chans[:2]):
+        _plot_residual(axes[0, k], report, k, ch)
+    _plot_map(axes[0, 1] if len(chans) < 2 else axes[1, 1], report)
+    _plot_gains(axes[1, 0], report)
+    if len(chans) < 2:
+        _plot_channel(axes[1, 1], report)
+    fig.suptitle(title or 'motor_id discrepancy analysis')
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _plot_residual(ax, report, k, ch):
+    pd = report.plot_data
+    t = pd['time']
+    ax.plot(t, pd['ys'][k] - pd['base'][k], lw=0.7, label='linear model')
+    if report.chosen['name'] != 'none':
+        ax.plot(t, pd['ys'][k] - pd['chosen'][k], lw=0.7, label=report.chosen['name'])
+    ylo, yhi = ax.get_ylim()
+    ax.fill_between(t, ylo, yhi, where=pd['test'], color='0.9', zorder=0, label='held out')
+    ax.set_ylim(ylo, yhi)
+    ax.set_title(f'{ch} residual (measured - simulated)')
+    ax.set_xlabel('time [s]')
+    ax.legend(loc='best', fontsize=8)
+
+
+def _plot_map(ax, report):
+    pts = report.plot_data['points']
+    if pts:
+        u = [p['input'] for p in pts]
+        ax.plot(u, [p['speed'] for p in pts], 'o', label='measured plateaus')
+        ax.plot(u, [p['speed_linear'] for p in pts], 'x', label='linear model')
+        if 'speed_chosen' in pts[0]:
+            ax.plot(u, [p['speed_chosen'] for p in pts], '+', ms=10,
+                    label=report.chosen['name'])
+        ax.legend(loc='best', fontsize=8)
+    ax.set_title('steady-state map')
+    ax.set_xlabel('input')
+    ax.set_ylabel('speed')
+
+
+def _plot_gains(ax, report):
+    items = [e for e in report.effects if e.to_dict()['evidence']['kind'] == 'dynamic']
+    items = [e for e in items if '+' not in e.name] + [e for e in items if '+' in e.name]
+    gains = [0.0 if e.failed else 100 * e.gain for e in items]
+    colors = ['tab:red' if e.failed else 'tab:blue' if e.name == report.chosen['name'] else
+              'tab:green' if e.significant else 'tab:gray' for e in items]
+    ax.barh(range(len(items)), gains, color=colors)
+    ax.set_yticks(range(len(items)))
+    ax.set_yticklabels([e.name for e in items], fontsize=7)
+    ax.invert_yaxis()
+    ax.axvline(100 * report.heldout['min_gain'], color='k', ls='--', lw=0.8)
+    ax.set_xlabel('held-out gain [%] (blue: chosen, green: significant, red: failed)')
+    ax.set_title(f'gain per candidate; verdict: {report.verdict}')
+
+
+def _plot_channel(ax, report):
+    pd = report.plot_data
+    t = pd['time']
+    ax.plot(t, pd['ys'][0], lw=0.8, color='k', label='measured')
+    ax.plot(t, pd['base'][0], lw=0.8, label='linear model')
+    if report.chosen['name'] != 'none':
+        ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.chosen['name'])
+    ax.set_title(f'{pd["channels"][0]}: measured and simulated')
+    ax.set_xlabel('time [s]')
+    ax.legend(loc='best', fontsize=8)

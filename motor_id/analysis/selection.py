@@ -1,0 +1,177 @@
+"""Model selection: significance against a reference, the verdict, combinations, ambiguity.
+
+A model counts as *significant* against its reference (the linear model for one effect,
+the best one-effect model for a second effect) when it cuts the reference's held-out
+error by at least ``min_gain`` and improves at least half of the held-out sub-blocks (or,
+when the held-out blocks are blind to a misfit the training blocks show, cuts the
+training error by ``4 min_gain`` without worsening the held-out error), beats it
+in BIC (with the sample count reduced for residual autocorrelation), has no parameter
+at a search limit and is plausible (:meth:`motor_id.model.EffectSpec.implausible`).
+"""
+
+import math
+
+import numpy as np
+
+from motor_id.model import EFFECTS
+
+EXPERIMENTS = {
+    frozenset(('coulomb_friction', 'load_torque')):
+        'reverse the motor (bipolar_steps with rests): Coulomb friction changes sign '
+        'with the speed, a constant load torque does not',
+    frozenset(('coulomb_friction', 'brush_drop')):
+        'measure the current and brake hard (steps down) so that the current reverses '
+        'while the speed keeps its sign: friction follows the speed, the brush drop the '
+        'current',
+    frozenset(('coulomb_friction', 'dead_zone')):
+        'measure the current and decelerate with the input still positive: friction '
+        'raises the current needed at a given speed, a dead zone lowers the voltage '
+        'that reaches the motor',
+    frozenset(('brush_drop', 'dead_zone')):
+        'braking steps in which the current reverses while the input keeps its sign: '
+        'a brush drop follows the current sign, a dead zone the input sign',
+    frozenset(('resistance_drift', 'brush_drop')):
+        'measure the current over a long run at a constant load: heating makes the '
+        'voltage error grow with the integral of i^2, a brush drop is there at once',
+    frozenset(('resistance_drift', 'dead_zone')):
+        'measure the current and repeat the same steps cold and warm: heating changes '
+        'the response over time, a dead zone does not',
+    frozenset(('load_torque', 'brush_drop')):
+        'reverse the motor: a brush drop changes sign with the current, a load torque '
+        'keeps its sign',
+    frozenset(('load_torque', 'dead_zone')):
+        'reverse the input: a dead zone is symmetric, a constant load is not',
+    frozenset(('quadratic_load', 'voltage_saturation')):
+        'a staircase of input levels below and above the suspected limit: a quadratic '
+        'load bends the steady-state map smoothly, saturation cuts it flat',
+    frozenset(('quadratic_load', 'coulomb_friction')):
+        'a staircase of several steady speeds: friction offsets the speed-input map by '
+        'a constant, a quadratic load bends it',
+    frozenset(('sensor_lag', 'input_delay')):
+        'fast steps or a PRBS with the current measured: a delay shifts the whole '
+        'response, a sensor lag smooths only the speed reading',
+    frozenset(('sensor_lag', 'resonance')):
+        'a multisine through the suspected resonance: a lag only attenuates, a '
+        'compliant shaft rings',
+    frozenset(('input_delay', 'resonance')):
+        'a multisine through the suspected resonance: a delay only shifts the phase, '
+        'a compliant shaft rings',
+}
+TORQUE_EXPERIMENTS = {
+    frozenset(('coulomb_friction', 'dead_zone')):
+        'log the current with its sign and brake with the torque reversed while the '
+        'shaft still turns: friction follows the speed sign, a dead zone the torque sign '
+        '(a torque whose sign is inferred from the speed makes both act alike)',
+    frozenset(('coulomb_friction', 'load_torque')):
+        'reverse the motion: friction changes sign with the speed, a constant load or '
+        'force offset does not',
+}
+"""Experiments for torque-input plants where they differ from :data:`EXPERIMENTS`."""
+GENERIC_EXPERIMENT = ('an excitation that visits more operating points: bipolar steps with '
+                      'rests at several amplitudes, a PRBS, and the current measured')
+
+
+def experiment(a, b, input_kind):
+    """The experiment that separates effects ``a`` and ``b``."""
+    key = frozenset((a, b))
+    return ((TORQUE_EXPERIMENTS.get(key) if input_kind == 'torque' else None)
+            or EXPERIMENTS.get(key, GENERIC_EXPERIMENT))
+
+
+def judge(score, ref, split, min_gain, scales):
+    """Gain, block wins, BIC and significance of ``score`` against ``ref`` (in place).
+
+    The gain is ``1 - error / error_ref`` on the held-out blocks.
+    """
+    if score.failed or not math.isfinite(score.heldout_error):
+        score.gain, score.significant = 0.0, False
+        return score
+    score.gain = float(1.0 - score.heldout_error / ref.heldout_error) \
+        if ref.heldout_error > 0 else 0.0
+    a, b = score.prediction['sub'], ref.prediction['sub']
+    score.block_wins = float(np.mean(a < b))
+    n_eff = split.n_eff(score.prediction['preds'])
+    dk = score.n_extra - ref.n_extra
+    if score.train_error > 0 and ref.train_error > 0:
+        score.delta_bic = float(n_eff * 2 * math.log(score.train_error / ref.train_error)
+                                + dk * math.log(n_eff))
+    if not score.implausible:
+        for e, vals in score.effects.items():
+            if e in EFFECTS and vals:
+                score.implausible = EFFECTS[e].implausible(vals, scales)
+                if score.implausible:
+                    break
+    heldout_ok = score.gain >= min_gain and score.block_wins >= 0.5
+    score.significant = bool((heldout_ok or _blind_heldout(score, ref, split, min_gain))
+                             and score.delta_bic < 0 and not score.at_bound
+                             and not score.implausible)
+    return score
+
+
+def _blind_heldout(score, ref, split, min_gain):
+    """True when the held-out blocks cannot see a misfit the training blocks show.
+
+    The reference already predicts the held-out blocks to the noise floor while its
+    training error is several times larger (the effect acts where no block was held
+    out, e.g. a winding heating up from cold at the start); then a candidate counts when
+    it cuts the training error by ``4 min_gain`` without worsening the held-out error.
+    """
+    floor = split.floor
+    blind = ref.heldout_error <= 1.2 * floor and ref.train_error >= 3.0 * floor
+    train_gain = 1.0 - score.train_error / ref.train_error if ref.train_error > 0 else 0.0
+    return bool(blind and train_gain >= 4 * min_gain and score.gain >= -0.01)
+
+
+def pick_single(singles, catalogue, structure, ambiguity, electrical=None):
+    """The chosen one-effect model, or None.
+
+    The best significant single by held-out error; when even it leaves structure,
+    error differences within ``ambiguity`` reflect the misfit, so the more common effect
+    (catalogue order) is named. Among heating, brush drop and dead zone the electrical
+    equation error (``electrical['favoured']``) decides when it is one of the
+    significant candidates.
+    """
+    sig = [s for s in singles if s.significant]
+    if not sig:
+        return None
+    chosen = sig[0]
+    if structure(chosen):
+        ties = [s for s in sig if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error]
+        chosen = min(ties, key=lambda s: catalogue.index(s.name))
+    fav = (electrical or {}).get('favoured')
+    trio = ('resistance_drift', 'brush_drop', 'dead_zone')
+    if fav and chosen.name in trio and fav != chosen.name:
+        alt = [s for s in sig if s.name == fav]
+        if alt:
+            chosen = alt[0]
+    return chosen
+
+
+def components(combo, singles, parts_error):
+    """Each effect's own gain alone and its marginal gain on top of the others.
+
+    ``parts_error`` maps each effect of the combination to the held-out error of the
+    combination without it.
+    """
+    out = {}
+    for e in combo.name.split('+'):
+        alone = next((s.gain for s in singles if s.name == e), 0.0)
+        rest = parts_error.get(e, math.inf)
+        marg = 1.0 - combo.heldout_error / rest if math.isfinite(rest) and rest > 0 else 0.0
+        out[e] = {'alone': float(alone), 'marginal': float(marg)}
+    return out
+
+
+def ambiguous(chosen, ranked, ambiguity, input_kind):
+    """Other significant single models as good as the chosen one, with experiments."""
+    out = []
+    for s in ranked:
+        if s is chosen or not s.significant or '+' in s.name:
+            continue
+        if s.name in chosen.name.split('+'):
+            continue
+        if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error:
+            main = chosen.name.split('+')[0]
+            out.append({'name': s.name, 'gain': s.gain,
+                        'experiment': experiment(main, s.name, input_kind)})
+    return out

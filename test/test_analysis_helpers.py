@@ -1,0 +1,82 @@
+"""Analysis helpers: held-out split, noise floor, binned means, steady-state map, IDIM, grids."""
+
+import numpy as np
+import pytest
+
+from motor_id.analysis import (binned_means, heldout_mask, inverse_dynamics, map_summary,
+                               noise_floor, steady_state_map)
+from motor_id.excitation import bipolar_steps, multisine
+from motor_id.model import EFFECTS, MotorParams, Plant, SCALES
+from motor_id.simulate import simulate_recording
+
+SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
+T = np.arange(4000) * 0.01
+
+
+def test_heldout_mask_holds_out_every_third_block():
+    mask, blocks = heldout_mask(1000)
+    assert blocks == [(200, 300), (500, 600), (800, 900)]
+    assert mask.sum() == 300 and mask[250] and not mask[150]
+
+
+def test_noise_floor_of_a_smooth_signal_is_its_white_noise():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 10, 5000)
+    y = np.sin(t) + 0.01 * rng.standard_normal(t.size)
+    assert noise_floor(y) == pytest.approx(0.01, rel=0.1)
+    q = np.round(5 * np.sin(t) / 0.1) * 0.1  # quantised: MAD of differences is zero
+    assert 0 < noise_floor(q) < 0.1
+
+
+def test_binned_means_attribute_a_sign_offset_to_the_sign():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(2000)
+    r = 0.5 * np.sign(x) + 0.05 * rng.standard_normal(x.size)
+    out = binned_means(r, {'x': x, 'sign(x)': x})
+    assert out['sign(x)']['explained'] == pytest.approx(1.0, abs=0.02)
+    assert out['sign(x)']['means'][0] == pytest.approx(-0.5, abs=0.01)
+
+
+def test_steady_state_map_shows_the_friction_offset():
+    rec = simulate_recording(Plant(SI_MOTOR, 'voltage', {'coulomb_friction': {'T_c': 0.1}}),
+                             T, bipolar_steps(T, 9.0))
+    summary = map_summary(steady_state_map(rec))
+    # zero speed needs R T_c / K_T = 0.35 V on each side (plateaus settle to ~1 %)
+    assert summary['positive']['zero_speed_input'] == pytest.approx(0.1 * 2.3 / 0.66, rel=0.1)
+    assert summary['negative']['zero_speed_input'] == pytest.approx(-0.1 * 2.3 / 0.66,
+                                                                    rel=0.1)
+
+
+def test_inverse_dynamics_recovers_a_simulated_torque_plant():
+    t = np.arange(20000) * 1e-3
+    u = 40 * multisine(t, 1.0, 0.1, 5.0, random_state=2)
+    truth = {'coulomb_friction': {'T_c': 5.0}, 'load_torque': {'T_L': -1.0}}
+    rec = simulate_recording(Plant(MotorParams(J=10.0, B=20.0), 'torque', truth), t, u)
+    out = inverse_dynamics(rec)
+    p = {k: v['value'] for k, v in out['parameters'].items()}
+    assert p['J'] == pytest.approx(10.0, rel=0.01)
+    assert p['B'] == pytest.approx(20.0, rel=0.01)
+    assert p['coulomb_friction.T_c'] == pytest.approx(5.0, rel=0.02)
+    assert p['load_torque.T_L'] == pytest.approx(-1.0, rel=0.02)
+    assert out['physical']
+
+
+def test_every_dynamic_effect_has_a_start_grid_and_search_range_on_the_data_scale():
+    scales = dict.fromkeys(SCALES, 1.0)
+    scales.update(torque=3.0, input=12.0, speed=200.0, record=40.0, sample=0.01,
+                  per_record=1 / 40, per_sample=100.0, max_delay=40.0)
+    scales['torque/speed^2'] = 3.0 / 200.0 ** 2
+    for name, spec in EFFECTS.items():
+        if spec.category != 'dynamic':
+            assert spec.channel in ('speed', 'current')
+            continue
+        grid = spec.start_grid(scales)
+        assert set(grid) == {p.name for p in spec.params}
+        for p in spec.params:
+            lo, hi = p.search_range(scales)
+            assert p.low <= lo < hi <= p.high
+            assert np.all((grid[p.name] >= lo) & (grid[p.name] <= hi)), (name, p.name)
+    assert EFFECTS['coulomb_friction'].start_grid(scales)['T_c'].max() == pytest.approx(1.5)
+    assert EFFECTS['input_delay'].start_grid(scales)['d'].tolist() == list(range(1, 41))
+    assert EFFECTS['resistance_drift'].implausible({'tau_th': 0.5}, scales)
+    assert not EFFECTS['resistance_drift'].implausible({'tau_th': 10.0}, scales)
