@@ -430,3 +430,16 @@ def test_fit_command_takes_a_robot_bag_with_the_mapping_flags(tmp_path, rec, cap
     params = yaml.safe_load(yml.read_text())['/**']['ros__parameters']
     assert params['estimate.J'] == pytest.approx(TRUE.J, rel=0.02)
     assert 'controller.kV' in params
+
+
+def test_analyze_command_takes_a_robot_bag_with_the_mapping_flags(tmp_path, rec, capsys):
+    """`motor-id analyze` reads the same mapping; a linear motor gives the verdict none."""
+    bag = write_robot_bag(tmp_path / 'robot', rec.slice(0, 1500), 'sqlite3')
+    out = tmp_path / 'analysis.json'
+    code = main(['analyze', str(bag), '-R', '2.3', '-q', *MAP, '--candidates',
+                 'coulomb_friction,brush_drop', '--json', str(out)])
+    assert code == 0, capsys.readouterr()
+    report = json.loads(out.read_text())
+    assert report['verdict'] == 'none'
+    assert report['channels'] == ['speed', 'current']
+    assert report['data']['samples'] == 1500

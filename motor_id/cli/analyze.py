@@ -3,16 +3,18 @@
 import os
 import sys
 
-from motor_id.data.load import load_recording
 from motor_id.analysis import DiscrepancyAnalysis, plot_report
+from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_from_args
 from motor_id.errors import ConfigError
 
 def add_arguments(parser):
     """CLI arguments of `motor-id analyze`."""
-    parser.add_argument('data', metavar='DATA', help='CSV (time,voltage,speed[,current]) '
-                                                     'or MCAP bag')
+    parser.add_argument('data', metavar='DATA', help=DATA_HELP)
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
-                        help='known armature resistance R_m [Ohm] (voltage plants)')
+                        help='armature resistance R_m [Ohm] as measured (voltage plants); '
+                             'with current data it is the prior of the estimate')
+    parser.add_argument('--resistance-tolerance', type=float, default=10.0, metavar='PCT',
+                        help='how good --resistance is, in %% (default 10)')
     parser.add_argument('--json', metavar='OUT', help='write the report as JSON')
     parser.add_argument('--plot', metavar='OUT.png', help='write the plots')
     parser.add_argument('--seed', type=int, default=0, help='GA seed of the linear fit')
@@ -21,11 +23,12 @@ def add_arguments(parser):
     parser.add_argument('--min-gain', type=float, default=0.05,
                         help='smallest held-out gain that counts (default 0.05)')
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
+    add_data_arguments(parser)
 
 
 def run(args):
     """Analyse the recording, print the report, write JSON / plots."""
-    rec = load_recording(args.data)
+    rec = load_from_args(args)
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(',') if c.strip()]
@@ -40,8 +43,12 @@ def run(args):
     progress(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
              f'{rec.input_kind} input, {"regular" if rec.is_regular else "irregular"} '
              f'sampling (median {rec.sample_period * 1e3:.3g} ms)')
+    if not 0 < args.resistance_tolerance <= 100:
+        raise ConfigError('--resistance-tolerance takes a percentage in (0, 100], got '
+                          f'{args.resistance_tolerance:g}')
     ana = DiscrepancyAnalysis(R_m=args.resistance, candidates=cands, random_state=args.seed,
-                              min_gain=args.min_gain)
+                              min_gain=args.min_gain,
+                              R_m_tolerance=args.resistance_tolerance / 100.0)
     ana.fit(rec, progress=progress)
     rep = ana.report_
     print(rep.summary())
@@ -49,9 +56,12 @@ def run(args):
         from motor_id.report import write_json
         out = rep.to_dict()
         out['data'] = {'source': rec.meta.get('source', str(args.data)), 'samples': len(rec)}
+        if 'shift_check' in rec.meta:
+            out['data']['shift_check'] = rec.meta['shift_check']
         write_json(out, args.json)
         print(f'wrote {args.json}')
     if args.plot:
-        plot_report(rep, args.plot, title=f'motor-id analyze: {os.path.basename(args.data)}')
+        name = os.path.basename(str(args.data).rstrip(os.sep))
+        plot_report(rep, args.plot, title=f'motor-id analyze: {name}')
         print(f'wrote {args.plot}')
     return 0
