@@ -42,6 +42,7 @@ SECTIONS = {
     'streaming': 'streaming',
     'discrepancy': 'discrepancy_rates',
     'cold_start': 'cold_start',
+    'data_io': 'data_io',
 }
 """Section name -> module in this folder (each has ``TITLE`` and ``run(quick, ...)``)."""
 

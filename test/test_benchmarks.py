@@ -8,7 +8,8 @@ import sys
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, 'benchmarks', 'run.py')
-SECTIONS = ('fit_speed', 'crlb', 'scaling', 'streaming', 'discrepancy', 'cold_start')
+SECTIONS = ('fit_speed', 'crlb', 'scaling', 'streaming', 'discrepancy', 'cold_start',
+            'data_io')
 
 
 def test_benchmarks_quick_run_writes_tables_and_json(tmp_path):
