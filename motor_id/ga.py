@@ -149,8 +149,7 @@ class GeneticAlgorithm:
         self.selection = selection
         self.x0 = x0
         self.random_state = random_state
-        self.rng_ = (random_state if isinstance(random_state, np.random.Generator)
-                     else np.random.default_rng(random_state))
+        self.rng_ = np.random.default_rng(random_state)   # a Generator comes back as is
         d = bounds.dim
         self.genes_ = self.rng_.random((self.population, d))
         if x0 is not None:

@@ -12,7 +12,6 @@ import math
 import numpy as np
 
 from motor_id.card.protocol import HEADER
-from motor_id.card.virtual_card import as_generator
 from motor_id.errors import ConfigError
 
 
@@ -139,7 +138,7 @@ class FaultInjector:
 
     def __init__(self, config=None, random_state=None):
         self.config = config or FaultConfig()
-        self._rng = as_generator(random_state)
+        self._rng = np.random.default_rng(random_state)
         self._held = None
         self._next_spike = self.config.spike_every
         self.stats = Counter()

@@ -16,9 +16,11 @@ import threading
 import time
 import tty
 
+import numpy as np
+
 from motor_id.card.faults import FaultConfig, FaultInjector
 from motor_id.card.protocol import CommandParser, encode_reply, encode_sample, ProtocolError
-from motor_id.card.virtual_card import as_generator, VirtualCard
+from motor_id.card.virtual_card import VirtualCard
 from motor_id.errors import ConfigError
 
 __all__ = ['CardSimulator', 'FaultConfig', 'FaultInjector', 'VirtualCard']
@@ -71,7 +73,7 @@ class CardSimulator:
                  random_state=None, profiles=True):
         if not speedup >= 0:
             raise ConfigError(f'speedup must be >= 0 (0: as fast as possible), got {speedup}')
-        card_rng, fault_rng = as_generator(random_state).spawn(2)
+        card_rng, fault_rng = np.random.default_rng(random_state).spawn(2)
         self.card = VirtualCard(plant, period, with_current, speed_noise, current_noise,
                                 method, profiles=profiles, random_state=card_rng)
         self.speedup = float(speedup)

@@ -40,13 +40,6 @@ MIN_PERIOD = 1e-4
 MAX_PERIOD = 10.0
 
 
-def as_generator(random_state):
-    """A numpy Generator from an int seed, None or a Generator (returned as is)."""
-    if isinstance(random_state, np.random.Generator):
-        return random_state
-    return np.random.default_rng(random_state)
-
-
 def _check_period(period):
     if not (isinstance(period, (int, float)) and MIN_PERIOD <= period <= MAX_PERIOD):
         raise ConfigError(f'sample period must be in [{MIN_PERIOD}, {MAX_PERIOD}] s, '
@@ -116,7 +109,7 @@ class VirtualCard:
         self.horizon = int(horizon)
         self.max_history = int(max_history)
         self.profiles = bool(profiles)
-        self._rng = as_generator(random_state)
+        self._rng = np.random.default_rng(random_state)
         self._theta = self.plant.params.to_dict()
         self.seq = 0
         """Sequence number of the next sample (not wrapped)."""

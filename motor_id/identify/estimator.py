@@ -126,8 +126,7 @@ class Identifier:
             effects=self.effects, free_effects=self.free_effects,
             sample_weight=sample_weight)
         self.problem_ = problem
-        rng = (self.random_state if isinstance(self.random_state, np.random.Generator)
-               else np.random.default_rng(self.random_state))
+        rng = np.random.default_rng(self.random_state)   # a Generator comes back as is
         ga, best, ga_seconds = self._run_ga(problem, rng, progress)
         z_best, refine_info = self._refine(problem, ga, best)
         x_best = problem.from_z(z_best)
