@@ -132,3 +132,29 @@ def batch_rows(labels, sizes, data_offset, values):
         raise ValueError(f'layout declares {n} rows but data holds {values.size} values '
                          f'(need {n * width})')
     return values.reshape(n, width)
+
+
+SEQ_MODULUS = 2 ** 32
+"""Card sequence numbers are uint32 and wrap at this modulus."""
+
+
+def seq_step(prev, seq, modulus=SEQ_MODULUS):
+    """Signed distance from sequence number ``prev`` to ``seq``, across the wrap.
+
+    The one rule of sequence arithmetic, shared by the driver's tracker, the ring buffer
+    and the bag reader: 1 is the next sample, 0 a duplicate, more than 1 a gap, negative
+    a sample from the past (late, or a card restart).
+
+    Parameters
+    ----------
+    prev, seq : int or array_like of int
+    modulus : int
+
+    Returns
+    -------
+    int or ndarray
+        In ``[-modulus / 2, modulus / 2)``.
+    """
+    d = np.mod(np.asarray(seq, dtype=np.int64) - np.asarray(prev, dtype=np.int64), modulus)
+    d = np.where(d >= modulus // 2, d - modulus, d)
+    return int(d) if d.ndim == 0 else d

@@ -17,7 +17,8 @@ from motor_id.bag.files import open_mcap
 from motor_id.bag.scan import DAMAGE_ERRORS, scan_file
 from motor_id.bag.schemas import (DECODE_ERRORS, deserialize, FLOAT64_MULTI_ARRAY,
                                   MESSAGE_ENCODING, SCHEMA_ENCODING, STRING, topic_name)
-from motor_id.contracts import BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows, SAMPLE_COLUMNS
+from motor_id.contracts import (BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows, SAMPLE_COLUMNS,
+                                seq_step)
 from motor_id.errors import BagError
 from motor_id.recording import Recording
 
@@ -136,7 +137,7 @@ def _samples(contents, topic=BAG_SAMPLES_TOPIC):
     seq = rows[:, 0]
     gaps = [{'after_seq': int(seq[k]), 'missing': int(seq[k + 1] - seq[k] - 1),
              't_before': float(rows[k, 1]), 't_after': float(rows[k + 1, 1])}
-            for k in np.flatnonzero(np.diff(seq) > 1)]
+            for k in np.flatnonzero(seq_step(seq[:-1], seq[1:]) > 1)]
     out = {name: rows[:, j].copy() for j, name in enumerate(SAMPLE_COLUMNS)}
     out.update(log_time_ns=log_ns, gaps=gaps, duplicates=int(np.count_nonzero(~keep)))
     return out

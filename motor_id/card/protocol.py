@@ -39,6 +39,7 @@ from motor_id.card.transport import open_transport, TransportError  # noqa: F401
 from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
     FLAG_CURRENT, FLAG_LIMIT, FLAG_NAMES, FLAG_OVERRUN, FLAG_PROFILE, FLAG_PROFILE_END,
     FLAG_STARTUP)
+from motor_id.contracts import seq_step
 from motor_id.errors import ConfigError, ProtocolError
 
 SYNC = b'\xa5\x5a'
@@ -723,8 +724,7 @@ class SequenceTracker:
         self._seen_set = set()
 
     def _signed(self, d):
-        d %= self.modulus
-        return d - self.modulus if d >= self.modulus // 2 else d
+        return seq_step(0, d, self.modulus)
 
     def _remember(self, seq):
         self._seen.append(seq)

@@ -6,7 +6,7 @@ import threading
 import numpy as np
 
 from motor_id.contracts import (CURRENT, FLAGS, INPUT, profile_span, SAMPLE_COLUMNS, SEQ,
-                                SPEED, T)
+                                seq_step, SPEED, T)
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import MIN_SAMPLES, Recording
 
@@ -266,12 +266,12 @@ class SampleBuffer:
         if last is None:
             self._mark = False
             return ''
-        step = (int(row[SEQ]) - int(last[SEQ])) % self.seq_modulus
+        step = seq_step(int(last[SEQ]), int(row[SEQ]), self.seq_modulus)
         if step == 0:
             return 'duplicate'
         if step == 1:
             kind = ''
-        elif step < self.seq_modulus // 2:
+        elif step > 1:
             kind = 'lost'
         else:
             kind = 'backwards'
