@@ -85,7 +85,7 @@ MOTOR_CLASSES = ('industrial', 'servo', 'hobby')
 NOT_REVEALED_BY = {
     'dead_zone': ('prbs', 'staircase'),
     'voltage_saturation': ('prbs',),
-    'brush_drop': ('staircase',),
+    'brush_drop': ('staircase', 'prbs'),
 }
 """Excitations under which an effect is indistinguishable from a plain gain or offset."""
 

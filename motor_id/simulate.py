@@ -64,8 +64,14 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
                     s = 1.0 if w > 0.0 else -1.0
                     for j in range(n):
                         xn[j] -= Bd[p, c, j, 1] * tc * s
-                    if xn[0] * s < 0.0:
-                        xn[0] = 0.0
+                    if xn[0] * s < 0.0:  # it stops within the interval; a drive that
+                        # beats T_c the other way carries it on (friction then opposes -s)
+                        back = xn[0] + 2.0 * Bd[p, c, 0, 1] * tc * s
+                        if back * s < 0.0:
+                            for j in range(n):
+                                xn[j] += 2.0 * Bd[p, c, j, 1] * tc * s
+                        else:
+                            xn[0] = 0.0
                 elif xn[0] != 0.0:
                     s = 1.0 if xn[0] > 0.0 else -1.0
                     for j in range(n):
@@ -389,8 +395,7 @@ def simulate_recording(plant, t, u, speed_noise=0.0, current_noise=0.0, with_cur
     """
     from motor_id.recording import Recording
 
-    rng = (random_state if isinstance(random_state, np.random.Generator)
-           else np.random.default_rng(random_state))
+    rng = np.random.default_rng(random_state)   # a Generator comes back as is
     out = simulate_batch(plant.params.to_dict(), t, u, plant.input_kind, method,
                          plant.effects)
     speed = out['speed'][0]

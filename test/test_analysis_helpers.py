@@ -5,6 +5,8 @@ import pytest
 
 from motor_id.analysis import (binned_means, heldout_mask, inverse_dynamics, map_summary,
                                noise_floor, steady_state_map)
+from motor_id.analysis.candidates import _spread, CandidateFitter, WIDEN
+from motor_id.analysis.heldout import HeldOutSplit
 from motor_id.excitation import bipolar_steps, multisine
 from motor_id.model import EFFECTS, MotorParams, Plant, SCALES
 from motor_id.simulate import simulate_recording
@@ -80,3 +82,30 @@ def test_every_dynamic_effect_has_a_start_grid_and_search_range_on_the_data_scal
     assert EFFECTS['input_delay'].start_grid(scales)['d'].tolist() == list(range(1, 41))
     assert EFFECTS['resistance_drift'].implausible({'tau_th': 0.5}, scales)
     assert not EFFECTS['resistance_drift'].implausible({'tau_th': 10.0}, scales)
+
+
+def test_linear_fit_widens_a_bound_the_inertia_sits_on():
+    # a hobby motor: J = 3e-7 kg m^2 is below the Identifier's default box (1e-6)
+    motor = MotorParams(J=3e-7, K_T=0.008, K_b=0.008, B=1.6e-7, L_m=2e-3, R_m=5.5)
+    t = np.arange(4000) * 2e-3
+    rec = simulate_recording(Plant(motor, 'voltage'), t, bipolar_steps(t, 5.0, period=0.4),
+                             speed_noise=0.005, current_noise=0.005, random_state=3)
+    split = HeldOutSplit(rec)
+    fitter = CandidateFitter(rec, split, R_m=5.5)
+    base = fitter.fit_linear(60)
+    assert fitter.physical_bounds['J'][0] == pytest.approx(1e-6 / WIDEN)
+    assert base.physical['J'] == pytest.approx(3e-7, rel=0.05)
+    assert base.heldout_error < 2 * split.floor
+
+
+def test_spread_starts_walk_the_finest_axis_of_a_flat_grid():
+    grid = EFFECTS['resonance'].start_grid({'one': 1.0, 'per_sample': 100.0,
+                                                 'per_record': 0.1})
+    cost = np.ones(next(iter(grid.values())).size)
+    best = int(np.argmax(grid['f_r']))
+    rows = _spread(grid, best, cost)
+    assert len(rows) == 3
+    assert len({grid['f_r'][k] for k in rows}) == 3
+    assert all(grid['r'][k] == grid['r'][best] and grid['zeta'][k] == grid['zeta'][best]
+               for k in rows)
+    assert _spread({'x': np.array([1.0, 2.0])}, 0, np.ones(2)) == []

@@ -60,6 +60,21 @@ def test_coulomb_friction_sticks_below_breakaway():
     assert np.all(out['speed'][0] == 0.0)
 
 
+
+def test_coulomb_friction_lets_a_strong_reverse_drive_carry_the_shaft_through_zero():
+    # a torque plant coasting forward when a torque 100 x T_c reverses it: the shaft stops
+    # within the interval and moves on backwards, it does not stall for a whole sample
+    t = np.arange(3) * 0.01
+    u = np.array([-100.0, -100.0, -100.0])
+    out = simulate_batch({'J': 1.0, 'B': 0.0}, t, u, 'torque',
+                         effects={'coulomb_friction': {'T_c': 1.0}}, x0=[0.5])
+    # 0.5 - (100 - 1) x 0.01 over the first interval (the friction's direction within
+    # the interval is approximated by the new one)
+    assert out['speed'][0, 1] == pytest.approx(0.5 - 0.99, rel=1e-9)
+    weak = simulate_batch({'J': 1.0, 'B': 0.0}, t, 0.5 * u / 100, 'torque',
+                          effects={'coulomb_friction': {'T_c': 1.0}}, x0=[0.001])
+    assert np.all(weak['speed'][0, 1:] == 0.0)  # a drive below T_c: it stays stopped
+
 @pytest.mark.parametrize('effect, params', [
     ('input_delay', {'d': 5}), ('dead_zone', {'V_dz': 1.0}),
     ('voltage_saturation', {'V_max': 5.0}), ('sensor_lag', {'tau_s': 0.1}),

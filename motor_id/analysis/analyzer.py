@@ -160,6 +160,9 @@ class DiscrepancyAnalysis:
         if self._electrical:
             f.extra_starts = dict(self._electrical.get('start', {}))
         base.significant = False
+        # a grid that cannot rank its points gets spread starts only when the linear
+        # model leaves structure to explain (on a clean record they cost time for nothing)
+        f.spread = self._structure(base)
         self._say(f'  held-out error {base.heldout_error:.4g} '
                   f'(noise floor {self._split.floor:.4g})')
         return base

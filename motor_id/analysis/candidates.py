@@ -17,8 +17,15 @@ import numpy as np
 from motor_id.analysis.report import ModelScore
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
-from motor_id.model import EFFECTS
+from motor_id.model import EFFECTS, PARAM_NAMES
 from motor_id.simulate import simulate_batch
+
+WIDEN = 1e3
+"""Factor by which a physical bound the linear fit sits on is moved outward (once)."""
+
+FLAT = 0.95 ** 2
+"""A start grid whose best point does not cut the reference's training error by 5 % (the
+squared error by this factor) cannot rank its points (see :func:`_spread`)."""
 
 FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
 """What a candidate's fit may raise; each is recorded as a failed candidate."""
@@ -58,6 +65,30 @@ def _distinct(grid, a, b):
     return False
 
 
+def _spread(grid, best, cost, n=3):
+    """Rows along the grid's finest axis (the others as in row ``best``).
+
+    Used when no grid point beats the reference: its parameters have absorbed the effect
+    (a linear model's inertia and damping take up a shaft mode at the excitation's
+    frequencies), so the grid cannot rank the points and the refinement must start from
+    several places along the axis the grid resolves most finely.
+    """
+    axis = max(grid, key=lambda p: np.unique(grid[p]).size)
+    values = np.unique(grid[axis])
+    if values.size < 2 * n:
+        return []
+    others = [p for p in grid if p != axis]
+    same = np.ones(cost.size, dtype=bool)
+    for p in others:
+        same &= grid[p] == grid[p][best]
+    out = []
+    for v in values[np.linspace(0, values.size - 1, n + 2).astype(int)[1:-1]]:
+        rows = np.flatnonzero(same & (grid[axis] == v) & np.isfinite(cost))
+        if rows.size and rows[0] != best:
+            out.append(int(rows[0]))
+    return out
+
+
 class CandidateFitter:
     """Fits the linear model and its extensions on the training blocks of one split.
 
@@ -90,6 +121,8 @@ class CandidateFitter:
         self.resistance = None
         self.extra_starts = {}
         self.linear_estimator = None
+        self.physical_bounds = {}
+        self.spread = False
 
     # ----------------------------------------------------------------- fitting
     def identifier(self, **kw):
@@ -103,7 +136,7 @@ class CandidateFitter:
         if effects:
             kw = {'effects': effects, 'free_effects': free}
         est = self.identifier(start=start, use_ga=False, **kw)
-        bounds = {fe: self.bounds_for(fe) for fe in free}
+        bounds = {**self.physical_bounds, **{fe: self.bounds_for(fe) for fe in free}}
         if bounds:
             est.bounds = bounds
         sw = self.split.train.astype(float) if weight else None
@@ -270,16 +303,52 @@ class CandidateFitter:
                 break
             if all(_distinct(grid, k, j) for j in picked):
                 picked.append(k)
+        if picked and self.spread and ref.train_error > 0 and \
+                cost[picked[0]] >= FLAT * ref.train_error ** 2 * len(self.split.channels):
+            picked += _spread(grid, picked[0], cost)
         return [{p: float(v[k]) for p, v in grid.items()} for k in picked]
 
     # --------------------------------------------------------------- linear model
     def fit_linear(self, generations):
-        """The linear model: GA and refinement on the training blocks."""
+        """The linear model: GA and refinement on the training blocks.
+
+        A physical parameter on a bound of the Identifier's default box (a hobby motor's
+        inertia below 1e-6 kg m^2, say) is not an estimate: the box is widened by
+        :data:`WIDEN` on that side and the fit repeated; the wider box then holds for
+        every candidate (:attr:`physical_bounds`), so that no effect is credited with
+        what a free inertia or viscous coefficient explains.
+        """
         t0 = time.perf_counter()
+        sw = self.split.train.astype(float)
         est = self.identifier(generations=generations)
         with np.errstate(all='ignore'):
-            est.fit(self.rec, sample_weight=self.split.train.astype(float))
+            est.fit(self.rec, sample_weight=sw)
+        wide = self._widened(est)
+        if wide:
+            again = self.identifier(generations=generations, bounds=wide)
+            with np.errstate(all='ignore'):
+                again.fit(self.rec, sample_weight=sw)
+            if again.result_.fit['cost'] <= est.result_.fit['cost']:
+                est, self.physical_bounds = again, wide
         s = self.score('linear', est, 0, t0)
         self.resistance = est.result_.to_dict().get('resistance')
         self.linear_estimator = est
         return s
+
+    @staticmethod
+    def _widened(est):
+        """SI bounds of the physical parameters with the sides the fit sits on widened,
+        or {} when no physical parameter (but R_m, held by its prior) is at a bound."""
+        params = est.result_.to_dict()['parameters']
+        prob = est.problem_
+        b = prob.bounds
+        out = {}
+        for name, lo, hi in zip(b.names, b.low, b.high):
+            v = params.get(name, {})
+            if name not in PARAM_NAMES or name == 'R_m' or not v.get('at_bound'):
+                continue
+            lo, hi = (prob.units.to_physical(name, x) for x in (lo, hi))
+            x = v['value']
+            near_lo = x <= lo or (x < hi and math.log(x / lo) < math.log(hi / x))
+            out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
+        return out
