@@ -131,6 +131,17 @@ class Recording:
                             f'{speed.size - moving} of {speed.size} samples); check the speed '
                             'column/topic and that the motor moved')
 
+    def sample_rows(self):
+        """The recording as sample rows (:data:`motor_id.contracts.SAMPLE_COLUMNS`).
+
+        Sequence numbers count from 0, flags are 0 and a missing current is NaN: the
+        form in which a bag stores, and a replay publishes, a recording.
+        """
+        n = len(self)
+        cur = self.current if self.has_current else np.full(n, np.nan)
+        return np.column_stack([np.arange(n, dtype=float), self.time, self.input, self.speed,
+                                cur, np.zeros(n)])
+
     def to_dict(self):
         """Plain lists for JSON."""
         d = {'time': self.time.tolist(), 'input': self.input.tolist(),

@@ -277,8 +277,7 @@ def test_replay_offline_and_samples_rows_from_a_mapped_bag(tmp_path, rec, capsys
     bag = write_robot_bag(tmp_path / 'r', rec.slice(0, 600), 'sqlite3')
     assert main(['replay', str(bag), '--offline', '-R', '2.3', '--generations', '2',
                  '-q'] + MAP) == 0, capsys.readouterr().err
-    from motor_id.data.rosbag import recording_rows
-    rows = recording_rows(read_bag(bag, mapping()))
+    rows = read_bag(bag, mapping()).sample_rows()
     assert rows.shape == (600, 6)
     np.testing.assert_array_equal(rows[:, 3], rec.speed[:600])
 

@@ -398,9 +398,7 @@ def write_recording(rec, path, meta=None, batch=50, start_ns=0, channels=False, 
     n = len(rec)
     if n == 0:
         raise ConfigError('the recording is empty')
-    current = rec.current if rec.has_current else np.full(n, np.nan)
-    rows = np.column_stack([np.arange(n, dtype=float), rec.time, rec.input, rec.speed,
-                            current, np.zeros(n)])
+    rows = rec.sample_rows()
     log_ns = int(start_ns) + np.rint((rec.time - rec.time[0]) * 1e9).astype(np.int64)
     info = {k: v for k, v in rec.meta.items() if k not in ('bag', 'gaps')}
     info.update(meta or {})

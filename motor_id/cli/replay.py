@@ -4,7 +4,7 @@ import numpy as np
 
 from motor_id.cli.data_args import add_data_arguments, load_from_args
 from motor_id.cli.fit import add_fit_arguments, identify_and_report
-from motor_id.contracts import profile_span
+from motor_id.contracts import profile_span, SAMPLE_COLUMNS
 from motor_id.errors import ConfigError
 
 LAST_RUN = 'last-run'
@@ -68,7 +68,6 @@ def _flags(path):
 
 
 def _republish(args):
-    from motor_id.data.rosbag import recording_rows
     from motor_id.nodes.replayer import replay
     if not args.rate > 0:
         raise ConfigError(f'--rate must be > 0, got {args.rate}')
@@ -78,10 +77,9 @@ def _republish(args):
     if rec.meta.get('mapping') is None and _flags(args.bag) is not None:
         from motor_id.bag import read_samples
         s = read_samples(args.bag)
-        rows = np.column_stack([s[c] for c in ('seq', 't', 'voltage', 'speed', 'current',
-                                               'flags')])
+        rows = np.column_stack([s[c] for c in SAMPLE_COLUMNS])
     else:
-        rows = recording_rows(rec)
+        rows = rec.sample_rows()
     print(f'replaying {len(rows)} samples from {args.bag} at {args.rate:g}x')
     sent = replay(rows, args.rate, subscribers=args.subscribers)
     print(f'published {sent} of {len(rows)} samples on /samples')

@@ -599,10 +599,3 @@ def _read_samples(reader, path):
     current = arr[:, 4] if np.any(np.isfinite(arr[:, 4])) else None
     return Recording(arr[:, 1], arr[:, 2], arr[:, 3], current, kind, meta)
 
-
-def recording_rows(rec):
-    """Sample rows (seq, t, input, speed, current, flags) of a recording, for republishing."""
-    n = len(rec)
-    cur = rec.current if rec.has_current else np.full(n, np.nan)
-    return np.column_stack([np.arange(n, dtype=float), rec.time, rec.input, rec.speed, cur,
-                            np.zeros(n)])
