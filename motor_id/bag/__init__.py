@@ -25,7 +25,8 @@ read_recording), ``scan`` (the tolerant scan of damaged files), ``info`` (bag_in
 
 from motor_id.bag.info import bag_info
 from motor_id.bag.profile import default_qos, qos_profile
-from motor_id.bag.reader import read_meta, read_recording, read_samples
+from motor_id.bag.reader import (read_meta, read_recording, read_samples, samples_recording,
+                                  sorted_samples)
 from motor_id.bag.recover import recover
 from motor_id.bag.schemas import (DIAGNOSTIC_ARRAY, FLOAT64, FLOAT64_MULTI_ARRAY,
                                   message_definition, STRING, type_hash)
@@ -37,5 +38,6 @@ __all__ = [
     'bag_info', 'BagWriter', 'COMPRESSIONS', 'DEFAULT_CHUNK_SIZE', 'DEFAULT_FLUSH_INTERVAL',
     'default_qos', 'default_units', 'DIAGNOSTIC_ARRAY', 'FLOAT64', 'FLOAT64_MULTI_ARRAY',
     'library_string', 'message_definition', 'qos_profile', 'read_meta', 'read_recording',
-    'read_samples', 'recover', 'STRING', 'type_hash', 'write_recording',
+    'read_samples', 'recover', 'samples_recording', 'sorted_samples', 'STRING', 'type_hash',
+    'write_recording',
 ]

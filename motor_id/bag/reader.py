@@ -127,8 +127,28 @@ def _samples(contents, topic=BAG_SAMPLES_TOPIC):
         log_times.append(np.full(rows.shape[0], log_time, dtype=np.int64))
     if sum(b.shape[0] for b in blocks) == 0:
         raise BagError(f'{contents.path}: {topic_name(topic)} holds no sample rows')
-    rows = np.concatenate(blocks)
-    log_ns = np.concatenate(log_times)
+    return sorted_samples(np.concatenate(blocks), np.concatenate(log_times))
+
+
+def sorted_samples(rows, log_ns):
+    """Sample rows in sequence order, repeats dropped, gaps listed (never filled).
+
+    The one rule for every storage the rows come from (this reader's MCAP, or any rosbag2
+    storage read through rosbags).
+
+    Parameters
+    ----------
+    rows : ndarray, shape (n, 6)
+        Rows of :data:`motor_id.contracts.SAMPLE_COLUMNS`, in file order.
+    log_ns : ndarray of int, shape (n,)
+        Log time of each row's message [ns].
+
+    Returns
+    -------
+    dict
+        The columns by name, ``log_time_ns``, ``gaps`` (``{after_seq, missing, t_before,
+        t_after}``) and ``duplicates``.
+    """
     order = np.argsort(rows[:, 0], kind='stable')
     rows, log_ns = rows[order], log_ns[order]
     keep = np.ones(rows.shape[0], dtype=bool)
@@ -204,21 +224,30 @@ def read_recording(path):
         See :func:`read_samples`.
     """
     contents = _read(path)
-    samples = _samples(contents)
-    meta = _meta(contents)
+    return samples_recording(_samples(contents), _meta(contents), contents.path,
+                             contents.note)
+
+
+def samples_recording(samples, meta, path, note=None):
+    """A :class:`Recording` from :func:`sorted_samples` output and ``/motor_id/meta``.
+
+    ``input_kind`` comes from the metadata; gaps, repeated and flagged rows are noted in
+    ``meta``; the current channel is None when it is NaN throughout.
+    """
+    meta = dict(meta)
     kind = meta.pop('input_kind', 'voltage')
     if kind not in ('voltage', 'torque'):
-        raise BagError(f'{contents.path}: {BAG_META_TOPIC} input_kind must be voltage or '
+        raise BagError(f'{path}: {BAG_META_TOPIC} input_kind must be voltage or '
                        f'torque, got {kind!r}')
     current = samples['current']
     current = current if np.any(np.isfinite(current)) else None
-    meta['bag'] = contents.path
+    meta['bag'] = str(path)
     meta['gaps'] = samples['gaps']
     if samples['duplicates']:
         meta['duplicate_rows'] = samples['duplicates']
     nonzero = int(np.count_nonzero(samples['flags']))
     if nonzero:
         meta['flagged_rows'] = nonzero
-    if contents.note:
-        meta['bag_note'] = contents.note
+    if note:
+        meta['bag_note'] = note
     return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)

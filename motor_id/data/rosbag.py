@@ -35,7 +35,7 @@ import re
 
 import numpy as np
 
-from motor_id.contracts import BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows, SAMPLE_COLUMNS
+from motor_id.contracts import BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows
 from motor_id.data.align import ALIGN_RULES, held_command_index
 from motor_id.errors import BagError, ConfigError, MotorIdError
 from motor_id.recording import Recording
@@ -566,12 +566,13 @@ def _joint_getter(where, topic, spec, role, joint, msg):
 
 def _read_samples(reader, path):
     """The project's /samples rows (and /motor_id/meta) from any rosbag2 storage."""
+    from motor_id.bag import samples_recording, sorted_samples
     conns = [c for c in reader.connections if c.topic in (BAG_SAMPLES_TOPIC, BAG_META_TOPIC)]
-    rows, meta = [], {}
+    rows, log_times, meta = [], [], {}
     with _reading(path):
-        messages = [(c.topic, reader.deserialize(raw, c.msgtype))
-                    for c, _, raw in reader.messages(connections=conns)]
-    for topic, msg in messages:
+        messages = [(c.topic, log_ns, reader.deserialize(raw, c.msgtype))
+                    for c, log_ns, raw in reader.messages(connections=conns)]
+    for topic, log_ns, msg in messages:
         if topic == BAG_META_TOPIC:
             try:
                 item = json.loads(msg.data)
@@ -587,15 +588,11 @@ def _read_samples(reader, path):
         except (AttributeError, ValueError) as exc:
             raise BagError(f'{path}: {BAG_SAMPLES_TOPIC} is not a sample batch ({exc})') \
                 from None
-    arr = np.concatenate(rows) if rows else np.zeros((0, len(SAMPLE_COLUMNS)))
-    arr = arr[np.argsort(arr[:, 0], kind='stable')]
-    keep = np.r_[True, np.diff(arr[:, 0]) > 0] if len(arr) else np.zeros(0, bool)
-    arr = arr[keep]
-    kind = meta.pop('input_kind', 'voltage')
-    if kind not in INPUT_KINDS:
-        raise BagError(f'{path}: {BAG_META_TOPIC} input_kind must be voltage or torque, '
-                       f'got {kind!r}')
-    meta.update(source=str(path), bag=str(path))
-    current = arr[:, 4] if np.any(np.isfinite(arr[:, 4])) else None
-    return Recording(arr[:, 1], arr[:, 2], arr[:, 3], current, kind, meta)
+        log_times.append(np.full(rows[-1].shape[0], log_ns, dtype=np.int64))
+    if not rows or sum(r.shape[0] for r in rows) == 0:
+        raise BagError(f'{path}: {BAG_SAMPLES_TOPIC} holds no sample rows')
+    samples = sorted_samples(np.concatenate(rows), np.concatenate(log_times))
+    rec = samples_recording(samples, meta, path)
+    rec.meta['source'] = str(path)
+    return rec
 
