@@ -210,9 +210,13 @@ EFFECTS = {e.name: e for e in (
                             (0.0, (0.2, 'record'))),),
                description='first-order lag of the speed measurement',
                min_fraction=(('tau_s', (1.0, 'lag_floor')),)),
-    EffectSpec('speed_quantization', 'y = q round(w / q)',
-               (EffectParam('q', 'rad/s per count', 0.3, 0.0, 1e3, 'speed'),),
-               description='encoder counts per sample period: the speed sits on a grid',
+    EffectSpec('speed_quantization', 'y = q round(w_m / q); w_m = the mean of w over '
+               '(t[k-1], t[k]] if counted else w(t[k])',
+               (EffectParam('q', 'rad/s per count', 0.3, 0.0, 1e3, 'speed'),
+                EffectParam('counted', '-', 1.0, 0.0, 1.0, 'one')),
+               description='encoder counts per sample period: the speed sits on a grid; '
+               'a count difference is the mean speed over the sample period (counted = 1), '
+               'a quantised speed sensor reads it at the sample (counted = 0)',
                category='measurement', channel='speed'),
     EffectSpec('current_quantization', 'y_i = q_i round(i / q_i)',
                (EffectParam('q_i', 'A per count', 0.01, 0.0, 1e3, 'current'),),

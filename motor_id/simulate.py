@@ -22,7 +22,8 @@ _HEAP_PRIME_BYTES = 16 << 20
 """Size of the block :func:`_prime_allocator` allocates and frees once (16 MiB)."""
 
 
-def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, tau_s):  # noqa: C901
+def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, tau_s,  # noqa: C901
+            R0):
     P, N = u.shape
     n = A.shape[2]
     X = np.zeros((P, N, n))
@@ -49,15 +50,22 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
                         v -= V_b[p]
                     elif i < 0.0:
                         v += V_b[p]
-                if k_h[p] != 0.0:
-                    v -= dR * i
-                    dR += dt * (k_h[p] * i * i - dR / tau_th[p])
             tau = -T_L[p] - k_q[p] * w * abs(w)
             for j in range(n):
                 acc = Bd[p, c, j, 0] * v + Bd[p, c, j, 1] * tau
                 for m in range(n):
                     acc += A[p, c, j, m] * x[m]
                 xn[j] = acc
+            if voltage and k_h[p] != 0.0:
+                # the extra resistance drops dR i(t) over the interval; taken at the
+                # interval's end current (implicit): exact in the limits dt << L/R and
+                # dt >> L/R, where the current settles within the interval
+                i_end = xn[1] / (1.0 + dR * Bd[p, c, 1, 0])
+                for j in range(n):
+                    xn[j] -= Bd[p, c, j, 0] * dR * i_end
+                # copper loss i^2 R: the heating rate grows with the resistance itself
+                heat = 0.5 * (i * i + i_end * i_end) * (1.0 + dR / R0[p])
+                dR += dt * (k_h[p] * heat - dR / tau_th[p])
             tc = T_c[p]
             if tc > 0.0:
                 if w != 0.0:
@@ -349,7 +357,7 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
         else:
             X = _compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
         # state-major from the kernel: each channel is one contiguous (P, N) block
-        out = {'speed': _quantize(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
+        out = {'speed': _speed_reading(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
         if input_kind == 'voltage':
             out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
         return out
@@ -357,11 +365,41 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
                    eff('coulomb_friction', 'T_c'), eff('load_torque', 'T_L'),
                    eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
                    eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
-                   eff('sensor_lag', 'tau_s'))
-    out = {'speed': _quantize(Y, effects, P), 'states': X}
+                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)))
+    out = {'speed': _speed_reading(Y, effects, P), 'states': X}
     if input_kind == 'voltage':
         out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
     return out
+
+
+def interval_mean(y):
+    """Mean of a sampled signal over each sample's preceding interval (trapezoid rule).
+
+    What a count difference measures: ``(theta[k] - theta[k-1]) / (t[k] - t[k-1])`` is
+    the mean speed over ``(t[k-1], t[k]]``. The first sample has no preceding interval
+    and keeps its value.
+
+    Parameters
+    ----------
+    y : ndarray, shape (..., N)
+
+    Returns
+    -------
+    ndarray, shape (..., N)
+    """
+    y = np.asarray(y, dtype=float)
+    out = y.copy()
+    out[..., 1:] = 0.5 * (y[..., 1:] + y[..., :-1])
+    return out
+
+
+def _speed_reading(Y, effects, P):
+    """The speed as the sensor reports it: an encoder's interval mean, then its grid."""
+    if 'speed_quantization' not in effects:
+        return Y
+    counted = _as_batch(effects['speed_quantization'].get('counted', 1.0), P)[:, None]
+    Y = np.where(counted > 0.5, interval_mean(Y), Y)
+    return _quantize(Y, effects, P)
 
 
 def _quantize(Y, effects, P, name='speed_quantization', key='q'):

@@ -16,7 +16,8 @@ import time
 import numpy as np
 
 from motor_id.analysis import outcome, selection
-from motor_id.analysis.candidates import CandidateFitter, data_scales, FIT_ERRORS
+from motor_id.analysis.candidates import (CandidateFitter, data_scales, dynamic_effects,
+                                          FIT_ERRORS)
 from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
 from motor_id.analysis.heldout import HeldOutSplit
 from motor_id.analysis.inverse_dynamics import electrical_evidence
@@ -153,6 +154,7 @@ class DiscrepancyAnalysis:
             raise IdentificationError(f'the linear model cannot be fitted: {exc}') from None
         if base.failed:
             raise IdentificationError(f'the linear model cannot be fitted: {base.failed}')
+        base = self._speed_reading(base)
         self._resistance = f.resistance
         counted = any(m.name == 'speed_quantization' for m in self._meas)
         f.scales = data_scales(rec, base.physical, f.R_m, self._T, self._dt, f.max_delay,
@@ -165,6 +167,43 @@ class DiscrepancyAnalysis:
         f.spread = self._structure(base)
         self._say(f'  held-out error {base.heldout_error:.4g} '
                   f'(noise floor {self._split.floor:.4g})')
+        return base
+
+    def _speed_reading(self, base):
+        """Speed on an encoder grid: read at the samples, or a count difference?
+
+        A count difference is the mean speed over the sample period (half a period
+        behind the sampled speed, and smoothed); a quantised speed sensor reads the
+        speed at the sample. The linear model is fitted both ways and the reading with
+        the lower held-out error holds for every model of the analysis (an unmodelled
+        reading would otherwise be credited to a dynamic effect).
+        """
+        grid = next((m for m in self._meas if m.name == 'speed_quantization'), None)
+        if grid is None:
+            return base
+        f = self._fitter
+        kept = (f.resistance, f.linear_estimator, f.physical_bounds)
+        f.reading = {'speed_quantization': {'q': 0.0, 'counted': 1.0}}
+        try:
+            counted = f.fit_linear(self.generations)
+        except FIT_ERRORS as exc:
+            counted = None
+            self._say(f'  the speed as a count difference cannot be fitted ({exc})')
+        better = counted is not None and not counted.failed and \
+            counted.heldout_error < base.heldout_error
+        grid.extra['counted'] = 1.0 if better else 0.0
+        grid.extra['reading_heldout_error'] = {
+            'sampled': base.heldout_error,
+            'count difference': counted.heldout_error if counted is not None else None}
+        self._say('  speed reading: ' + (
+            'a count difference (the mean over each sample period)' if better else
+            'sampled at the sample instants') + f' (held-out error {base.heldout_error:.4g}'
+            ' sampled, ' + (f'{counted.heldout_error:.4g}' if counted is not None else '-')
+            + ' counted)')
+        if better:
+            return counted
+        f.reading = {}
+        f.resistance, f.linear_estimator, f.physical_bounds = kept
         return base
 
     def _judge(self, s, ref):
@@ -288,7 +327,8 @@ class DiscrepancyAnalysis:
         if full is not None and chosen is not base:
             chosen_d['effects'] = {e: {p: (v['value'] if isinstance(v, dict) else v)
                                        for p, v in vals.items()}
-                                   for e, vals in full.result_.effects.items()}
+                                   for e, vals in
+                                   dynamic_effects(full.result_.effects).items()}
         idyn = None
         if rec.input_kind == 'torque':
             idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)

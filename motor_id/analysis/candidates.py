@@ -56,6 +56,11 @@ def data_scales(rec, physical, R_m, T, dt, max_delay, counted=False):
             'lag_floor': dt if counted else 0.5 * dt}
 
 
+def dynamic_effects(effects):
+    """``effects`` without the measurement ones (the fixed speed reading of a fit)."""
+    return {e: v for e, v in effects.items() if EFFECTS[e].category == 'dynamic'}
+
+
 def _distinct(grid, a, b):
     """True when grid rows a and b differ by more than a factor 2 in some parameter."""
     for v in grid.values():
@@ -123,10 +128,17 @@ class CandidateFitter:
         self.linear_estimator = None
         self.physical_bounds = {}
         self.spread = False
+        self.reading = {}
+        """``{'speed_quantization': {'q': 0, 'counted': 1}}`` when the speed is a count
+        difference (the mean over each sample period; the grid itself is scored by the
+        split, as noise), else ``{}`` (the speed read at the samples)."""
 
     # ----------------------------------------------------------------- fitting
     def identifier(self, **kw):
-        """An :class:`Identifier` with this analysis' resistance, its prior and seed."""
+        """An :class:`Identifier` with this analysis' resistance, its prior and seed
+        (and the speed reading :attr:`reading`, fixed, in every model)."""
+        if self.reading:
+            kw['effects'] = {**(kw.get('effects') or {}), **self.reading}
         return Identifier(R_m=self.R_m, random_state=self.random_state,
                           R_m_tolerance=self.R_m_tolerance, **kw)
 
@@ -156,7 +168,7 @@ class CandidateFitter:
         preds = [np.asarray(res.prediction[c]) for c in self.split.channels]
         e_tr, e_te, sub = self.split.errors(preds)
         params, eff = {}, {}
-        for e, vals in res.effects.items():
+        for e, vals in dynamic_effects(res.effects).items():
             eff[e] = {}
             for p, v in vals.items():
                 if isinstance(v, dict):
@@ -284,7 +296,7 @@ class CandidateFitter:
     def grid_best(self, ref, name, grid, fixed_effects=None, top=1):
         """Start rows ``[{param: value}]``: the best ``top`` distinct grid points."""
         P = next(iter(grid.values())).size
-        effects = {e: dict(v) for e, v in (fixed_effects or {}).items()}
+        effects = {**self.reading, **{e: dict(v) for e, v in (fixed_effects or {}).items()}}
         effects[name] = {**{p: np.full(P, v) for p, v in EFFECTS[name].defaults().items()},
                          **grid}
         phys = dict(ref.physical)

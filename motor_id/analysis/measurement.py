@@ -82,8 +82,12 @@ class MeasurementEffect:
     def parameters(self):
         """``{effect.param: {value, std, determined, grid}}`` as the fitted effects."""
         pname = EFFECTS[self.name].params[0].name
-        return {f'{self.name}.{pname}': {'value': self.q, 'std': None, 'determined': True,
-                                         'grid': True}}
+        out = {f'{self.name}.{pname}': {'value': self.q, 'std': None, 'determined': True,
+                                        'grid': True}}
+        if 'counted' in self.extra:  # the speed reading chosen by the linear model
+            out[f'{self.name}.counted'] = {'value': float(self.extra['counted']),
+                                           'std': None, 'determined': True, 'grid': True}
+        return out
 
     def to_dict(self):
         """The report's ``effects`` entry: name, parameters, gain (none), evidence."""

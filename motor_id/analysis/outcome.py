@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from motor_id.analysis.candidates import FIT_ERRORS, grid_only
+from motor_id.analysis.candidates import dynamic_effects, FIT_ERRORS, grid_only
 from motor_id.analysis.inverse_dynamics import inverse_dynamics
 
 
@@ -44,7 +44,7 @@ def parameters(chosen, base, full):
     params = full.result_.to_dict()['parameters']
     if chosen is base:
         return params
-    for e, vals in full.result_.effects.items():
+    for e, vals in dynamic_effects(full.result_.effects).items():
         for p, v in vals.items():
             params[f'{e}.{p}'] = dict(v) if isinstance(v, dict) else {
                 'value': float(v), 'std': None, 'determined': True, 'grid': True}
