@@ -223,7 +223,8 @@ EFFECTS = {e.name: e for e in (
                kinds=('voltage',),
                description='current ADC resolution: the current sits on a grid',
                category='measurement', channel='current'),
-    EffectSpec('resistance_drift', 'R = R_m + dR, d(dR)/dt = k_h i^2 - dR / tau_th',
+    EffectSpec('resistance_drift', 'R = R_m + dR, d(dR)/dt = k_h i^2 (1 + dR / R_m) - '
+               'dR / tau_th (copper loss i^2 R, averaged over each interval)',
                (EffectParam('k_h', 'Ohm/(A^2 s)', 0.02, 0.0, 1e3, 'heating', (0.03, 10.0, 5),
                             (0.0, 1000.0)),
                 EffectParam('tau_th', 's', 20.0, 0.1, 1e5, 'record', (0.05, 0.8, 3),
@@ -448,6 +449,54 @@ def discretize(F, G, dt, method='zoh'):
     M *= dt[None, :, None, None]
     E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
     return E[:, :, :n, :n], E[:, :, :n, n:]
+
+
+def interval_integrals(F, G, dt, row=1):
+    """Integrals of one state over each held-input interval, for the heating model.
+
+    With the input held, ``z = [x, u]`` evolves as ``dz/ds = M z``, ``M = [[F, G], [0, 0]]``,
+    so state ``row`` is ``c' exp(M s) z0``. Returned: ``m = int_0^dt c' exp(M s) ds`` (its
+    integral is ``m . z0``) and ``Q = int_0^dt exp(M s)' c c' exp(M s) ds`` (the integral of
+    its square is ``z0' Q z0``, Van Loan's block exponential).
+
+    Parameters
+    ----------
+    F : ndarray, shape (P, n, n)
+    G : ndarray, shape (P, n, m)
+    dt : array_like, shape (K,)
+        Interval lengths [s].
+    row : int
+        The state (1: the armature current).
+
+    Returns
+    -------
+    m : ndarray, shape (P, K, n + m)
+    Q : ndarray, shape (P, K, n + m, n + m)
+    """
+    from scipy.linalg import expm  # lazy, as in discretize
+
+    dt = np.atleast_1d(np.asarray(dt, dtype=float))
+    P, n, _ = F.shape
+    d = n + G.shape[2]
+    K = dt.shape[0]
+    M = np.zeros((P, K, d, d))
+    M[:, :, :n, :n] = F[:, None]
+    M[:, :, :n, n:] = G[:, None]
+    M *= dt[None, :, None, None]
+    c = np.zeros(d)
+    c[row] = 1.0
+    big = np.zeros((P, K, 2 * d, 2 * d))  # [[M, I], [0, 0]] dt: top right = int exp(M s)
+    big[:, :, :d, :d] = M
+    big[:, :, :d, d:] = np.eye(d) * dt[None, :, None, None]
+    E = expm(big.reshape(P * K, 2 * d, 2 * d)).reshape(P, K, 2 * d, 2 * d)
+    m = E[:, :, row, d:]
+    vl = np.zeros((P, K, 2 * d, 2 * d))  # [[-M', c c'], [0, M]] dt
+    vl[:, :, :d, :d] = -np.swapaxes(M, -1, -2)
+    vl[:, :, :d, d:] = np.outer(c, c) * dt[None, :, None, None]
+    vl[:, :, d:, d:] = M
+    V = expm(vl.reshape(P * K, 2 * d, 2 * d)).reshape(P, K, 2 * d, 2 * d)
+    Q = np.swapaxes(V[:, :, d:, d:], -1, -2) @ V[:, :, :d, d:]
+    return np.ascontiguousarray(m), np.ascontiguousarray(Q)
 
 
 def transfer_coefficients(p, input_kind='voltage', channels=('speed',)):

@@ -14,7 +14,8 @@ import time
 import numpy as np
 
 from motor_id.errors import ConfigError
-from motor_id.model import continuous_matrices, discretize, EFFECTS, validate_effects
+from motor_id.model import (continuous_matrices, discretize, EFFECTS, interval_integrals,
+                            validate_effects)
 
 REGULAR_RTOL = 1e-6
 
@@ -23,7 +24,7 @@ _HEAP_PRIME_BYTES = 16 << 20
 
 
 def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, tau_s,  # noqa: C901
-            R0):
+            R0, Hm, Hq):
     P, N = u.shape
     n = A.shape[2]
     X = np.zeros((P, N, n))
@@ -51,21 +52,29 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
                     elif i < 0.0:
                         v += V_b[p]
             tau = -T_L[p] - k_q[p] * w * abs(w)
+            heat = 0.0
+            if voltage and k_h[p] != 0.0:
+                # the extra resistance drops dR i(t): held at dR times the interval's mean
+                # current, which itself depends on the drop (solved for it); the mean of
+                # i^2 over the interval is exact for the held input (Van Loan integrals)
+                s_i = Hm[p, c, n] * v + Hm[p, c, n + 1] * tau
+                for j in range(n):
+                    s_i += Hm[p, c, j] * x[j]
+                v -= dR * s_i / (dt + Hm[p, c, n] * dR)
+                for j in range(n + 2):
+                    zj = x[j] if j < n else (v if j == n else tau)
+                    for m in range(n + 2):
+                        zm = x[m] if m < n else (v if m == n else tau)
+                        heat += zj * Hq[p, c, j, m] * zm
+                heat /= dt
             for j in range(n):
                 acc = Bd[p, c, j, 0] * v + Bd[p, c, j, 1] * tau
                 for m in range(n):
                     acc += A[p, c, j, m] * x[m]
                 xn[j] = acc
-            if voltage and k_h[p] != 0.0:
-                # the extra resistance drops dR i(t) over the interval; taken at the
-                # interval's end current (implicit): exact in the limits dt << L/R and
-                # dt >> L/R, where the current settles within the interval
-                i_end = xn[1] / (1.0 + dR * Bd[p, c, 1, 0])
-                for j in range(n):
-                    xn[j] -= Bd[p, c, j, 0] * dR * i_end
+            if heat != 0.0:
                 # copper loss i^2 R: the heating rate grows with the resistance itself
-                heat = 0.5 * (i * i + i_end * i_end) * (1.0 + dR / R0[p])
-                dR += dt * (k_h[p] * heat - dR / tau_th[p])
+                dR += dt * (k_h[p] * heat * (1.0 + dR / R0[p]) - dR / tau_th[p])
             tc = T_c[p]
             if tc > 0.0:
                 if w != 0.0:
@@ -89,8 +98,11 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
             for j in range(n):
                 x[j] = xn[j]
             if tau_s[p] > 0.0:
+                # the sensor filters the continuous speed, taken as linear between the
+                # samples (first-order hold): exact for a ramp, trapezoid for tau_s >> dt
                 a = np.exp(-dt / tau_s[p])
-                y = a * y + (1.0 - a) * x[0]
+                b1 = 1.0 - tau_s[p] * (1.0 - a) / dt
+                y = a * y + (1.0 - a - b1) * w + b1 * x[0]
             else:
                 y = x[0]
     return X, Y
@@ -361,11 +373,16 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
         if input_kind == 'voltage':
             out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
         return out
+    nz = n + G.shape[2]
+    if input_kind == 'voltage' and 'resistance_drift' in effects:
+        Hm, Hq = interval_integrals(F, G, dts, row=1)
+    else:
+        Hm, Hq = np.zeros((1, 1, nz)), np.zeros((1, 1, nz, nz))
     X, Y = _compiled(_kernel)(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
                    eff('coulomb_friction', 'T_c'), eff('load_torque', 'T_L'),
                    eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
                    eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
-                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)))
+                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm, Hq)
     out = {'speed': _speed_reading(Y, effects, P), 'states': X}
     if input_kind == 'voltage':
         out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')

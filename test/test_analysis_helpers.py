@@ -109,3 +109,40 @@ def test_spread_starts_walk_the_finest_axis_of_a_flat_grid():
     assert all(grid['r'][k] == grid['r'][best] and grid['zeta'][k] == grid['zeta'][best]
                for k in rows)
     assert _spread({'x': np.array([1.0, 2.0])}, 0, np.ones(2)) == []
+
+
+def test_sign_test_of_held_out_sub_blocks():
+    from motor_id.analysis.selection import sign_test
+    assert sign_test(12, 12) == pytest.approx(2.0 ** -12)
+    assert sign_test(11, 12) == pytest.approx(13 / 4096)
+    assert sign_test(0, 12) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize('gain, wins, significant', [
+    (0.06, 7, True),    # the plain rule: 5 % and at least half of the sub-blocks
+    (0.06, 5, False),
+    (0.03, 12, True),   # a small cut everywhere (p = 2.4e-4): an effect under much noise
+    (0.03, 11, False),  # p = 3.2e-3: chance is not ruled out
+    (0.015, 12, False),  # below 0.4 x min_gain
+])
+def test_a_small_held_out_gain_counts_only_when_every_sub_block_agrees(gain, wins,
+                                                                       significant):
+    from motor_id.analysis.report import ModelScore
+    from motor_id.analysis.selection import judge
+    from motor_id.recording import Recording
+    rng = np.random.default_rng(0)
+    n = 1000
+    rec = Recording(np.arange(n) * 0.01, rng.standard_normal(n), rng.standard_normal(n),
+                    None, 'voltage', {})
+    split = HeldOutSplit(rec)
+    m = len(split.subblocks)
+    ref_sub = np.ones(m)
+    sub = np.where(np.arange(m) < wins, 0.9, 1.1)
+    preds = [rec.speed]
+    ref = ModelScore(name='linear', effects={}, heldout_error=1.0, train_error=1.0,
+                     prediction={'preds': preds, 'sub': ref_sub})
+    s = ModelScore(name='load_torque', effects={'load_torque': {'T_L': 0.1}},
+                   heldout_error=1.0 - gain, train_error=0.9, n_extra=1,
+                   prediction={'preds': preds, 'sub': sub})
+    judge(s, ref, split, 0.05, {})
+    assert s.significant is significant

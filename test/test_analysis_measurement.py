@@ -102,3 +102,40 @@ def test_dunker_current_input_grid_is_reported_as_input_noise():
     assert ev['q'] / 0.0514 == pytest.approx(0.0256, rel=0.03)
     assert 'errors in variables' in ev['note']
     assert 'current_quantization' not in [e.name for e in effects]
+
+
+def _independent_sim():
+    import sys
+    bench = str(Path(__file__).resolve().parents[1] / 'benchmarks')
+    if bench not in sys.path:
+        sys.path.insert(0, bench)
+    import independent_sim
+    return independent_sim
+
+
+@pytest.mark.parametrize('source', ['encoder', 'sampled'])
+def test_the_speed_reading_of_a_grid_is_chosen_by_the_data(source):
+    # an encoder's count difference is the mean speed over each sample period (the
+    # independent simulator counts the shaft angle); the project's generator rounds the
+    # speed at the sample, like a quantised speed sensor. Each must be recognised, and
+    # the reading must not leave a misfit that a dynamic effect is credited with.
+    from motor_id.analysis import DiscrepancyAnalysis
+    if source == 'encoder':
+        sim = _independent_sim()
+        data, case = sim.make_case(3, effect='speed_quantization', motor_class='hobby',
+                                   n_samples=4000, noise=0.005, r_m_error=0.03)
+        rec, r_known, q = sim.to_recording(data), data['known']['R_m'], \
+            case.to_dict()['effect_params']['q']
+    else:
+        from motor_id.hidden import make_case
+        rec, case = make_case(3, effect='speed_quantization', noise=(0.005, 0.005))
+        d = case.to_dict()
+        rec, r_known, q = rec, d['known']['R_m'], d['effect_params']['q']
+    rep = DiscrepancyAnalysis(R_m=r_known).fit(rec).report_
+    assert rep.verdict == 'speed_quantization', rep.verdict
+    assert rep.parameters['speed_quantization.q']['value'] == pytest.approx(q, rel=0.01)
+    expect = 1.0 if source == 'encoder' else 0.0
+    assert rep.parameters['speed_quantization.counted']['value'] == expect
+    errs = rep.to_dict()['effects'][0]['evidence']['reading_heldout_error']
+    better, worse = (errs['count difference'], errs['sampled'])[::1 if expect else -1]
+    assert better < 0.95 * worse, errs

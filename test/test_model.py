@@ -58,3 +58,24 @@ def test_transfer_coefficients_are_the_speed_tf():
         K_T / (R * B + K_T * K_b), rel=1e-12)
     assert len(c) == 3
     assert len(transfer_coefficients(p, 'voltage', ('speed', 'current'))) == 5
+
+
+def test_interval_integrals_match_quadrature_of_the_current():
+    from scipy.integrate import trapezoid
+    from scipy.linalg import expm
+
+    from motor_id.model import continuous_matrices, interval_integrals
+    par = {'J': [3.5e-5], 'K_T': [0.098], 'K_b': [0.098], 'B': [2.4e-5], 'L_m': [1.9e-3],
+           'R_m': [3.8]}
+    F, G = continuous_matrices(par, 'voltage')
+    dt = 5e-3
+    m, Q = interval_integrals(F, G, [dt])
+    d = F.shape[1] + G.shape[2]
+    M = np.zeros((d, d))
+    M[:2, :2], M[:2, 2:] = F[0], G[0]
+    s = np.linspace(0.0, dt, 4001)
+    rows = np.array([expm(M * x)[1] for x in s])  # the current's row of exp(M s)
+    z0 = np.array([30.0, 0.4, 5.0, -0.01])  # speed, current, voltage, load torque
+    i = rows @ z0
+    assert m[0, 0] @ z0 == pytest.approx(trapezoid(i, s), rel=1e-6)
+    assert z0 @ Q[0, 0] @ z0 == pytest.approx(trapezoid(i * i, s), rel=1e-6)
