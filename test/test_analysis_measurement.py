@@ -139,3 +139,5 @@ def test_the_speed_reading_of_a_grid_is_chosen_by_the_data(source):
     errs = rep.to_dict()['effects'][0]['evidence']['reading_heldout_error']
     better, worse = (errs['count difference'], errs['sampled'])[::1 if expect else -1]
     assert better < 0.95 * worse, errs
+    said = 'a count difference' if expect else 'sampled at the sample instants'
+    assert f'speed reading: {said}' in rep.summary()

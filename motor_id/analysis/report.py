@@ -168,6 +168,15 @@ def _measurement_lines(rep):
                 in e.extra:
             lines.append(f'  implied encoder resolution: '
                          f'{e.extra["counts_per_revolution"]:.4g} counts per revolution')
+        extra = getattr(e, 'extra', None) or {}
+        errs = extra.get('reading_heldout_error')
+        if errs:
+            how = ('a count difference (the mean speed over each sample period)'
+                   if extra.get('counted') else 'sampled at the sample instants')
+            other = errs.get('count difference')
+            lines.append(f'  speed reading: {how}; linear model held-out error '
+                         f'{errs["sampled"]:.4g} sampled, '
+                         + (f'{other:.4g}' if other is not None else '-') + ' counted')
     return lines
 
 
