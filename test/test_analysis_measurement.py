@@ -138,6 +138,23 @@ def test_the_speed_reading_of_a_grid_is_chosen_by_the_data(source):
     assert rep.parameters['speed_quantization.counted']['value'] == expect
     errs = rep.to_dict()['effects'][0]['evidence']['reading_heldout_error']
     better, worse = (errs['count difference'], errs['sampled'])[::1 if expect else -1]
-    assert better < 0.95 * worse, errs
+    assert better < worse, errs
     said = 'a count difference' if expect else 'sampled at the sample instants'
     assert f'speed reading: {said}' in rep.summary()
+
+
+def test_a_coarse_current_grid_credits_no_dynamic_effect():
+    # the independent simulator's current ADC with a 6.26 A step (an industrial drive,
+    # staircase input, 1 % noise, R_m told -2.4 %): below the grid's rounding noise a
+    # model wins only by where its rounded current flips a level; a 0.017 V brush drop
+    # was credited with a 22 % held-out gain (verdict brush_drop+current_quantization)
+    from motor_id.analysis import DiscrepancyAnalysis
+    _independent_sim()
+    import discrepancy_rates as dr
+    spec = dr.plan('independent', 0.01, 16, 7300, max_samples=4000)[9]
+    assert spec.effect == 'current_quantization'
+    rec, truth, r_known = dr.make_recording(spec)
+    rep = DiscrepancyAnalysis(R_m=r_known).fit(rec).report_
+    assert rep.verdict == 'current_quantization', rep.verdict
+    q = rep.parameters['current_quantization.q_i']['value']
+    assert q == pytest.approx(truth['effect_params']['q_i'], rel=0.01)

@@ -23,6 +23,9 @@ from motor_id.simulate import simulate_batch
 WIDEN = 1e3
 """Factor by which a physical bound the linear fit sits on is moved outward (once)."""
 
+WIDEN_ROUNDS = 3
+"""Largest number of times the linear fit's box is widened and the fit repeated."""
+
 FLAT = 0.95 ** 2
 """A start grid whose best point does not cut the reference's training error by 5 % (the
 squared error by this factor) cannot rank its points (see :func:`_spread`)."""
@@ -326,9 +329,11 @@ class CandidateFitter:
 
         A physical parameter on a bound of the Identifier's default box (a hobby motor's
         inertia below 1e-6 kg m^2, say) is not an estimate: the box is widened by
-        :data:`WIDEN` on that side and the fit repeated; the wider box then holds for
-        every candidate (:attr:`physical_bounds`), so that no effect is credited with
-        what a free inertia or viscous coefficient explains.
+        :data:`WIDEN` on that side and the fit repeated (again, up to
+        :data:`WIDEN_ROUNDS` times, when the freed parameter lets another reach its
+        bound: a hobby motor's viscous friction once its inertia is free); the wider box
+        then holds for every candidate (:attr:`physical_bounds`), so that no effect is
+        credited with what a free inertia or viscous coefficient explains.
         """
         t0 = time.perf_counter()
         sw = self.split.train.astype(float)
@@ -336,12 +341,18 @@ class CandidateFitter:
         with np.errstate(all='ignore'):
             est.fit(self.rec, sample_weight=sw)
         wide = self._widened(est)
-        if wide:
+        for _ in range(WIDEN_ROUNDS):  # a freed parameter may push another to its bound
+            if not wide:
+                break
             again = self.identifier(generations=generations, bounds=wide)
             with np.errstate(all='ignore'):
                 again.fit(self.rec, sample_weight=sw)
-            if again.result_.fit['cost'] <= est.result_.fit['cost']:
-                est, self.physical_bounds = again, wide
+            if again.result_.fit['cost'] > est.result_.fit['cost']:
+                break
+            est, self.physical_bounds = again, wide
+            more = self._widened(est)
+            wide = {**wide, **more} if set(more) - set(wide) or any(
+                more[k] != wide[k] for k in more if k in wide) else {}
         s = self.score('linear', est, 0, t0)
         self.resistance = est.result_.to_dict().get('resistance')
         self.linear_estimator = est

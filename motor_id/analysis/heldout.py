@@ -127,8 +127,8 @@ class HeldOutSplit:
     quantization : dict, optional
         ``{channel: (q, offset)}`` of the measurement grids found: the channel's noise
         floor is at least ``q / sqrt(12)``, the error of rounding to the grid, and its
-        predictions are scored after rounding them to the grid as the sensor does (so
-        that the rounding error's structure is neither hidden nor taken for dynamics).
+        predictions are scored by their distance from the cell of each measured value
+        (see :meth:`errors`).
     """
 
     def __init__(self, rec, n_blocks=10, quantization=None):
@@ -155,16 +155,22 @@ class HeldOutSplit:
 
         Errors are the RMS simulation error per channel divided by that channel's
         standard deviation, combined as the RMS over channels; a non-finite prediction
-        gives infinite errors.
+        gives infinite errors. On a channel whose values sit on a measurement grid, a
+        measured value says only that the signal was within half a step of it: the
+        error is the distance of the prediction from that cell (zero inside). Rounding
+        the prediction instead made the error jump by a whole step wherever the
+        prediction crossed a cell's edge, so that a negligible term (a 0.02 V brush drop
+        on a 6 A current grid, a 5e-6 N m load on a 7.8 rad/s encoder grid) won 20 to
+        30 % of held-out gain by moving plateaus across edges.
         """
         tr, te = [], []
         sub = np.zeros(len(self.subblocks))
         with np.errstate(all='ignore'):
             for c, y, p, s in zip(self.channels, self.ys, preds, self.scales):
+                r = np.abs(y - p)
                 if c in self.grids:
-                    q, off = self.grids[c]
-                    p = q * np.round((p - off) / q) + off
-                r2 = ((y - p) / s) ** 2
+                    r = np.maximum(r - 0.5 * self.grids[c][0], 0.0)
+                r2 = (r / s) ** 2
                 tr.append(np.mean(r2[self.train]))
                 te.append(np.mean(r2[self.test]))
                 sub += [np.sum(r2[a:b]) for a, b in self.subblocks]
