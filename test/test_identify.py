@@ -408,3 +408,28 @@ def test_problem_object_is_public():
     assert r.size == p.y.size + 1  # R_m's prior is the last residual
     assert p.cost(x[None, :])[0] == pytest.approx(np.sum(r ** 2) / p.y.size)
     assert p.simulate(x[None, :]).shape == (1, p.y.size) and p.weights.shape == p.y.shape
+
+
+def test_a_hobby_motor_below_the_default_box_is_fitted_in_a_widened_box():
+    # J = 1.3e-7 kg m^2 and B = 6.5e-8 N m s/rad lie below the default box (1e-6, 1e-7):
+    # the fit sat on J's bound; widened, B then sat on its own; widened again, both are
+    # estimates (measured: J +0.07 %, B +0.06 %)
+    from motor_id.excitation import bipolar_steps
+    from motor_id.model import MotorParams, Plant
+    from motor_id.simulate import simulate_recording
+    motor = MotorParams(J=1.3e-7, K_T=0.0062, K_b=0.0062, B=6.5e-8, L_m=1.4e-3, R_m=7.0)
+    t = np.arange(3000) * 2e-3
+    rec = simulate_recording(Plant(motor, 'voltage'), t, bipolar_steps(t, 4.0, period=0.5),
+                             speed_noise=0.005, current_noise=0.005, random_state=2)
+    est = Identifier(R_m=7.0, random_state=0).fit(rec)
+    d = est.result_.to_dict()['parameters']
+    assert set(est.widened_) >= {'J', 'B'}
+    assert est.widened_['J'][0] == pytest.approx(1e-9)
+    for name, truth in (('J', 1.3e-7), ('B', 6.5e-8)):
+        assert d[name]['at_bound'] is False, name
+        assert d[name]['value'] == pytest.approx(truth, rel=0.05), name
+    assert 'searched again in' in est.result_.summary()
+    assert est.result_.fit['widened']['J'][0] == pytest.approx(1e-9)
+    fixed_box = Identifier(R_m=7.0, random_state=0, bounds={'J': (1e-6, 10.0)}).fit(rec)
+    assert 'J' not in fixed_box.widened_  # a range the caller gave is never widened
+    assert fixed_box.result_.to_dict()['parameters']['J']['at_bound'] is True

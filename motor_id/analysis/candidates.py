@@ -17,14 +17,8 @@ import numpy as np
 from motor_id.analysis.report import ModelScore
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
-from motor_id.model import EFFECTS, PARAM_NAMES
+from motor_id.model import EFFECTS
 from motor_id.simulate import simulate_batch
-
-WIDEN = 1e3
-"""Factor by which a physical bound the linear fit sits on is moved outward (once)."""
-
-WIDEN_ROUNDS = 3
-"""Largest number of times the linear fit's box is widened and the fit repeated."""
 
 FLAT = 0.95 ** 2
 """A start grid whose best point does not cut the reference's training error by 5 % (the
@@ -328,50 +322,18 @@ class CandidateFitter:
         """The linear model: GA and refinement on the training blocks.
 
         A physical parameter on a bound of the Identifier's default box (a hobby motor's
-        inertia below 1e-6 kg m^2, say) is not an estimate: the box is widened by
-        :data:`WIDEN` on that side and the fit repeated (again, up to
-        :data:`WIDEN_ROUNDS` times, when the freed parameter lets another reach its
-        bound: a hobby motor's viscous friction once its inertia is free); the wider box
-        then holds for every candidate (:attr:`physical_bounds`), so that no effect is
-        credited with what a free inertia or viscous coefficient explains.
+        inertia below 1e-6 kg m^2, say) is not an estimate: the Identifier widens that
+        side and fits again (:attr:`motor_id.identify.Identifier.widened_`); the wider
+        ranges then hold for every candidate (:attr:`physical_bounds`), so that no effect
+        is credited with what a free inertia or viscous coefficient explains.
         """
         t0 = time.perf_counter()
         sw = self.split.train.astype(float)
         est = self.identifier(generations=generations)
         with np.errstate(all='ignore'):
             est.fit(self.rec, sample_weight=sw)
-        wide = self._widened(est)
-        for _ in range(WIDEN_ROUNDS):  # a freed parameter may push another to its bound
-            if not wide:
-                break
-            again = self.identifier(generations=generations, bounds=wide)
-            with np.errstate(all='ignore'):
-                again.fit(self.rec, sample_weight=sw)
-            if again.result_.fit['cost'] > est.result_.fit['cost']:
-                break
-            est, self.physical_bounds = again, wide
-            more = self._widened(est)
-            wide = {**wide, **more} if set(more) - set(wide) or any(
-                more[k] != wide[k] for k in more if k in wide) else {}
+        self.physical_bounds = dict(est.widened_)
         s = self.score('linear', est, 0, t0)
         self.resistance = est.result_.to_dict().get('resistance')
         self.linear_estimator = est
         return s
-
-    @staticmethod
-    def _widened(est):
-        """SI bounds of the physical parameters with the sides the fit sits on widened,
-        or {} when no physical parameter (but R_m, held by its prior) is at a bound."""
-        params = est.result_.to_dict()['parameters']
-        prob = est.problem_
-        b = prob.bounds
-        out = {}
-        for name, lo, hi in zip(b.names, b.low, b.high):
-            v = params.get(name, {})
-            if name not in PARAM_NAMES or name == 'R_m' or not v.get('at_bound'):
-                continue
-            lo, hi = (prob.units.to_physical(name, x) for x in (lo, hi))
-            x = v['value']
-            near_lo = x <= lo or (x < hi and math.log(x / lo) < math.log(hi / x))
-            out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
-        return out

@@ -1,5 +1,6 @@
 """The estimator: GA fit of the constrained Elman net, then least-squares refinement."""
 
+import math
 import time
 
 import numpy as np
@@ -11,6 +12,16 @@ from motor_id.identify.problem import IdentificationProblem, TORQUE_FREE
 from motor_id.identify.result import Estimate, IdentificationResult
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
+
+
+WIDEN = 1e3
+"""Factor by which a side of the default box that a fit sits on is moved outward."""
+WIDEN_ROUNDS = 3
+"""Largest number of widenings (a freed inertia may push the viscous friction to its
+bound, as on a hobby motor)."""
+_SETTINGS = ('method', 'R_m', 'tie', 'population', 'generations', 'crossover', 'mutation',
+             'random_state', 'fixed', 'bounds', 'channels', 'effects', 'free_effects',
+             'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen')
 
 
 class Identifier:
@@ -52,12 +63,19 @@ class Identifier:
         Number of residual-bootstrap refits for percentile intervals (0 = off).
     refine_starts : int
         Number of distinct GA individuals the refinement starts from.
+    widen : bool
+        A physical parameter that the GA's fit leaves on a side of the *default* box (a
+        hobby motor's inertia below 1e-6 kg m^2, say) is not an estimate: that side is
+        moved :data:`WIDEN` times outward and the fit repeated, up to
+        :data:`WIDEN_ROUNDS` times, keeping the lower cost. Ranges given in ``bounds``,
+        fixed parameters and R_m (held by its prior) are never widened; nor are warm
+        starts (``use_ga=False``). ``widened_`` holds the ranges that were moved.
     """
 
     def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
                  crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
                  channels=None, effects=None, free_effects=None, start=None, use_ga=True,
-                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10):
+                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True):
         self.method = method
         self.R_m = R_m
         self.tie = tie
@@ -76,6 +94,7 @@ class Identifier:
         self.bootstrap = bootstrap
         self.refine_starts = refine_starts
         self.R_m_tolerance = R_m_tolerance
+        self.widen = widen
 
     def fit(self, rec, progress=None, sample_weight=None):
         """Fit the model to a recording.
@@ -111,6 +130,9 @@ class Identifier:
         rec.validate()
         try:
             self._fit(rec, progress, sample_weight)
+            self.widened_ = {}
+            if self.widen and self.use_ga:
+                self._widen(rec, progress, sample_weight)
         except MotorIdError:
             raise
         except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
@@ -118,6 +140,45 @@ class Identifier:
                 from exc
         self.result_.seconds = time.perf_counter() - t_start
         return self
+
+    def _widen(self, rec, progress, sample_weight):
+        """Refit with the default box widened where a physical parameter sits on it."""
+        for _ in range(WIDEN_ROUNDS):
+            sides = self._on_default_bound()
+            if not sides:
+                return
+            bounds = {**(self.bounds or {}), **self.widened_, **sides}
+            settings = {k: getattr(self, k) for k in _SETTINGS}
+            again = Identifier(**{**settings, 'bounds': bounds, 'widen': False})
+            again._fit(rec, progress, sample_weight)
+            if not again.result_.fit['cost'] <= self.result_.fit['cost']:
+                return
+            for attr in ('problem_', 'result_', 'params_', 'covariance_', 'history_'):
+                setattr(self, attr, getattr(again, attr))
+            self.widened_.update(sides)
+            self.result_.fit['widened'] = {k: [float(lo), float(hi)]
+                                           for k, (lo, hi) in self.widened_.items()}
+
+    def _on_default_bound(self):
+        """``{name: (low, high)}`` SI: the widened range of each physical parameter the
+        fit left on a side of the default box (never one the caller bounded)."""
+        prob = self.problem_
+        params = self.result_.to_dict()['parameters']
+        caller = set(self.bounds or {})
+        out = {}
+        for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high):
+            v = params.get(name, {})
+            if name not in PARAM_NAMES or name == 'R_m' or name in caller or \
+                    not v.get('at_bound') or v.get('value') is None:
+                continue  # (an undetermined parameter's place in the box is arbitrary)
+            if name in self.widened_:
+                lo, hi = self.widened_[name]
+            else:
+                lo, hi = (prob.units.to_physical(name, x) for x in (lo, hi))
+            x = v['value']
+            near_lo = x <= lo or (x < hi and math.log(x / lo) < math.log(hi / x))
+            out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
+        return out
 
     def _fit(self, rec, progress, sample_weight):
         problem = IdentificationProblem(

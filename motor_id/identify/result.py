@@ -97,6 +97,9 @@ class IdentificationResult:
         lines = [f'method: {self.method}   channels: {", ".join(self.channels)}   '
                  f'plant: {self.input_kind} input']
         lines += self._parameter_lines()
+        for name, (lo, hi) in self.fit.get('widened', {}).items():
+            lines.append(f'  {name}: the fit sat on the default range; searched again in '
+                         f'{lo:.3g} .. {hi:.3g}')
         lines += self._resistance_lines()
         lines += self._identifiability_lines()
         for ch, m in self.fit['channels'].items():
