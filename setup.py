@@ -16,10 +16,10 @@ setup(
         ('share/' + package_name + '/bags', glob('bags/*.mcap') + glob('bags/*.md')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
-                      'mcap', 'control', 'PyYAML', 'rosbags'],
+                      'mcap', 'PyYAML', 'rosbags'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
-                 'import-linter', 'pygad', 'cma', 'psutil'],
+                 'import-linter', 'pygad', 'cma', 'psutil', 'control'],
         'bench': ['pygad', 'cma', 'psutil'],
     },
     zip_safe=True,

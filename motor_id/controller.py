@@ -320,22 +320,61 @@ def _propagate(vals, input_kind, bandwidths, names, cov):
     return {k: math.sqrt(max(var[i], 0.0)) for i, k in enumerate(_OUTPUTS)}
 
 
-# --- verification with python-control ----------------------------------------------------
+# --- verification on the full model ------------------------------------------------------
 
-def _margins(ct, loop):
-    """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts."""
-    gm, pm, _, _, wgc, _ = ct.stability_margins(loop)
-    closed = ct.feedback(loop, 1)
-    poles = ct.poles(closed)
-    stable = bool(np.all(np.real(poles) < 0))
-    bw = ct.bandwidth(closed) if stable else math.nan
-    def fin(x):
-        return float(x) if x is not None and np.isfinite(x) else None
+# The checks' sample delay as a 3rd-order Pade approximant (as python-control's pade).
+PADE_ORDER = 3
+# Crossings are bracketed on a log grid this dense, reaching this many decades beyond the
+# loop's slowest and fastest pole or zero, then refined by brentq.
+GRID_POINTS_PER_DECADE = 50
+GRID_MARGIN_DECADES = 3
 
-    return {'phase_margin_deg': fin(pm), 'crossover_hz': fin(wgc / (2 * np.pi)),
-            'gain_margin_db': fin(20 * np.log10(gm)) if gm and np.isfinite(gm) else None,
-            'closed_loop_stable': stable,
-            'closed_loop_bandwidth_hz': fin(bw / (2 * np.pi)) if stable else None}
+
+def _trim(p):
+    """Drop a polynomial's leading exact zeros (keeps ``[0.]`` for the zero polynomial)."""
+    p = np.atleast_1d(np.asarray(p, dtype=float))
+    nz = np.flatnonzero(p)
+    return p[nz[0]:] if nz.size else p[-1:]
+
+
+def pade_delay(delay, order=PADE_ORDER):
+    """Pade approximant of a pure delay ``exp(-s delay)`` as a numerator/denominator pair.
+
+    Parameters
+    ----------
+    delay : float
+        The delay [s], >= 0.
+    order : int
+        Degree of numerator and denominator.
+
+    Returns
+    -------
+    num, den : ndarray
+        Coefficients in s, highest power first; ``den`` is ``sum c_k (s delay)^k`` and
+        ``num`` the same with ``-s``, ``c_k = C(n, k) (2n - k)! / (2n)!`` (``n = order``).
+    """
+    n = order
+    c = np.array([math.comb(n, k) * math.factorial(2 * n - k) / math.factorial(2 * n)
+                  * delay ** k for k in range(n + 1)])
+    sign = (-1.0) ** np.arange(n + 1)
+    return _trim((sign * c)[::-1]), _trim(c[::-1])
+
+
+def _state_transfer_functions(F, g):
+    """Input -> each state of ``dx/dt = F x + g u``: ``([num_row, ...], den)`` in s.
+
+    Faddeev-LeVerrier: ``adj(sI - F) = sum_k M_k s^(n-k)`` and the characteristic
+    polynomial follow from traces, so structural zeros stay exact zeros.
+    """
+    n = F.shape[0]
+    den = np.ones(n + 1)
+    m = np.zeros_like(F)
+    adj = np.zeros((n, n))  # adj[k - 1] = M_k g, the coefficient of s^(n-k)
+    for k in range(1, n + 1):
+        m = F @ m + den[k - 1] * np.eye(n)
+        adj[k - 1] = m @ g
+        den[k] = -np.trace(F @ m) / k
+    return [_trim(adj[:, row]) for row in range(n)], den
 
 
 def loop_transfer_functions(values, input_kind, gains, sample_period=None):
@@ -354,36 +393,140 @@ def loop_transfer_functions(values, input_kind, gains, sample_period=None):
 
     Returns
     -------
-    dict of control.TransferFunction
-        ``'current'`` (V -> i with the PI, voltage plant only) and ``'speed'`` (i_ref or
-        torque command -> w with the PI; for a voltage plant the inner current loop is
-        closed around the full two-state model, back-EMF included).
+    dict of (ndarray, ndarray)
+        ``{name: (num, den)}``, polynomial coefficients in s (highest power first, as
+        ``numpy.polyval``) of ``'current'`` (V -> i with the PI, voltage plant only) and
+        ``'speed'`` (i_ref or torque command -> w with the PI; for a voltage plant the
+        inner current loop is closed around the full two-state model, back-EMF
+        included). The loops are negative-feedback loop gains ``L``: closed loop
+        ``L / (1 + L)``.
     """
-    import control as ct  # lazy: keep `import motor_id.controller` cheap
+    from motor_id.model import continuous_matrices  # the one model; lazy: cheap import
 
-    from motor_id.model import continuous_matrices  # the one model; lazy for the same reason
-
-    s = ct.tf('s')
-    delay = 1
+    d_num, d_den = np.ones(1), np.ones(1)
     if sample_period is not None:
-        num, den = ct.pade(DELAY_SAMPLES * sample_period, 3)
-        delay = ct.tf(num, den)
+        d_num, d_den = pade_delay(DELAY_SAMPLES * sample_period)
     F, G = continuous_matrices({k: [x] for k, x in values.items()}, input_kind)
-    F, g = F[0], G[0][:, :1]
-
-    def plant(row):  # SISO input -> state[row] of the model
-        c = np.zeros((1, F.shape[0]))
-        c[0, row] = 1.0
-        return ct.tf(ct.ss(F, g, c, 0.0))
-
-    c_speed = gains['speed_kp'] + gains['speed_ki'] / s
+    nums, den = _state_transfer_functions(F[0], G[0][:, 0])
+    integrator = np.array([1.0, 0.0])
+    # speed PI with the delay: (kp s + ki) d_num / (s d_den)
+    cs_num = np.polymul([gains['speed_kp'], gains['speed_ki']], d_num)
+    cs_den = np.polymul(integrator, d_den)
     if input_kind == 'torque':
-        return {'speed': ct.minreal(c_speed * delay * plant(0), verbose=False)}
-    p_speed, p_current = plant(0), plant(1)
-    c_current = (gains['current_kp'] + gains['current_ki'] / s) * delay
-    inner = ct.minreal(p_speed * ct.feedback(c_current, p_current), verbose=False)
-    return {'current': ct.minreal(c_current * p_current, verbose=False),
-            'speed': ct.minreal(c_speed * delay * inner, verbose=False)}
+        return {'speed': (_trim(np.polymul(cs_num, nums[0])), _trim(np.polymul(cs_den, den)))}
+    ci_num = np.polymul([gains['current_kp'], gains['current_ki']], d_num)
+    ci_den = np.polymul(integrator, d_den)
+    # inner: w / i_ref = P_w C / (1 + C P_i) = N_w N_c / (D_c D + N_c N_i) (D cancels)
+    inner_num = np.polymul(nums[0], ci_num)
+    inner_den = np.polyadd(np.polymul(ci_den, den), np.polymul(ci_num, nums[1]))
+    return {'current': (_trim(np.polymul(ci_num, nums[1])), _trim(np.polymul(ci_den, den))),
+            'speed': (_trim(np.polymul(cs_num, inner_num)),
+                      _trim(np.polymul(cs_den, inner_den)))}
+
+
+def _grid(*polys):
+    """Log-spaced frequencies [rad/s] covering every pole and zero by some decades."""
+    mags = np.concatenate([np.abs(np.roots(p)) for p in polys if len(p) > 1] + [[]])
+    mags = mags[(mags > 0) & np.isfinite(mags)]
+    if not mags.size:
+        mags = np.array([1.0])
+    lo = math.floor(math.log10(mags.min())) - GRID_MARGIN_DECADES
+    hi = math.ceil(math.log10(mags.max())) + GRID_MARGIN_DECADES
+    return np.logspace(lo, hi, (hi - lo) * GRID_POINTS_PER_DECADE + 1)
+
+
+def _extend(w, response, target, num, den):
+    """Extend the grid by decades until ``|response|`` has crossed ``target`` at its ends.
+
+    Upwards while it is still above ``target`` (strictly proper: it falls as w grows),
+    downwards while it is still below (an integrator: it grows as w falls).
+    """
+    decades = np.logspace(0, 3, 3 * GRID_POINTS_PER_DECADE + 1)
+    for _ in range(10):
+        if len(den) <= len(num) or abs(response(w[-1:]))[0] < target:
+            break
+        w = np.concatenate([w, w[-1] * decades[1:]])
+    for _ in range(10):
+        if den[-1] != 0 or abs(response(w[:1]))[0] > target:
+            break
+        w = np.concatenate([w[0] / decades[:0:-1], w])
+    return w
+
+
+def _roots_on_grid(fun, w):
+    """Every root of ``fun`` between sign changes on the grid ``w``, refined by brentq."""
+    from scipy.optimize import brentq  # lazy: a fit has imported it already
+
+    y = fun(w)
+    idx = np.flatnonzero(np.sign(y[:-1]) * np.sign(y[1:]) <= 0)
+    roots = []
+    for i in idx:
+        if y[i] == 0:
+            roots.append(w[i])
+        elif y[i + 1] != 0 and np.isfinite(y[i]) and np.isfinite(y[i + 1]):
+            roots.append(brentq(fun, w[i], w[i + 1], xtol=1e-14 * w[i], rtol=1e-13))
+    return np.unique(roots)
+
+
+def _margins(num, den):
+    """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts.
+
+    ``num / den`` is the loop gain L(s). The crossover is where ``|L(jw)| = 1`` (of
+    several, the one with the smallest ``|phase margin|``), the gain margin is taken where
+    the phase crosses -180 deg (the one closest to 0 dB), as ``control.stability_margins``
+    does; the closed loop ``L / (1 + L)`` is stable when every root of ``den + num`` lies in
+    the open left half plane, and its bandwidth is the first frequency where its gain
+    falls 3 dB below the DC gain.
+    """
+    def loop(w):
+        s = 1j * np.asarray(w)
+        with np.errstate(divide='ignore', invalid='ignore'):
+            return np.polyval(num, s) / np.polyval(den, s)
+
+    w = _extend(_grid(num, den), loop, 1.0, num, den)
+    with np.errstate(divide='ignore'):
+        wc = _roots_on_grid(lambda x: np.log(np.abs(loop(x))), w)
+        w180 = _roots_on_grid(lambda x: loop(x).imag, w)
+    w180 = w180[loop(w180).real < 0]
+    pm = np.remainder(np.angle(loop(wc), deg=True), 360.0) - 180.0
+    with np.errstate(divide='ignore'):
+        gm = 1.0 / np.abs(loop(w180))
+    gm = gm[np.isfinite(gm)]  # |L| = 0 on the negative real axis: no finite gain margin
+    out = {'phase_margin_deg': None, 'crossover_hz': None, 'gain_margin_db': None}
+    if wc.size:
+        j = np.argmin(np.abs(pm))
+        out['phase_margin_deg'] = float(pm[j])
+        out['crossover_hz'] = float(wc[j] / (2 * np.pi))
+    if gm.size:
+        out['gain_margin_db'] = float(20 * np.log10(gm[np.argmin(np.abs(np.log(gm)))]))
+    closed_den = np.polyadd(den, num)
+    out['closed_loop_stable'] = bool(np.all(np.roots(closed_den).real < 0))
+    out['closed_loop_bandwidth_hz'] = None
+    if out['closed_loop_stable']:
+        bw = _bandwidth(num, closed_den)
+        out['closed_loop_bandwidth_hz'] = None if bw is None else float(bw / (2 * np.pi))
+    return out
+
+
+def _bandwidth(num, den, drop_db=-3.0):
+    """First frequency [rad/s] where ``|num/den (jw)|`` falls ``drop_db`` below DC; or None."""
+    dc = abs(np.polyval(num, 0.0) / np.polyval(den, 0.0))
+    if not np.isfinite(dc) or dc == 0:
+        return None
+    level = dc * 10 ** (drop_db / 20)
+
+    def excess(w):
+        s = 1j * np.asarray(w)
+        return np.abs(np.polyval(num, s) / np.polyval(den, s)) - level
+
+    w = _extend(_grid(num, den), lambda x: excess(x) + level, level, num, den)
+    below = np.flatnonzero(excess(w) < 0)
+    if not below.size or below[0] == 0:
+        return None
+    from scipy.optimize import brentq  # lazy: a fit has imported it already
+
+    i = below[0]
+    return brentq(excess, w[i - 1], w[i], xtol=1e-14 * w[i - 1], rtol=1e-13)
 
 
 def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
@@ -395,12 +538,10 @@ def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
     if not known:
         notes.append('loops not verified: some parameters are unknown')
         return {}
-    import control as ct  # lazy: keep `import motor_id.controller` cheap
-
     loops = loop_transfer_functions(vals, input_kind, nominal, sample_period)
     out = {}
-    for name, loop in loops.items():
-        m = _margins(ct, loop)
+    for name, (num, den) in loops.items():
+        m = _margins(num, den)
         out[name] = m
         pm = m['phase_margin_deg']
         if not m['closed_loop_stable']:
@@ -478,11 +619,13 @@ def design_controller(values, covariance=None, input_kind='voltage', kS=None,
     cancelling it would leave a load-torque error decaying with ``J / B``. kp [A s/rad],
     ki [A/rad] (torque plant: input units s/rad and /rad).
 
-    Both loops are then checked with python-control on the full identified model (the
-    speed loop with the closed current loop, PI on the two-state model, as its inner
-    dynamics): the achieved phase margin, crossover, gain margin and closed-loop -3 dB
-    bandwidth are reported. Error bars: the delta method (central-difference gradients)
-    on ``covariance``, the bandwidths held at their chosen values.
+    Both loops are then checked on the full identified model (the speed loop with the
+    closed current loop, PI on the two-state model, as its inner dynamics), as rational
+    functions of s (:func:`loop_transfer_functions`): the achieved phase margin, crossover,
+    gain margin and closed-loop -3 dB bandwidth are reported (the tests hold them to
+    python-control's ``stability_margins``, ``feedback`` and ``bandwidth``). Error bars:
+    the delta method (central-difference gradients) on ``covariance``, the bandwidths
+    held at their chosen values.
     """
     vals = _check_values(values, input_kind)
     names, cov = _check_covariance(covariance, vals)

@@ -12,8 +12,9 @@ import pytest
 from scipy.signal import savgol_filter
 import yaml
 
-from motor_id.controller import (controller_constants, design_controller,
-                                 from_identification, to_ros_parameters)
+from motor_id.controller import (controller_constants, DELAY_SAMPLES, design_controller,
+                                 from_identification, loop_transfer_functions, pade_delay,
+                                 to_ros_parameters)
 from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier
@@ -25,6 +26,9 @@ PAPER = {'R_m': 2.3, 'L_m': 0.0345, 'J': 0.052, 'K_T': 0.66, 'K_b': 0.66, 'B': 0
 EMPS = {'J': 95.1089, 'B': 203.5034}
 EMPS_FC = 20.3935  # Coulomb force [N]
 EMPS_BAG = Path(__file__).resolve().parents[1] / 'bags' / 'emps.mcap'
+# A hobby motor (small brushed can motor; tau_e 91 us, tau_m 22 ms): tiny J L makes the
+# polynomial coefficients span ~40 decades.
+HOBBY = {'R_m': 1.1, 'L_m': 1e-4, 'J': 2e-6, 'K_T': 0.01, 'K_b': 0.01, 'B': 1e-7}
 LOOP_KEYS = {'kp', 'ki', 'bandwidth_hz', 'phase_margin_deg', 'crossover_hz',
              'gain_margin_db', 'closed_loop_bandwidth_hz', 'closed_loop_stable', 'units',
              'design', 'form'}
@@ -132,6 +136,96 @@ def test_closed_loop_reaches_designed_bandwidth():
     assert resp.outputs.max() < 1.10  # overshoot about 7 %
     # the module's own check agrees with the independent interconnection
     assert d.pi['speed']['closed_loop_bandwidth_hz'] == pytest.approx(ratio * f_w, rel=0.01)
+
+
+def _reference_loops(values, input_kind, gains, sample_period):
+    """The cascade's loop gains built with python-control (ss -> tf, pade, feedback)."""
+    s = ct.tf('s')
+    delay = 1
+    if sample_period is not None:
+        delay = ct.tf(*ct.pade(DELAY_SAMPLES * sample_period, 3))
+    F, G = continuous_matrices({k: [x] for k, x in values.items()}, input_kind)
+
+    def plant(row):
+        c = np.zeros((1, F.shape[1]))
+        c[0, row] = 1.0
+        return ct.tf(ct.ss(F[0], G[0][:, :1], c, 0.0))
+
+    c_speed = (gains['speed_kp'] + gains['speed_ki'] / s) * delay
+    if input_kind == 'torque':
+        return {'speed': ct.minreal(c_speed * plant(0), verbose=False)}
+    c_current = (gains['current_kp'] + gains['current_ki'] / s) * delay
+    inner = ct.minreal(plant(0) * ct.feedback(c_current, plant(1)), verbose=False)
+    return {'current': ct.minreal(c_current * plant(1), verbose=False),
+            'speed': ct.minreal(c_speed * inner, verbose=False)}
+
+
+@pytest.mark.parametrize('values, input_kind, kw', [
+    (PAPER, 'voltage', {}),
+    (PAPER, 'voltage', {'sample_period': 1e-3}),
+    (HOBBY, 'voltage', {'sample_period': 1e-4}),
+    (EMPS, 'torque', {}),
+    (EMPS, 'torque', {'speed_bandwidth_hz': 30.0, 'sample_period': 1e-3}),
+    # near instability: speed loop 5.9 deg / 0.97 dB of margin
+    (PAPER, 'voltage', {'current_bandwidth_hz': 100.0, 'speed_bandwidth_hz': 50.0,
+                        'sample_period': 8e-4}),
+    # unstable speed loop (phase margin -6.7 deg), stable current loop
+    (PAPER, 'voltage', {'current_bandwidth_hz': 200.0, 'speed_bandwidth_hz': 100.0,
+                        'sample_period': 5e-4}),
+], ids=['paper', 'paper-delay', 'hobby-delay', 'torque', 'torque-delay', 'near-unstable',
+        'unstable'])
+def test_loop_checks_match_python_control(values, input_kind, kw):
+    d = design_controller(values, input_kind=input_kind, **kw)
+    bandwidths = [d.pi[k]['bandwidth_hz'] if d.pi[k] else math.nan
+                  for k in ('current', 'speed')]
+    gains = controller_constants(values, input_kind, *bandwidths)
+    ours = loop_transfer_functions(values, input_kind, gains, kw.get('sample_period'))
+    ref = _reference_loops(values, input_kind, gains, kw.get('sample_period'))
+    assert set(ours) == set(ref) == {k for k in d.pi if d.pi[k]}
+    for name, loop in ref.items():
+        check = d.pi[name]
+        gm, pm, _, _, wgc, _ = ct.stability_margins(loop)
+        closed = ct.feedback(loop, 1)
+        stable = bool(np.all(ct.poles(closed).real < 0))
+        # tolerances: python-control's ss -> tf conversion rounds the hobby motor's
+        # coefficients to ~1e-6 relative; ours are exact (see the |L| = 1 check below)
+        assert check['phase_margin_deg'] == pytest.approx(pm, abs=0.01), name
+        assert check['crossover_hz'] == pytest.approx(wgc / (2 * math.pi), rel=1e-5), name
+        if np.isfinite(gm):
+            assert check['gain_margin_db'] == pytest.approx(20 * math.log10(gm), abs=0.01)
+        else:
+            assert check['gain_margin_db'] is None
+        assert check['closed_loop_stable'] is stable
+        if stable:
+            bw = ct.bandwidth(closed) / (2 * math.pi)
+            assert check['closed_loop_bandwidth_hz'] == pytest.approx(bw, rel=1e-5), name
+        else:
+            assert check['closed_loop_bandwidth_hz'] is None
+        # the same rational function, and |L| = 1 at our crossover to 1e-9
+        num, den = ours[name]
+        w = 2 * math.pi * np.array([0.1, 1.0, 10.0]) * check['crossover_hz']
+        mine = np.polyval(num, 1j * w) / np.polyval(den, 1j * w)
+        np.testing.assert_allclose(mine, loop(1j * w), rtol=1e-5)
+        wc = 2j * math.pi * check['crossover_hz']
+        assert abs(np.polyval(num, wc) / np.polyval(den, wc)) == pytest.approx(1.0, abs=1e-9)
+    unstable = [k for k in d.pi if d.pi[k] and not d.pi[k]['closed_loop_stable']]
+    assert [n for n in d.notes if 'UNSTABLE' in n] == [f'{k} loop: UNSTABLE on the '
+                                                       'identified model: lower its '
+                                                       'bandwidth' for k in unstable]
+
+
+@pytest.mark.parametrize('delay', [0.0, 1.5e-3, 0.2])
+def test_pade_delay_matches_python_control(delay):
+    num, den = pade_delay(delay)
+    ref_num, ref_den = ct.pade(delay, 3)
+    w = np.logspace(-1, 3, 9)
+    np.testing.assert_allclose(np.polyval(num, 1j * w) / np.polyval(den, 1j * w),
+                               np.polyval(ref_num, 1j * w) / np.polyval(ref_den, 1j * w),
+                               rtol=1e-12)
+    # all-pass: |exp(-s T)| = 1 on the imaginary axis, and its phase to O((wT)^7)
+    s = 1j * w[w * delay < 0.5]
+    np.testing.assert_allclose(np.polyval(num, s) / np.polyval(den, s), np.exp(-s * delay),
+                               atol=1e-6)
 
 
 def test_delta_method_std_matches_monte_carlo():
@@ -413,4 +507,15 @@ def test_from_identification_rejects_bad_dicts():
 def test_import_does_not_load_python_control():
     code = ('import sys, motor_id.controller; '
             'assert "control" not in sys.modules and "rclpy" not in sys.modules')
+    subprocess.run([sys.executable, '-c', code], check=True)
+
+
+def test_design_does_not_load_python_control_or_scipy_signal():
+    code = ('import sys\n'
+            'from motor_id.controller import design_controller\n'
+            'd = design_controller({"R_m": 2.3, "L_m": 0.0345, "J": 0.052, "K_T": 0.66, '
+            '"K_b": 0.66, "B": 0.002}, sample_period=1e-3)\n'
+            'assert d.pi["speed"]["phase_margin_deg"] > 45\n'
+            'heavy = {"control", "scipy.signal", "scipy.stats", "matplotlib"}\n'
+            'assert not heavy & set(sys.modules), heavy & set(sys.modules)')
     subprocess.run([sys.executable, '-c', code], check=True)

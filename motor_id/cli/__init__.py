@@ -6,6 +6,7 @@ become one line on stderr and exit code 2, never a traceback.
 """
 
 import argparse
+import gc
 import importlib
 import os
 import sys
@@ -26,6 +27,7 @@ COMMANDS = {
 
 def main(argv=None):
     """Console-script entry point."""
+    from_console = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in COMMANDS:
         module_name, help_text = COMMANDS[argv[0]]
@@ -38,7 +40,13 @@ def main(argv=None):
         module.add_arguments(parser)
         args = parser.parse_args(argv[1:])
         try:
-            return int(module.run(args) or 0)
+            code = int(module.run(args) or 0)
+            if from_console:
+                # the process ends next: leave the ~10^5 objects that exist now (numba's
+                # type system above all) to the OS instead of the interpreter's last
+                # garbage collection at exit (~0.2 s of a 0.8 s `motor-id fit`)
+                gc.freeze()
+            return code
         except MotorIdError as exc:
             print(f'motor-id {argv[0]}: error: {exc}', file=sys.stderr)
             return 2
