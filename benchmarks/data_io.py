@@ -119,10 +119,11 @@ def run(quick=False):
                                  'Float64', 'items': n_bag, 'seconds': s,
                          'cpu_seconds': cpu, 'us_per_item': 1e6 * s / n_bag})
     targets = [] if quick else [
-        target(f'CSV {n_csv} rows < {CSV_TARGET_S} s', rows[0]['seconds'], CSV_TARGET_S,
-               rows[0]['seconds'] < CSV_TARGET_S, 's'),
-        target(f'bag {n_bag} JointState < {BAG_TARGET_S} s', max(bag_s.values()),
-               BAG_TARGET_S, max(bag_s.values()) < BAG_TARGET_S, 's'),
+        target(f'CSV {n_csv} rows to a recording', rows[0]['seconds'],
+               f'< {CSV_TARGET_S:g} s', rows[0]['seconds'] < CSV_TARGET_S, 's'),
+        target(f'bag {n_bag} JointState + {n_bag} Float64 to a recording (slower storage)',
+               max(bag_s.values()), f'< {BAG_TARGET_S:g} s',
+               max(bag_s.values()) < BAG_TARGET_S, 's'),
     ]
     return {
         'title': TITLE,

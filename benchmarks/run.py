@@ -151,7 +151,7 @@ def _verdict(t):
 def _value(t):
     if t['value'] is None:
         return '-'
-    if '%' in t['threshold'] and 'coverage' in t['name']:
+    if '%' in str(t['threshold']) and 'coverage' in t['name']:
         return f'{100 * t["value"]:.1f} %'
     return f'{t["value"]:.3g}{(" " + t["unit"]) if t["unit"] else ""}'
 

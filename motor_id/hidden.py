@@ -50,7 +50,7 @@ from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
 from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
-from motor_id.simulate import simulate_batch
+from motor_id.simulate import on_grid, simulate_batch
 
 VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
 """Effects the generator can hide (all apply to the voltage-driven motor)."""
@@ -226,12 +226,7 @@ def _measure(plant, t, u, noise, rng):
     speed = speed + noise[0] * np.std(speed) * rng.standard_normal(n)
     current = current + noise[1] * np.std(current) * rng.standard_normal(n)
     if 'speed_quantization' in plant.effects:
-        speed = _on_grid(speed, plant.effects['speed_quantization']['q'])
+        speed = on_grid(speed, plant.effects['speed_quantization']['q'])
     if 'current_quantization' in plant.effects:
-        current = _on_grid(current, plant.effects['current_quantization']['q_i'])
+        current = on_grid(current, plant.effects['current_quantization']['q_i'])
     return speed, current
-
-
-def _on_grid(y, q):
-    """Round to a grid of step q (a counter or an ADC)."""
-    return q * np.round(y / q)

@@ -419,11 +419,19 @@ def _speed_reading(Y, effects, P):
     return _quantize(Y, effects, P)
 
 
+def on_grid(y, q):
+    """Round to a grid of step ``q`` (a counter or an ADC); where ``q <= 0``, ``y`` as is.
+
+    The one quantiser: the simulator's sensors and the project's case generator use it.
+    """
+    q = np.asarray(q, dtype=float)
+    return np.where(q > 0, np.round(y / np.where(q > 0, q, 1.0)) * q, y)
+
+
 def _quantize(Y, effects, P, name='speed_quantization', key='q'):
     if name not in effects:
         return Y
-    q = _as_batch(effects[name][key], P)[:, None]
-    return np.where(q > 0, np.round(Y / np.where(q > 0, q, 1.0)) * q, Y)
+    return on_grid(Y, _as_batch(effects[name][key], P)[:, None])
 
 
 def simulate_recording(plant, t, u, speed_noise=0.0, current_noise=0.0, with_current=True,
