@@ -468,6 +468,13 @@ def _roots_on_grid(fun, w):
     return np.unique(roots)
 
 
+def _response(num, den, w):
+    """``num / den`` at ``s = j w`` (an infinite or undefined value where ``den`` is 0)."""
+    s = 1j * np.asarray(w)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        return np.polyval(num, s) / np.polyval(den, s)
+
+
 def _margins(num, den):
     """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts.
 
@@ -479,9 +486,7 @@ def _margins(num, den):
     falls 3 dB below the DC gain.
     """
     def loop(w):
-        s = 1j * np.asarray(w)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            return np.polyval(num, s) / np.polyval(den, s)
+        return _response(num, den, w)
 
     w = _extend(_grid(num, den), loop, 1.0, num, den)
     with np.errstate(divide='ignore'):
@@ -516,17 +521,13 @@ def _bandwidth(num, den, drop_db=-3.0):
     level = dc * 10 ** (drop_db / 20)
 
     def excess(w):
-        s = 1j * np.asarray(w)
-        return np.abs(np.polyval(num, s) / np.polyval(den, s)) - level
+        return np.abs(_response(num, den, w)) - level
 
     w = _extend(_grid(num, den), lambda x: excess(x) + level, level, num, den)
-    below = np.flatnonzero(excess(w) < 0)
-    if not below.size or below[0] == 0:
+    if excess(w[:1])[0] < 0:  # below the level already at the lowest frequency
         return None
-    from scipy.optimize import brentq  # lazy: a fit has imported it already
-
-    i = below[0]
-    return brentq(excess, w[i - 1], w[i], xtol=1e-14 * w[i - 1], rtol=1e-13)
+    drops = _roots_on_grid(excess, w)
+    return drops[0] if drops.size else None
 
 
 def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):

@@ -443,12 +443,21 @@ def discretize(F, G, dt, method='zoh'):
         return a[:, :, None, None], Bd
     from scipy.linalg import expm  # lazy: scipy costs ~0.2 s to import, only ZOH needs it
 
-    M = np.zeros((P, K, n + m, n + m))
+    M = _held_input_matrix(F, G, dt)
+    E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
+    return E[:, :, :n, :n], E[:, :, :n, n:]
+
+
+def _held_input_matrix(F, G, dt):
+    """``M dt`` with ``M = [[F, G], [0, 0]]``: ``z = [x, u]`` under a held input,
+    ``dz/ds = M z``; shape (P, K, n + m, n + m) for P plants and K interval lengths."""
+    P, n, _ = F.shape
+    d = n + G.shape[2]
+    M = np.zeros((P, dt.shape[0], d, d))
     M[:, :, :n, :n] = F[:, None]
     M[:, :, :n, n:] = G[:, None]
     M *= dt[None, :, None, None]
-    E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
-    return E[:, :, :n, :n], E[:, :, :n, n:]
+    return M
 
 
 def interval_integrals(F, G, dt, row=1):
@@ -479,10 +488,7 @@ def interval_integrals(F, G, dt, row=1):
     P, n, _ = F.shape
     d = n + G.shape[2]
     K = dt.shape[0]
-    M = np.zeros((P, K, d, d))
-    M[:, :, :n, :n] = F[:, None]
-    M[:, :, :n, n:] = G[:, None]
-    M *= dt[None, :, None, None]
+    M = _held_input_matrix(F, G, dt)
     c = np.zeros(d)
     c[row] = 1.0
     big = np.zeros((P, K, 2 * d, 2 * d))  # [[M, I], [0, 0]] dt: top right = int exp(M s)
