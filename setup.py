@@ -19,7 +19,9 @@ setup(
                       'mcap', 'PyYAML', 'rosbags'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
-                 'import-linter', 'pygad', 'cma', 'psutil', 'control'],
+                 'import-linter', 'pygad', 'cma', 'psutil', 'control',
+                 'dask[distributed]', 'pyarrow'],
+        'fleet': ['dask[distributed]', 'pyarrow'],
         'bench': ['pygad', 'cma', 'psutil'],
     },
     zip_safe=True,
