@@ -19,7 +19,7 @@ setup(
                       'mcap', 'PyYAML', 'rosbags'],
     extras_require={
         'test': ['pytest', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
-                 'import-linter', 'pygad', 'cma', 'psutil', 'control',
+                 'import-linter', 'pygad', 'cma', 'psutil', 'control', 'ruff', 'mypy',
                  'dask[distributed]', 'pyarrow'],
         'fleet': ['dask[distributed]', 'pyarrow'],
         'bench': ['pygad', 'cma', 'psutil'],

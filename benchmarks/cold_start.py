@@ -13,9 +13,9 @@ import sys
 import tempfile
 import time
 
+from common import paper_recording, REPO, target
 import numpy as np
 
-from common import paper_recording, REPO, target
 from motor_id.data.csv_io import write_csv
 
 TITLE = 'Cold start in a fresh process (import, first GA, motor-id fit)'
@@ -28,14 +28,14 @@ measured by hand on this machine): the reference of the before/after table."""
 R_M = 2.3
 """The resistance given on the command line (``-R 2.3``), the paper motor's [Ohm]."""
 
-IMPORT_SCRIPT = '''
+IMPORT_SCRIPT = """
 import json, time
 t0, c0 = time.perf_counter(), time.process_time()
 import motor_id.identify
 print(json.dumps({'seconds': time.perf_counter() - t0, 'cpu': time.process_time() - c0}))
-'''
+"""
 
-GA_SCRIPT = '''
+GA_SCRIPT = """
 import json, sys, time
 from motor_id.data.load import load_recording
 from motor_id.identify import Identifier
@@ -53,7 +53,7 @@ print(json.dumps({'warm_up': warm, 'ga_seconds': idf.result_.ga['seconds'],
                   'generations': len(stamps), 'first_wall': first[0], 'first_cpu': first[1],
                   'rest_wall': stamps[-1][0] - stamps[0][0],
                   'ga_cpu': stamps[-1][1] - c0, 'fit_seconds': idf.result_.seconds}))
-'''
+"""
 
 
 def _env():
@@ -186,22 +186,22 @@ def run(quick=False):
         'targets': targets,
         'notes': [
             'each figure comes from a new Python process; the kernels were compiled (or '
-            'found in numba\'s cache) by one unmeasured run before, as at install time '
+            "found in numba's cache) by one unmeasured run before, as at install time "
             f'(that run compiled {primed["warm_up"]["compiled"]} kernel(s))',
-            'ga.seconds is the Identifier\'s own GA timer (result.ga.seconds); the first '
+            "ga.seconds is the Identifier's own GA timer (result.ga.seconds); the first "
             'generation is timed by the progress callback from the start of fit()',
             'motor-id fit runs with --json (to read ga.seconds; writing it takes ~1 ms); '
-            'its CPU time is the child process\'s user + system time',
+            "its CPU time is the child process's user + system time",
             'motor-id fit before -> after: the loop checks of the controller design no '
             'longer import python-control (0.6 s with scipy.signal, scipy.stats and '
             'matplotlib; now numpy polynomials + scipy.optimize.brentq, held to '
             'python-control in test_controller.py), and the process exits without the '
-            'interpreter\'s last garbage collection of numba\'s ~10^5 objects (gc.freeze, '
+            "interpreter's last garbage collection of numba's ~10^5 objects (gc.freeze, "
             '~0.2 s); what remains is numba import + kernel load (~0.35 s), GA (~0.12 s), '
             'least squares with the scipy.optimize import (~0.15 s), other imports',
             'quick runs check that the kernel cache is used, and CPU times with wide '
             'slack (CPU, not wall: the smoke test runs on loaded 2-core machines, where a '
-            'fit\'s CPU time rose to 3.1 s at a load average of 6-8)',
+            "fit's CPU time rose to 3.1 s at a load average of 6-8)",
         ],
         'runs': runs,
     }

@@ -16,7 +16,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 """The repository root (for child processes' PYTHONPATH)."""
 
 
-class Skip(Exception):
+class Skip(Exception):  # noqa: N818 - a section's "cannot run here", not an error
     """Raised by a section that cannot run here; the message says why."""
 
 
@@ -144,7 +144,7 @@ class Objective:
         seconds : float
         evaluations : int
         """
-        start = dict(zip(self.names, np.asarray(x, dtype=float)))
+        start = dict(zip(self.names, np.asarray(x, dtype=float), strict=True))
         t0 = time.perf_counter()
         idf = CountingIdentifier(start=start, use_ga=False, **self.kwargs).fit(self.rec)
         seconds = time.perf_counter() - t0
@@ -215,11 +215,11 @@ def render_table(columns, rows, markdown=False):
     widths = [max(len(h), *(len(row[i]) for row in body)) if body else len(h)
               for i, h in enumerate(head)]
     out = ['  '.join(h.ljust(w) if i == 0 else h.rjust(w)
-                     for i, (h, w) in enumerate(zip(head, widths)))]
+                     for i, (h, w) in enumerate(zip(head, widths, strict=True)))]
     out.append('  '.join('-' * w for w in widths))
     for row in body:
         out.append('  '.join(c.ljust(w) if i == 0 else c.rjust(w)
-                             for i, (c, w) in enumerate(zip(row, widths))))
+                             for i, (c, w) in enumerate(zip(row, widths, strict=False))))
     return '\n'.join(out)
 
 

@@ -7,10 +7,10 @@ estimates it too). Parameters are on a log scale, so the bound on log(theta) is 
 bound on the relative error.
 """
 
+from common import paper_recording, target
 import numpy as np
 from scipy.stats import chi2
 
-from common import paper_recording, target
 from motor_id.identify import Identifier
 from motor_id.model import MotorParams, PAPER_MOTOR
 from motor_id.simulate import simulate_batch

@@ -13,6 +13,7 @@ for _p in (os.path.dirname(HERE), HERE):
         sys.path.insert(0, _p)
 
 from common import render_table, target  # noqa: E402
+
 from motor_id.data.csv_io import read_csv  # noqa: E402
 from motor_id.data.rosbag import Mapping, read_bag  # noqa: E402
 from motor_id.errors import DataError  # noqa: E402
@@ -113,7 +114,7 @@ def run(quick=False):
         for storage in ('mcap', 'sqlite3'):
             path = os.path.join(tmp, f'robot_{storage}')
             write_robot_bag(path, n_bag, storage)
-            s, cpu = _best(lambda: read_bag(path, mapping), repeats)
+            s, cpu = _best(lambda path=path: read_bag(path, mapping), repeats)
             bag_s[storage] = s
             rows.append({'case': f'rosbag2 {storage} folder, {n_bag} JointState + {n_bag} '
                                  'Float64', 'items': n_bag, 'seconds': s,

@@ -49,10 +49,10 @@ import sys
 import tempfile
 import time
 
-import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
+from common import render_table, REPO, Skip, target
 import numpy as np
 
-from common import REPO, render_table, Skip, target
+import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
 
 TITLE = 'Discrepancy analysis: hidden effects named, on two generators'
 GENERATORS = ('hidden', 'independent')
@@ -89,6 +89,7 @@ def _analysis_class():
 def _require():
     try:
         import independent_sim  # noqa: F401
+
         from motor_id.hidden import make_case  # noqa: F401
         _analysis_class()
     except ImportError as exc:
@@ -287,7 +288,7 @@ def _measurement_notes(rep):
     out = {}
     for ch, m in (getattr(rep, 'measurement', None) or {}).items():
         if isinstance(m, dict):
-            out[ch] = ('found q = %.4g' % m['q']) if m.get('found') and m.get('q') else \
+            out[ch] = f"found q = {m['q']:.4g}" if m.get('found') and m.get('q') else \
                 (m.get('reason') or '')
     return out
 
@@ -307,7 +308,7 @@ def analyse(spec, candidates=None):
     hidden = None if spec.effect == 'none' else spec.effect
     try:
         rec, truth, r_known = make_recording(spec)
-    except Exception as exc:  # noqa: B902 - a generator failure is a row, not a crash
+    except Exception as exc:  # noqa: BLE001 - a generator failure is a row, not a crash
         row['error'] = f'generator: {type(exc).__name__}: {exc}'
         row['generator_error'] = True
         return row
@@ -319,7 +320,7 @@ def analyse(spec, candidates=None):
         ana.fit(rec)
         row['seconds'] = time.perf_counter() - t0
         row['cpu_seconds'] = time.process_time() - c0
-    except Exception as exc:  # noqa: B902 - an analysis crash is a miss, listed
+    except Exception as exc:  # noqa: BLE001 - an analysis crash is a miss, listed
         row['error'] = f'analysis: {type(exc).__name__}: {exc}'
         return row
     rep = ana.report_
@@ -667,14 +668,14 @@ def cli_table(cli_rows):
 def _notes(rows, generators, exact_rm, jobs):
     notes = [f'{g}: {GENERATOR_TEXT[g]}' for g in generators]
     notes += [
-        'noise: white, the stated fraction of each channel\'s std on speed and current; '
+        "noise: white, the stated fraction of each channel's std on speed and current; "
         + ('R_m told exactly' if exact_rm else
            'R_m told off by a seeded 2-5 % of either sign'),
         ('named: the hidden effect is in the verdict or in ambiguous_with; exact: the '
          'verdict is the hidden effect alone; spurious: a compound verdict on a case with '
          'one hidden effect; encoder-grid: speed_quantization cases'),
         (f'{len(rows)} analyses in {jobs} process(es); the same command gives the same '
-         'cases (seeds in the JSON); CPU time is the analysis process\'s own, wall time '
+         "cases (seeds in the JSON); CPU time is the analysis process's own, wall time "
          'includes waiting for a loaded machine'),
         'magnitudes compared: ' + ', '.join(f'{e} {p}' for e, p in MAGNITUDE.items()),
     ]
@@ -767,7 +768,7 @@ def markdown_report(rec, command):
         res = {True: 'PASS', False: 'FAIL', None: 'info'}[t['pass']]
         lines.append(f'| {t["name"]} | {v} | {t["threshold"]} | {res} |')
     lines += ['', *[f'- {n}' for n in rec['notes']], '', '## Failures', '',
-              'Each: why, generator, seed, noise, truth (the analysis\' parameter names), '
+              "Each: why, generator, seed, noise, truth (the analysis' parameter names), "
               'motor, sample period, length, excitation, R_m error told; then the verdict '
               'and the three dynamic candidates with the largest held-out gain. Regenerate '
               'a case with `make_recording(CaseSpec(...))` of benchmarks/'

@@ -10,10 +10,9 @@ all search the same unit cube, mapped to the parameters by :class:`motor_id.ga.B
 
 import time
 
+from common import CountingIdentifier, Objective, paper_recording, PAPER_SETUP, rel_errors, target
 import numpy as np
 
-from common import (CountingIdentifier, Objective, paper_recording, PAPER_SETUP, rel_errors,
-                    target)
 from motor_id.ga import GeneticAlgorithm
 from motor_id.model import PAPER_MOTOR
 
@@ -146,7 +145,7 @@ def _record(name, obj, truth, x, seconds, evaluations, polish=True):
     err = rel_errors(x, truth)
     row = {'method': name, 'seconds': seconds, 'evaluations': int(evaluations),
            'cost': float(obj.cost(x)[0]), 'x': x.tolist(),
-           'errors': dict(zip(obj.names, err.tolist())),
+           'errors': dict(zip(obj.names, err.tolist(), strict=True)),
            'max_error': float(np.max(np.abs(err))),
            'success': bool(np.max(np.abs(err)) <= SUCCESS_RTOL)}
     if polish:

@@ -6,9 +6,8 @@ Everything here imports rclpy and psutil lazily, so the other sections run witho
 import threading
 import time
 
-import numpy as np
-
 from common import REPO
+import numpy as np
 
 
 def ros_env(domain):

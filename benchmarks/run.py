@@ -117,7 +117,7 @@ def run_section(name, quick, blas_one):
             rec = module.run(quick=quick)
     except Skip as exc:
         rec = {'title': module.TITLE, 'status': f'skipped: {exc}'}
-    except Exception as exc:  # noqa: B902 - report any failure and go on
+    except Exception as exc:  # noqa: BLE001 - report any failure and go on
         rec = {'title': module.TITLE, 'status': f'error: {type(exc).__name__}: {exc}',
                'traceback': traceback.format_exc()}
     rec['seconds'] = time.perf_counter() - t0
@@ -228,7 +228,9 @@ def main(argv=None):
     names = [s for s in SECTIONS if not only or s in only]
 
     from functools import partial
+
     from common import blas_limit
+
     from motor_id.report import to_jsonable
     try:
         import threadpoolctl  # noqa: F401

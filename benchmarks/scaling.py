@@ -1,8 +1,8 @@
 """Section 3: how the fit time grows with the record length and the population size."""
 
+from common import paper_recording, PAPER_SETUP, target
 import numpy as np
 
-from common import paper_recording, PAPER_SETUP, target
 from motor_id.identify import Identifier
 
 TITLE = 'Scaling: fit time vs record length and population size'

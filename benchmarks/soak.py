@@ -36,13 +36,13 @@ import sys
 import tempfile
 import time
 
-import numpy as np
-
 from common import render_table
+import numpy as np
+from rosproc import close_all, num, processes, ros_env, rows_counter_client, wait_for
+
 from motor_id.errors import MotorIdError
 from motor_id.model import MotorParams, PAPER_MOTOR
 from motor_id.report import to_jsonable
-from rosproc import close_all, num, processes, ros_env, rows_counter_client, wait_for
 
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
                     R_m=PAPER_MOTOR.R_m)
@@ -151,6 +151,7 @@ def start(args, tmp, env, domain):
 def run(args):
     """Run the soak; return the result dict (``passed`` and the checks)."""
     import psutil  # noqa: F401  (fail early with a clear message)
+
     from motor_id.nodes.shm import clean_stale_shm
     clean_stale_shm()
     domain = 1 + (os.getpid() * 7 + 53) % 101

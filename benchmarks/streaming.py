@@ -13,12 +13,20 @@ import shutil
 import tempfile
 import time
 
-import numpy as np
-
 from common import Skip, target
+import numpy as np
+from rosproc import (
+    close_all,
+    cpu_percent,
+    cpu_times,
+    num,
+    processes,
+    ros_env,
+    rows_counter_client,
+    wait_for,
+)
+
 from motor_id.model import MotorParams, PAPER_MOTOR
-from rosproc import (close_all, cpu_percent, cpu_times, num, processes, ros_env,
-                     rows_counter_client, wait_for)
 
 TITLE = 'Streaming: card-sim -> driver -> identifier at 1 kHz'
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
@@ -33,8 +41,8 @@ def _require():
     except ImportError:
         raise Skip('psutil is not installed (pip install psutil)') from None
     try:
-        import rclpy  # noqa: F401
         from diagnostic_msgs.msg import DiagnosticArray  # noqa: F401
+        import rclpy  # noqa: F401
         from std_srvs.srv import Trigger  # noqa: F401
     except ImportError as exc:
         raise Skip(f'ROS 2 Python packages not importable ({exc})') from None
@@ -106,12 +114,13 @@ def run(quick=False):
         cpu_idle = None
         calls = []
         for at in calls_at:
-            wait_for(lambda: time.monotonic() - t0 >= at, at + 1.0, 0.01)
+            wait_for(lambda at=at: time.monotonic() - t0 >= at, at + 1.0, 0.01)
             if cpu_idle is None:
                 cpu_idle = cpu_times(procs)
             n_est = len(client.estimates)
             t_call, t_resp, resp = client.call_identify(timeout=120.0)
-            got = resp.success and wait_for(lambda: len(client.estimates) > n_est, 10.0, 0.002)
+            got = resp.success and wait_for(
+                lambda n_est=n_est: len(client.estimates) > n_est, 10.0, 0.002)
             t_est = client.estimates[-1][0] if got else None
             est = client.estimates[-1][1] if got else {}
             calls.append({'at_s': at, 'success': bool(resp.success),

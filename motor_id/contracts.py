@@ -12,7 +12,10 @@ Sample rows
     6 n)``, ``layout.dim[1] = (SAMPLES_LABEL, 6, 6)`` and ``data_offset = 0``.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 SAMPLE_COLUMNS = ('seq', 't', 'voltage', 'speed', 'current', 'flags')
 """Columns of a sample row (the wire and bag name of the input column stays 'voltage')."""
@@ -69,7 +72,7 @@ TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N 
 """Units that differ for a torque- (or force-) input plant."""
 
 
-def profile_span(flags):
+def profile_span(flags: ArrayLike) -> tuple[int, int] | None:
     """Sample range ``(start, end)`` of the last complete excitation profile.
 
     Parameters
@@ -93,7 +96,8 @@ def profile_span(flags):
     return start, end + 1
 
 
-def batch_rows(labels, sizes, data_offset, values):
+def batch_rows(labels: Sequence[str], sizes: Sequence[int], data_offset: int,
+               values: ArrayLike) -> NDArray[np.float64]:
     """Rows of a sample batch from its ``Float64MultiArray`` parts, checked against the contract.
 
     Both the live subscriber and the bag reader apply this one rule: two dimensions,
@@ -121,24 +125,25 @@ def batch_rows(labels, sizes, data_offset, values):
         it as their own domain error).
     """
     width = len(SAMPLE_COLUMNS)
-    values = np.asarray(values, dtype=float)
-    found = list(zip(labels, sizes))
+    array = np.asarray(values, dtype=float)
+    found = list(zip(labels, sizes, strict=False))
     if len(found) != 2 or sizes[1] != width or labels[1] != SAMPLES_LABEL:
         raise ValueError(f'layout {found} is not (n, {width}) rows of {SAMPLES_LABEL}')
     if data_offset != 0:
         raise ValueError(f'data_offset is {data_offset}; sample batches use 0')
     n = int(sizes[0])
-    if values.size != n * width:
-        raise ValueError(f'layout declares {n} rows but data holds {values.size} values '
+    if array.size != n * width:
+        raise ValueError(f'layout declares {n} rows but data holds {array.size} values '
                          f'(need {n * width})')
-    return values.reshape(n, width)
+    return array.reshape(n, width)
 
 
 SEQ_MODULUS = 2 ** 32
 """Card sequence numbers are uint32 and wrap at this modulus."""
 
 
-def seq_step(prev, seq, modulus=SEQ_MODULUS):
+def seq_step(prev: ArrayLike, seq: ArrayLike,
+             modulus: int = SEQ_MODULUS) -> int | NDArray[np.int64]:
     """Signed distance from sequence number ``prev`` to ``seq``, across the wrap.
 
     The one rule of sequence arithmetic, shared by the driver's tracker, the ring buffer

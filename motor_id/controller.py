@@ -160,7 +160,7 @@ def _check_covariance(covariance, values):
     return names, m
 
 
-def _check_kS(kS):
+def _check_kS(kS):  # noqa: N802 - kS is the symbol of the WPILib feedforward
     """Return ``(value, std, source)``; the default is 0 V with no error bar."""
     if kS is None:
         return 0.0, None, None
@@ -708,7 +708,7 @@ def _loop_entry(kp, ki, bandwidth_hz, check, units, design):
     return out
 
 
-def _kS_from_effects(effects, vals, input_kind):
+def _kS_from_effects(effects, vals, input_kind):  # noqa: N802 - kS: WPILib's symbol
     """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
 
     The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.

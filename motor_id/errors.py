@@ -16,7 +16,7 @@ class ConfigError(MotorIdError, ValueError):
 class ProtocolError(MotorIdError):
     """A serial frame or command cannot be decoded; ``kind`` names the fault."""
 
-    def __init__(self, kind, message):
+    def __init__(self, kind: str, message: str) -> None:
         super().__init__(f'{kind}: {message}')
         self.kind = kind
 

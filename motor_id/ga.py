@@ -43,7 +43,7 @@ class Bounds:
         n = len(self.names)
         if not (len(self.low) == len(self.high) == len(self.log) == n):
             raise ConfigError('bounds: names, low, high and log must have the same length')
-        for name, lo, hi, lg in zip(self.names, self.low, self.high, self.log):
+        for name, lo, hi, lg in zip(self.names, self.low, self.high, self.log, strict=True):
             if not (np.isfinite(lo) and np.isfinite(hi)) or not lo < hi:
                 raise ConfigError(f'bounds for {name}: need finite low < high, '
                                   f'got [{lo}, {hi}]')
@@ -192,7 +192,7 @@ class GeneticAlgorithm:
         self.history_.append(GenerationRecord(
             self.generation_, float(costs[order[0]]),
             float(finite.mean()) if finite.size else float('inf'),
-            {n: float(v) for n, v in zip(self.bounds.names, best)}))
+            {n: float(v) for n, v in zip(self.bounds.names, best, strict=True)}))
         self.costs_ = costs
         self.generation_ += 1
         self.genes_ = self._breed(self.genes_[order])

@@ -16,8 +16,16 @@ import pytest
 from ruamel.yaml import YAML
 
 from motor_id import bag
-from motor_id.bag import (bag_info, BagWriter, message_definition, read_recording,
-                          read_samples, recover, schemas, write_recording)
+from motor_id.bag import (
+    bag_info,
+    BagWriter,
+    message_definition,
+    read_recording,
+    read_samples,
+    recover,
+    schemas,
+    write_recording,
+)
 from motor_id.cli import main
 from motor_id.contracts import LATCHED_DEPTH, SAMPLES_DEPTH
 from motor_id.errors import BagError, ConfigError
@@ -162,7 +170,7 @@ def test_second_reader_rosbags_decodes_the_same_values(tmp_path):
         for conn in reader.connections:
             qos[conn.topic] = conn.ext.offered_qos_profiles[0]
             assert conn.msgdef.data == message_definition(conn.msgtype)
-        for conn, stamp, raw in reader.messages():
+        for conn, _stamp, raw in reader.messages():
             msg = store.deserialize_cdr(raw, conn.msgtype)
             if conn.topic == '/samples':
                 assert msg.layout.dim[1].label == 'seq,t,voltage,speed,current,flags'
@@ -514,7 +522,7 @@ def test_recover_resumes_after_a_chunk_with_a_damaged_header(tmp_path):
     assert res['chunks'] == len(summary.chunk_indexes) - 1
 
 
-KILLED_WRITER = textwrap.dedent('''
+KILLED_WRITER = textwrap.dedent("""
     import sys, time
     import numpy as np
     from motor_id.bag import BagWriter
@@ -535,7 +543,7 @@ KILLED_WRITER = textwrap.dedent('''
         row += 5
     print('ready', flush=True)
     time.sleep(60)
-''')
+""")
 
 
 def test_recover_after_the_writer_is_killed(tmp_path):

@@ -10,8 +10,8 @@ from motor_id.card import protocol as pr
 from motor_id.card.faults import FaultConfig, FaultInjector
 from motor_id.card.link import CardLink, GARBLED_BYTES, max_frame_rate, SampleClock
 from motor_id.card.profile import profile_samples
-from motor_id.card.simulator import CardSimulator
 from motor_id.card.session import HostProfile, Session
+from motor_id.card.simulator import CardSimulator
 from motor_id.card.supervisor import Limits, Supervisor
 from motor_id.card.virtual_card import VirtualCard
 from motor_id.cli import card_sim

@@ -12,9 +12,15 @@ import pytest
 from scipy.signal import savgol_filter
 import yaml
 
-from motor_id.controller import (controller_constants, DELAY_SAMPLES, design_controller,
-                                 from_identification, loop_transfer_functions, pade_delay,
-                                 to_ros_parameters)
+from motor_id.controller import (
+    controller_constants,
+    DELAY_SAMPLES,
+    design_controller,
+    from_identification,
+    loop_transfer_functions,
+    pade_delay,
+    to_ros_parameters,
+)
 from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier

@@ -1,5 +1,6 @@
 """CSV input: files as users have them (names, mappings, BOM), one line per bad file."""
 
+from conftest import paper_recording
 import numpy as np
 import pytest
 
@@ -7,8 +8,6 @@ from motor_id.cli import main
 from motor_id.data.csv_io import parse_columns, read_csv, write_csv
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import Recording
-
-from conftest import paper_recording
 
 HEADER = 'time,voltage,speed,current\n'
 
@@ -171,7 +170,7 @@ def test_fit_reads_a_time_torque_speed_csv(tmp_path, capsys):
     p.write_text('time,torque,speed\n' + ''.join(
         f'{t!r},{u!r},{w!r}\n' for t, u, w in zip(rec.time.tolist(),
                                                    (0.66 * rec.current).tolist(),
-                                                   rec.speed.tolist())))
+                                                   rec.speed.tolist(), strict=True)))
     assert main(['fit', str(p), '--generations', '2', '-q']) == 0, capsys.readouterr().err
 
 

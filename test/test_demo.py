@@ -6,7 +6,6 @@ import subprocess
 import sys
 
 import pytest
-
 from rosutil import domain_id, REPO, ros_env
 
 
@@ -38,9 +37,10 @@ def test_demo_recovers_the_card_parameters(demo):
 
 def test_demo_bag_opens_in_a_second_reader(demo):
     out, _ = demo
+    from pathlib import Path
+
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import get_typestore, Stores
-    from pathlib import Path
     store = get_typestore(Stores.ROS2_JAZZY)
     rows = 0
     with AnyReader([Path(out / 'demo.mcap')], default_typestore=store) as reader:

@@ -18,9 +18,21 @@ import time
 import tty
 
 from diagnostic_msgs.msg import DiagnosticArray
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import given, HealthCheck, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
+from rosutil import (
+    domain_id,
+    latest_status,
+    publish_samples,
+    REPO,
+    ros_env,
+    rows_of,
+    samples_publisher,
+    stop_cleanly,
+    wait_until,
+)
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
@@ -30,8 +42,6 @@ from motor_id.excitation import make_excitation
 from motor_id.model import MotorParams, Plant
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from rosutil import (domain_id, latest_status, publish_samples, REPO, ros_env, rows_of,
-                     samples_publisher, stop_cleanly, wait_until)
 
 DOMAIN = domain_id(__name__)
 SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
@@ -338,7 +348,7 @@ def uart_receive(data, ratio, rng, idle=3):
     bits = ((byte[:, None] >> np.arange(8)) & 1).astype(np.uint8)
     gaps = rng.integers(0, idle + 1, byte.size)
     line = []
-    for b, g in zip(bits, gaps):
+    for b, g in zip(bits, gaps, strict=True):
         line.append(np.concatenate(([0], b, [1], np.ones(g, dtype=np.uint8))))
     line = np.concatenate([np.ones(4, dtype=np.uint8)] + line + [np.ones(20, np.uint8)])
     out = bytearray()

@@ -1,5 +1,6 @@
 """The C firmware protocol (firmware/motor_card.h) against the Python protocol and card."""
 
+import itertools
 import math
 from pathlib import Path
 import shutil
@@ -155,7 +156,7 @@ def test_sample_frames_match_python_encoder(host):
         cases.append((seq, t_us, flags, v, w, has_i, i))
         lines.append(f'enc {seq} {t_us} {flags} {v} {w} {has_i} {i}')
     out = run(host, lines)
-    for (seq, t_us, flags, v, w, has_i, i), frame_hex in zip(cases, out):
+    for (seq, t_us, flags, v, w, has_i, i), frame_hex in zip(cases, out, strict=True):
         current = from_bits(i) if has_i else float('nan')
         sample = pr.Sample(seq, t_us / 1e6, from_bits(v), from_bits(w), current, flags)
         frame = bytes.fromhex(frame_hex)
@@ -176,7 +177,7 @@ def test_sample_encoder_refuses_non_finite_values_like_python(host):
     out = run(host, [f'enc 1 2 0 {v} {w} {h} {i}' for v, w, h, i in cases])
     assert out[:4] == ['none'] * 4
     assert bytes.fromhex(out[4]) == pr.encode_sample(pr.Sample(1, 2e-6, 0.0, 0.0))
-    for v, w, h, i in cases[:3]:
+    for v, w, _h, i in cases[:3]:
         with pytest.raises(ConfigError):
             pr.encode_sample(pr.Sample(1, 2e-6, from_bits(v), from_bits(w), from_bits(i)))
 
@@ -187,7 +188,7 @@ def test_reply_frames_match_python_encoder(host):
              for kind in pr.HOST_TYPES.values() for status in pr.STATUS_NAMES
              for _ in range(20)]
     out = run(host, [f'reply {kind.code} {pr.STATUS_NAMES[s]} {v}' for kind, s, v in cases])
-    for (kind, status, value), frame_hex in zip(cases, out):
+    for (kind, status, value), frame_hex in zip(cases, out, strict=True):
         reply = pr.Reply(kind.name, status, value)
         assert bytes.fromhex(frame_hex) == pr.encode_reply(reply)
         assert pr.parse_frame(bytes.fromhex(frame_hex)) == reply
@@ -258,7 +259,7 @@ def test_corrupt_frames_are_rejected_where_python_rejects_them(host):
     frames = [_corrupt(rng, pr.encode_command(random_command(rng))) for _ in range(6000)]
     out = run(host, [f'parse {f.hex() or "-"}' for f in frames])
     python = [python_parse(f) for f in frames]
-    mismatches = [(f.hex(), p, c_parse(a)) for f, p, a in zip(frames, python, out)
+    mismatches = [(f.hex(), p, c_parse(a)) for f, p, a in zip(frames, python, out, strict=True)
                   if p != c_parse(a)]
     assert mismatches == []
     kinds = {p for p in python if p.startswith('e:')}
@@ -357,7 +358,7 @@ def test_card_matches_virtual_card_byte_for_byte(host, max_input):
     lines, expected = _card_script(rng, max_input, U32 - 7_000_000, 3000)
     out = run(host, lines)
     assert out == expected
-    replies = [pr.parse_frame(bytes.fromhex(e)) for e, line in zip(expected, lines)
+    replies = [pr.parse_frame(bytes.fromhex(e)) for e, line in zip(expected, lines, strict=False)
                if line.startswith('rx')]
     statuses = {r.status for r in replies}
     assert {'ok', 'bad_value', 'unknown_profile', 'busy'} <= statuses
@@ -404,7 +405,7 @@ def test_card_time_is_monotonic_across_the_micros_wrap(host):
     out = run(host, lines)
     times = [int(x) for x in out[1:-1]]
     assert times == [r - micros0 for r in readings + big]
-    assert all(b > a for a, b in zip(times, times[1:]))
+    assert all(b > a for a, b in itertools.pairwise(times))
     assert times[-1] > 5 * U32                     # five more wraps, still exact
     _, frame, _ = out[-1].split()
     assert pr.parse_frame(bytes.fromhex(frame)).t_card == pytest.approx(

@@ -169,7 +169,7 @@ def test_dunker_as_a_torque_csv_imports_by_column_name(tmp_path, capsys):
     src = tmp_path / 'dunker.csv'
     src.write_text('time,torque,speed\n' + ''.join(
         f'{t!r},{u!r},{w!r}\n' for t, u, w in zip(rec.time.tolist(), rec.input.tolist(),
-                                                   rec.speed.tolist())),
+                                                   rec.speed.tolist(), strict=True)),
         encoding='utf-8-sig')
     back = load_csv(src)
     assert back.input_kind == 'torque'

@@ -17,8 +17,8 @@ import pytest
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                 'benchmarks'))
 
-import discrepancy_rates as dr  # noqa: E402
-import independent_sim  # noqa: E402
+import discrepancy_rates as dr
+import independent_sim
 
 ROUND_SEED = 7100
 """Seed of the first case of the default round."""

@@ -11,7 +11,7 @@ from scipy.linalg import expm
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                 'benchmarks'))
 
-import independent_sim as sim  # noqa: E402
+import independent_sim as sim
 
 SERVO = sim.Motor(J=5e-5, K=0.08, R=1.5, L=1.5e-3, B=2e-5, V_supply=36.0,
                   motor_class='servo')

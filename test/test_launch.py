@@ -4,9 +4,8 @@ import ast
 import os
 import re
 
-import yaml
-
 from rosutil import REPO
+import yaml
 
 LAUNCH = os.path.join(REPO, 'launch', 'motor_id.launch.py')
 

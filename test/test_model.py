@@ -5,9 +5,17 @@ import pytest
 from scipy.signal import cont2discrete
 
 from motor_id.errors import ConfigError
-from motor_id.model import (continuous_matrices, discretize, EFFECTS, MotorParams,
-                            PAPER_MOTOR, parse_effect_args, Plant, transfer_coefficients,
-                            validate_effects)
+from motor_id.model import (
+    continuous_matrices,
+    discretize,
+    EFFECTS,
+    MotorParams,
+    PAPER_MOTOR,
+    parse_effect_args,
+    Plant,
+    transfer_coefficients,
+    validate_effects,
+)
 
 
 def test_params_reject_nonpositive_and_unknown():

@@ -4,10 +4,10 @@ import json
 
 import numpy as np
 import pytest
+from rosutil import wait_until
 
 from motor_id.contracts import FLAG_PROFILE_END, FLAGS
 from motor_id.model import MotorParams
-from rosutil import wait_until
 
 MOTORS = {
     'left': MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3),
@@ -40,6 +40,7 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray, String
     from std_srvs.srv import Trigger
+
     from motor_id.nodes import messages
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
     ends, reports, idents = {}, {}, {}
@@ -62,12 +63,14 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
         reports[ns] = client.collect(String, f'/{ns}/identifier/report',
                                      messages.LATCHED_QOS)
     for ns in MOTORS:
-        assert wait_until(lambda: client.node.count_publishers(f'/{ns}/samples') >= 1, 60.0)
+        assert wait_until(lambda ns=ns: client.node.count_publishers(f'/{ns}/samples') >= 1,
+                          60.0)
         idents[ns].wait_for('identifier ready', 60.0)
     # nothing the nodes use leaves their namespace, except the global topics
     for ns in MOTORS:
         for name in ('driver', 'identifier', '_identifier_fit'):
-            assert wait_until(lambda: graph_names(client.node, name, f'/{ns}'), 20.0)
+            assert wait_until(lambda ns=ns, name=name: graph_names(client.node, name, f'/{ns}'),
+                              20.0)
             outside = {n for n in graph_names(client.node, name, f'/{ns}')
                        if not n.startswith(f'/{ns}/')} - GLOBAL_TOPICS
             assert not outside, (ns, name, outside)
@@ -77,16 +80,16 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
         ok, text = client.trigger(f'/{ns}/driver/start', wait_service=30.0)
         assert ok, text
     for ns in MOTORS:
-        assert wait_until(lambda: any(ends[ns]), 60.0), ns
+        assert wait_until(lambda ns=ns: any(ends[ns]), 60.0), ns
     for ns, motor in MOTORS.items():
         answers = []
 
-        def fitted():
+        def fitted(ns=ns, answers=answers):
             answers.append(client.call(Trigger, f'/{ns}/identifier/identify',
                                        timeout=120.0))
             return answers[-1].success
         assert wait_until(fitted, 20.0, 1.0), (answers[-1].message, idents[ns].output())
-        assert wait_until(lambda: reports[ns], 10.0)
+        assert wait_until(lambda ns=ns: reports[ns], 10.0)
         report = json.loads(reports[ns][-1].data)
         assert report['hardware_id'] == ns
         for name in ('J', 'K_T', 'B', 'L_m'):

@@ -2,7 +2,8 @@
 
 import math
 
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import given, HealthCheck, settings
+from hypothesis import strategies as st
 
 from motor_id.card import protocol as pr
 from motor_id.errors import ProtocolError

@@ -91,7 +91,7 @@ def _merge_split(path, parts):
     metas = [yaml.safe_load((p / 'metadata.yaml').read_text()) for p in parts]
     info = metas[0]['rosbag2_bagfile_information']
     files, rel = [], []
-    for i, (p, m) in enumerate(zip(parts, metas)):
+    for i, (p, m) in enumerate(zip(parts, metas, strict=True)):
         src = next(f for f in p.iterdir() if f.name != 'metadata.yaml')
         name = f'{path.name}_{i}{src.suffix}'
         shutil.move(str(src), path / name)
@@ -389,9 +389,10 @@ def test_profile_values_are_checked(tmp_path, rec, capsys):
 
 def test_replay_rate_republishes_the_mapped_recording(tmp_path, rec):
     """`replay BAG --rate X` with mapping flags: a live subscriber gets the mapped rows."""
+    from rosutil import Client, domain_id, ros_env, rows_of, wait_until
+
     from motor_id.nodes import messages
     from motor_id.nodes.procs import Process
-    from rosutil import Client, domain_id, ros_env, rows_of, wait_until
     bag = write_robot_bag(tmp_path / 'live', rec.slice(0, 300), 'sqlite3')
     domain = domain_id('test_rosbag_input')
     client = Client(domain)

@@ -25,14 +25,31 @@ read_recording), ``scan`` (the tolerant scan of damaged files), ``info`` (bag_in
 
 from motor_id.bag.info import bag_info
 from motor_id.bag.profile import default_qos, qos_profile
-from motor_id.bag.reader import (read_meta, read_recording, read_samples, samples_recording,
-                                  sorted_samples)
+from motor_id.bag.reader import (
+                                  read_meta,
+                                  read_recording,
+                                  read_samples,
+                                  samples_recording,
+                                  sorted_samples,
+)
 from motor_id.bag.recover import recover
-from motor_id.bag.schemas import (DIAGNOSTIC_ARRAY, FLOAT64, FLOAT64_MULTI_ARRAY,
-                                  message_definition, STRING, type_hash)
-from motor_id.bag.writer import (BagWriter, COMPRESSIONS, DEFAULT_CHUNK_SIZE,
-                                 DEFAULT_FLUSH_INTERVAL, default_units, library_string,
-                                 write_recording)
+from motor_id.bag.schemas import (
+                                  DIAGNOSTIC_ARRAY,
+                                  FLOAT64,
+                                  FLOAT64_MULTI_ARRAY,
+                                  message_definition,
+                                  STRING,
+                                  type_hash,
+)
+from motor_id.bag.writer import (
+                                  BagWriter,
+                                  COMPRESSIONS,
+                                  DEFAULT_CHUNK_SIZE,
+                                  DEFAULT_FLUSH_INTERVAL,
+                                  default_units,
+                                  library_string,
+                                  write_recording,
+)
 
 __all__ = [
     'bag_info', 'BagWriter', 'COMPRESSIONS', 'DEFAULT_CHUNK_SIZE', 'DEFAULT_FLUSH_INTERVAL',

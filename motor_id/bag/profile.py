@@ -9,8 +9,14 @@ metadata record ``rosbag2`` whose ``serialized_metadata`` is the bag's ``metadat
 import yaml
 
 from motor_id.bag.schemas import MESSAGE_ENCODING, topic_name, type_hash
-from motor_id.contracts import (BAG_ESTIMATE_TOPIC, BAG_META_TOPIC, BAG_SAMPLES_TOPIC,
-                                CHANNEL_DEPTH, LATCHED_DEPTH, SAMPLES_DEPTH)
+from motor_id.contracts import (
+    BAG_ESTIMATE_TOPIC,
+    BAG_META_TOPIC,
+    BAG_SAMPLES_TOPIC,
+    CHANNEL_DEPTH,
+    LATCHED_DEPTH,
+    SAMPLES_DEPTH,
+)
 from motor_id.errors import ConfigError
 
 ROS_DISTRO = 'jazzy'

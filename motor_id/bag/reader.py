@@ -15,10 +15,22 @@ import numpy as np
 
 from motor_id.bag.files import open_mcap
 from motor_id.bag.scan import DAMAGE_ERRORS, scan_file
-from motor_id.bag.schemas import (DECODE_ERRORS, deserialize, FLOAT64_MULTI_ARRAY,
-                                  MESSAGE_ENCODING, SCHEMA_ENCODING, STRING, topic_name)
-from motor_id.contracts import (BAG_META_TOPIC, BAG_SAMPLES_TOPIC, batch_rows, SAMPLE_COLUMNS,
-                                seq_step)
+from motor_id.bag.schemas import (
+    DECODE_ERRORS,
+    deserialize,
+    FLOAT64_MULTI_ARRAY,
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    STRING,
+    topic_name,
+)
+from motor_id.contracts import (
+    BAG_META_TOPIC,
+    BAG_SAMPLES_TOPIC,
+    batch_rows,
+    SAMPLE_COLUMNS,
+    seq_step,
+)
 from motor_id.errors import BagError
 from motor_id.recording import Recording
 

@@ -12,8 +12,17 @@ from dataclasses import dataclass, field
 import struct
 
 from mcap.exceptions import McapError
-from mcap.records import Channel, Chunk, DataEnd, Footer, Header, Message, Metadata, Schema
-from mcap.records import Statistics
+from mcap.records import (
+    Channel,
+    Chunk,
+    DataEnd,
+    Footer,
+    Header,
+    Message,
+    Metadata,
+    Schema,
+    Statistics,
+)
 from mcap.stream_reader import breakup_chunk, StreamReader
 import zstandard
 

@@ -27,7 +27,7 @@ _DTYPES = {'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'int8': np.int8
 """numpy dtype of each primitive ROS type (rosbags wants primitive sequences as arrays)."""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def typestore():
     """The rosbags type store of ROS 2 Jazzy (built once, on first use)."""
     return get_typestore(Stores.ROS2_JAZZY)

@@ -21,13 +21,27 @@ from mcap.writer import Writer as McapWriter
 import numpy as np
 
 from motor_id import __version__
-from motor_id.bag.profile import (channel_metadata, default_qos, METADATA_RECORD,
-                                  rosbag2_metadata)
-from motor_id.bag.schemas import (DIAGNOSTIC_ARRAY, FLOAT64, FLOAT64_MULTI_ARRAY,
-                                  MESSAGE_ENCODING, message_definition, SCHEMA_ENCODING,
-                                  serialize, STRING, topic_name)
-from motor_id.contracts import (BAG_ESTIMATE_TOPIC, BAG_META_TOPIC, BAG_SAMPLES_TOPIC,
-                                BATCH_LABEL, CHANNEL_TOPICS, SAMPLE_COLUMNS, SAMPLES_LABEL)
+from motor_id.bag.profile import channel_metadata, default_qos, METADATA_RECORD, rosbag2_metadata
+from motor_id.bag.schemas import (
+    DIAGNOSTIC_ARRAY,
+    FLOAT64,
+    FLOAT64_MULTI_ARRAY,
+    message_definition,
+    MESSAGE_ENCODING,
+    SCHEMA_ENCODING,
+    serialize,
+    STRING,
+    topic_name,
+)
+from motor_id.contracts import (
+    BAG_ESTIMATE_TOPIC,
+    BAG_META_TOPIC,
+    BAG_SAMPLES_TOPIC,
+    BATCH_LABEL,
+    CHANNEL_TOPICS,
+    SAMPLE_COLUMNS,
+    SAMPLES_LABEL,
+)
 from motor_id.errors import BagError, ConfigError
 from motor_id.report import to_jsonable
 

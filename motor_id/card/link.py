@@ -11,8 +11,14 @@ from collections import Counter
 import threading
 import time
 
-from motor_id.card.protocol import (encode_command, FLAG_STARTUP, FrameParser, MAX_FRAME,
-                                    OVERHEAD, SequenceTracker)
+from motor_id.card.protocol import (
+    encode_command,
+    FLAG_STARTUP,
+    FrameParser,
+    MAX_FRAME,
+    OVERHEAD,
+    SequenceTracker,
+)
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
 from motor_id.errors import ConfigError, MotorIdError, ProtocolError
 

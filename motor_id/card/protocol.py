@@ -37,9 +37,15 @@ import zlib
 
 from motor_id.card.transport import open_transport, TransportError  # noqa: F401
 from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
-    FLAG_CURRENT, FLAG_LIMIT, FLAG_NAMES, FLAG_OVERRUN, FLAG_PROFILE, FLAG_PROFILE_END,
-    FLAG_STARTUP)
-from motor_id.contracts import seq_step
+    FLAG_CURRENT,
+    FLAG_LIMIT,
+    FLAG_NAMES,
+    FLAG_OVERRUN,
+    FLAG_PROFILE,
+    FLAG_PROFILE_END,
+    FLAG_STARTUP,
+    seq_step,
+)
 from motor_id.errors import ConfigError, ProtocolError
 
 SYNC = b'\xa5\x5a'
@@ -536,7 +542,7 @@ class _StreamSplitter:
         """Forget buffered bytes (after reopening the device); counters stay."""
         self._buf.clear()
 
-    def _items(self, data, final=False):  # noqa: C901 - one scanning loop, kept together
+    def _items(self, data, final=False):
         buf = self._buf
         buf += data
         out = []
@@ -588,9 +594,9 @@ class _StreamSplitter:
             pos = end
         del buf[:pos]
         if final and buf:
-            err = ProtocolError('short', f'stream ends inside a frame ({len(buf)} bytes)')
-            out.append(err)
-            self.errors[err.kind] += 1
+            short = ProtocolError('short', f'stream ends inside a frame ({len(buf)} bytes)')
+            out.append(short)
+            self.errors[short.kind] += 1
             buf.clear()
         return out
 

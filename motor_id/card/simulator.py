@@ -184,7 +184,7 @@ class CardSimulator:
     def _serve(self):
         try:
             self._loop()
-        except Exception as exc:  # reported through .error; the thread must not vanish
+        except Exception as exc:  # noqa: BLE001 - reported through .error; the thread must not vanish
             self.error = exc
 
     def _emit(self, n):
@@ -212,7 +212,7 @@ class CardSimulator:
             return 0, min(0.05, -lag / self.speedup)
         return min(int(lag / self.card.period) + 1, 10_000), 0.0
 
-    def _loop(self):  # noqa: C901 - the event loop, kept in one place
+    def _loop(self):
         self._wall0 = time.monotonic()
         self._t0 = self.card.t_us / 1e6
         faults = self.faults

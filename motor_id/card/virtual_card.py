@@ -29,8 +29,17 @@ import numpy as np
 
 from motor_id.card.profile import MAX_PROFILE_SAMPLES, profile_length, profile_samples
 from motor_id.card.protocol import (
-    FLAG_PROFILE, FLAG_PROFILE_END, FLAG_STARTUP, Ping, Reply, Sample, SetPeriod,
-    SetVoltage, StartProfile, Stop)
+    FLAG_PROFILE,
+    FLAG_PROFILE_END,
+    FLAG_STARTUP,
+    Ping,
+    Reply,
+    Sample,
+    SetPeriod,
+    SetVoltage,
+    StartProfile,
+    Stop,
+)
 from motor_id.errors import ConfigError
 from motor_id.excitation import PROFILES
 from motor_id.model import METHODS, Plant

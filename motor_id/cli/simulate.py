@@ -14,14 +14,14 @@ from motor_id.simulate import simulate_recording
 def add_arguments(parser):
     """CLI arguments of `motor-id simulate`."""
     parser.add_argument('--params', metavar='FILE',
-                        help='JSON motor parameters (default: the paper\'s motor)')
+                        help="JSON motor parameters (default: the paper's motor)")
     parser.add_argument('--excitation', choices=PROFILES, default='paper_steps')
     parser.add_argument('--out', required=True, metavar='DATA.csv')
     parser.add_argument('--samples', type=int, default=4000)
     parser.add_argument('--period', type=float, default=0.01, help='sample period [s]')
     parser.add_argument('--amplitude', type=float, default=9.0, help='input amplitude [V]')
     parser.add_argument('--noise', default='0,0', metavar='SPEED[,CURRENT]',
-                        help='noise std as fractions of each channel\'s std, e.g. 0.005,0.01')
+                        help="noise std as fractions of each channel's std, e.g. 0.005,0.01")
     parser.add_argument('--effect', action='append', default=[], metavar='NAME[=VALUE]',
                         help='add a named effect (repeatable), e.g. coulomb_friction=0.2')
     parser.add_argument('--method', choices=('zoh', 'euler'), default='zoh')

@@ -5,8 +5,17 @@ import threading
 
 import numpy as np
 
-from motor_id.contracts import (CURRENT, FLAGS, INPUT, profile_span, SAMPLE_COLUMNS, SEQ,
-                                seq_step, SPEED, T)
+from motor_id.contracts import (
+    CURRENT,
+    FLAGS,
+    INPUT,
+    profile_span,
+    SAMPLE_COLUMNS,
+    SEQ,
+    seq_step,
+    SPEED,
+    T,
+)
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import MIN_SAMPLES, Recording
 

@@ -203,7 +203,7 @@ def load_dunker(path, motor=1):
     meta = {
         'dataset': 'Dunker GR 42x25',
         'provenance': ('three-wheeled mobile robot with 3 Dunkermotoren GR 42x25 brushed DC '
-                       'motors under the robot\'s own P speed controller; public research '
+                       "motors under the robot's own P speed controller; public research "
                        'repository on wheel slippage, Apache-2.0'),
         'source': os.path.basename(path),
         'license': 'Apache-2.0',

@@ -1,5 +1,6 @@
 """Shared node plumbing: parameters with ranges, the stop signal, topic checks, the main."""
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import functools
 import os
@@ -8,17 +9,25 @@ import signal
 import socket
 import sys
 import threading
+from typing import Any
 
-from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                SetParametersResult)
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 import rclpy
 from rclpy.exceptions import ParameterException
-from rclpy.executors import (ExternalShutdownException, MultiThreadedExecutor,
-                              SingleThreadedExecutor)
+from rclpy.executors import (
+    ExternalShutdownException,
+    MultiThreadedExecutor,
+    SingleThreadedExecutor,
+)
 from rclpy.signals import SignalHandlerOptions
 
 from motor_id.errors import ConfigError
-from motor_id.nodes.rclshim import RCLError  # noqa: F401  (re-exported for the nodes)
+from motor_id.nodes.rclshim import RCLError
 
 
 @dataclass(frozen=True)
@@ -49,13 +58,13 @@ class ParamSpec:
     name: str
     default: object
     description: str
-    low: float = None
-    high: float = None
-    choices: tuple = None
+    low: float | None = None
+    high: float | None = None
+    choices: tuple | None = None
     dynamic: bool = False
     read_only: bool = False
-    syntax: str = None
-    validator: object = None
+    syntax: str | None = None
+    validator: Callable[[Any, str], None] | None = None
 
     def allowed(self):
         """The allowed values, in words."""

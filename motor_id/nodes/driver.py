@@ -198,7 +198,7 @@ class DriverNode(Node):
                 for batch in self.link.poll():
                     self._emit(batch)
                 self.session.check_watchdog()
-            except Exception as exc:  # noqa: B902 - the reader must outlive any bug
+            except Exception as exc:  # noqa: BLE001 - the reader must outlive any bug
                 self.link.fault(f'internal_{type(exc).__name__}',
                                 f'reader thread error {type(exc).__name__}: {exc}; '
                                 'restarting', 'error')

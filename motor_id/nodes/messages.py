@@ -10,10 +10,23 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
 
 from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the nodes)
-    batch_rows, CHANNEL_DEPTH, CHANNEL_TOPICS, DIAGNOSTICS_DEPTH, DIAGNOSTICS_TOPIC,
-    ESTIMATE_TOPIC, JOINT_STATES_TOPIC, LATCHED_DEPTH, REPORT_TOPIC, SAMPLE_COLUMNS as COLUMNS,
-    SAMPLES_DEPTH, SAMPLES_LABEL as ROW_LABEL, SAMPLES_TOPIC, TORQUE_UNITS, UNITS,
-    VOLTAGE_COMMAND_TOPIC)
+    batch_rows,
+    CHANNEL_DEPTH,
+    CHANNEL_TOPICS,
+    DIAGNOSTICS_DEPTH,
+    DIAGNOSTICS_TOPIC,
+    ESTIMATE_TOPIC,
+    JOINT_STATES_TOPIC,
+    LATCHED_DEPTH,
+    REPORT_TOPIC,
+    SAMPLES_DEPTH,
+    SAMPLES_TOPIC,
+    TORQUE_UNITS,
+    UNITS,
+    VOLTAGE_COMMAND_TOPIC,
+)
+from motor_id.contracts import SAMPLE_COLUMNS as COLUMNS
+from motor_id.contracts import SAMPLES_LABEL as ROW_LABEL
 from motor_id.errors import DataError
 from motor_id.report import to_jsonable
 

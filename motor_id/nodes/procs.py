@@ -14,7 +14,7 @@ import zlib
 
 from motor_id.errors import MotorIdError
 
-_LIVE = set()
+_LIVE: set['Process'] = set()
 
 
 @atexit.register
