@@ -27,6 +27,10 @@ class Recording:
     input_kind : {'voltage', 'torque'}
     meta : dict
         Provenance and notes, carried into reports and bags.
+    segments : list of (int, int), optional
+        Sample ranges ``[start, stop)`` of separate runs joined into one recording
+        (:meth:`concatenate`): each starts from its own initial state and the model is
+        never simulated across a boundary. None: one run.
     """
 
     time: np.ndarray
@@ -35,6 +39,7 @@ class Recording:
     current: np.ndarray = None
     input_kind: str = 'voltage'
     meta: dict = field(default_factory=dict)
+    segments: list = None
 
     MAX_MAGNITUDE = 1e200
     """Largest accepted magnitude of any value. The fit rescales each channel and copes
@@ -70,6 +75,66 @@ class Recording:
         dt = np.diff(self.time)
         return bool(np.ptp(dt) <= 1e-6 * np.mean(dt))
 
+    @property
+    def segment_ranges(self):
+        """``[(start, stop), ...]``: the runs of this recording (one unless joined)."""
+        return list(self.segments) if self.segments else [(0, len(self))]
+
+    def segment_index(self):
+        """The run each sample belongs to (0, 1, ...)."""
+        out = np.zeros(len(self), dtype=int)
+        for k, (a, b) in enumerate(self.segment_ranges):
+            out[a:b] = k
+        return out
+
+    @classmethod
+    def concatenate(cls, recordings):
+        """Join separate runs of one motor into one recording with :attr:`segments`.
+
+        Each run keeps its samples; its times are shifted to follow the previous run by
+        one median sample period (a run's own time origin is kept in
+        ``meta['segment_offsets']``). All runs must have the same input kind and channels.
+
+        Raises
+        ------
+        DataError
+            Mixed plant kinds or channels.
+        """
+        recordings = list(recordings)
+        if len(recordings) == 1:
+            return recordings[0]
+        first = recordings[0]
+        for r in recordings[1:]:
+            if r.input_kind != first.input_kind or r.has_current != first.has_current:
+                raise DataError(
+                    f'cannot fit {r.meta.get("source", "a recording")} together with '
+                    f'{first.meta.get("source", "the first")}: one has '
+                    f'{first.input_kind} input and channels {first.channels()}, the other '
+                    f'{r.input_kind} input and {r.channels()}')
+        times, segs, offsets = [], [], []
+        t_end, n = None, 0
+        for r in recordings:
+            t = np.asarray(r.time, dtype=float)
+            shift = 0.0 if t_end is None else t_end + r.sample_period - t[0]
+            times.append(t + shift)
+            offsets.append(shift)
+            t_end = float(times[-1][-1])
+            segs.append((n, n + t.size))
+            n += t.size
+        cur = np.concatenate([r.current for r in recordings]) if first.has_current \
+            else None
+        meta = dict(first.meta)
+        meta['sources'] = [r.meta.get('source') for r in recordings]
+        meta['segment_offsets'] = offsets
+        return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),
+                   np.concatenate([r.speed for r in recordings]), cur, first.input_kind,
+                   meta, segs)
+
+    def segment(self, k):
+        """Run ``k`` as a recording of its own."""
+        a, b = self.segment_ranges[k]
+        return self.slice(a, b)
+
     def channels(self):
         """Names of the output channels present: speed, and current if measured."""
         return ('speed', 'current') if self.has_current else ('speed',)
@@ -77,8 +142,15 @@ class Recording:
     def slice(self, start, stop):
         """A new recording with samples ``start:stop``."""
         cur = None if self.current is None else self.current[start:stop]
+        start, stop, _ = slice(start, stop).indices(len(self))
+        segs = None
+        if self.segments:
+            segs = [(max(a, start) - start, min(b, stop) - start)
+                    for a, b in self.segments if min(b, stop) > max(a, start)]
+            segs = segs if len(segs) > 1 else None
         return Recording(self.time[start:stop], self.input[start:stop],
-                         self.speed[start:stop], cur, self.input_kind, dict(self.meta))
+                         self.speed[start:stop], cur, self.input_kind, dict(self.meta),
+                         segs)
 
     def validate(self, min_samples=MIN_SAMPLES):
         """Raise :class:`DataError` with a one-line reason if the data cannot be fitted.

@@ -297,9 +297,15 @@ def test_r_m_tolerance_sets_the_prior_width():
     rec = paper_recording(params=WARM, speed_noise=0.01, current_noise=0.01, seed=11)
     with pytest.raises(ConfigError, match='tolerance'):
         Identifier(R_m=2.3, R_m_tolerance=0).fit(rec)
+    loose = Identifier(R_m=2.3, R_m_tolerance=0.1, random_state=0).fit(rec).result_
+    assert loose.to_dict()['assumptions']['R_m_prior']['std'] == pytest.approx(0.23)
+    assert loose.resistance['estimated']
+    # a prior 1e-4 wide carries more than the data: the given value is used, and said
     tight = Identifier(R_m=2.3, R_m_tolerance=1e-4, random_state=0).fit(rec).result_
-    assert tight.parameters['R_m'].value == pytest.approx(2.3, rel=1e-3)
-    assert tight.to_dict()['assumptions']['R_m_prior']['std'] == pytest.approx(2.3e-4)
+    assert tight.parameters['R_m'].value == pytest.approx(2.3, rel=1e-12)
+    assert not tight.resistance['estimated']
+    assert 'the data do not determine R_m' in tight.resistance['note']
+    assert any('do not determine R_m' in w for w in tight.warnings)
 
 
 # ------------------------------------------------------------------ never lose a fit

@@ -7,7 +7,7 @@ import numpy as np
 
 from motor_id.errors import ConfigError, IdentificationError, MotorIdError
 from motor_id.ga import GeneticAlgorithm
-from motor_id.identify import uncertainty
+from motor_id.identify import determinacy, uncertainty
 from motor_id.identify.problem import IdentificationProblem, TORQUE_FREE
 from motor_id.identify.result import Estimate, IdentificationResult
 from motor_id.metrics import channel_metrics
@@ -16,12 +16,16 @@ from motor_id.model import PARAM_NAMES
 
 WIDEN = 1e3
 """Factor by which a side of the default box that a fit sits on is moved outward."""
+PRIOR_DOMINATES = 0.7071
+"""R_m's posterior std above this fraction of its prior's: the prior carries more of the
+estimate than the data do."""
 WIDEN_ROUNDS = 3
 """Largest number of widenings (a freed inertia may push the viscous friction to its
 bound, as on a hobby motor)."""
 _SETTINGS = ('method', 'R_m', 'tie', 'population', 'generations', 'crossover', 'mutation',
              'random_state', 'fixed', 'bounds', 'channels', 'effects', 'free_effects',
-             'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen')
+             'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen',
+             'error_blocks')
 
 
 class Identifier:
@@ -75,7 +79,8 @@ class Identifier:
     def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
                  crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
                  channels=None, effects=None, free_effects=None, start=None, use_ga=True,
-                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True):
+                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True,
+                 error_blocks=10):
         self.method = method
         self.R_m = R_m
         self.tie = tie
@@ -95,6 +100,7 @@ class Identifier:
         self.refine_starts = refine_starts
         self.R_m_tolerance = R_m_tolerance
         self.widen = widen
+        self.error_blocks = error_blocks
 
     def fit(self, rec, progress=None, sample_weight=None):
         """Fit the model to a recording.
@@ -133,6 +139,7 @@ class Identifier:
             self.widened_ = {}
             if self.widen and self.use_ga:
                 self._widen(rec, progress, sample_weight)
+            self._settle(rec, progress, sample_weight)
         except MotorIdError:
             raise
         except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
@@ -159,6 +166,54 @@ class Identifier:
             self.result_.fit['widened'] = {k: [float(lo), float(hi)]
                                            for k, (lo, hi) in self.widened_.items()}
 
+    def _settle(self, rec, progress, sample_weight):
+        """Refit without what the record cannot carry (a warm start from the estimate).
+
+        A current channel that takes fewer than :data:`determinacy.MIN_LEVELS` values, or
+        that the model explains less than :data:`determinacy.CHANNEL_FIT` %, is left out
+        (it would only drag the speed fit and R_m); an R_m whose estimate leans on its
+        prior more than on the data (posterior std above 1/sqrt(2) of the prior's) is
+        held at the given value. The warnings say which and why.
+        """
+        res = self.result_
+        notes, channels, fixed = [], self.channels, dict(self.fixed or {})
+        cur = res.fit['channels'].get('current')
+        if cur is not None and self.channels is None:
+            levels = determinacy.channel_levels(rec.current)
+            if levels < determinacy.MIN_LEVELS:
+                why = f'the current takes only {levels} distinct values'
+            elif not cur['fit_percent'] >= determinacy.CHANNEL_FIT:
+                why = f'the model explains {cur["fit_percent"]:.1f} % of the current'
+            else:
+                why = None
+            if why:
+                channels = ('speed',)
+                notes.append(f'{why}: it cannot carry R_m or L_m; fitted on the speed '
+                             'alone with R_m at the given value')
+        r = res.resistance or {}
+        if channels is self.channels and r.get('estimated') and (
+                r.get('std') is None or r['std'] > PRIOR_DOMINATES * r['prior_std']
+                or not res.identifiability.get('r_m_determined_by_data', True)):
+            fixed['R_m'] = r['given']
+            notes.append(f'the data do not determine R_m; the given value '
+                         f'{r["given"]:.4g} Ohm is used')
+        if not notes:
+            return
+        settings = {k: getattr(self, k) for k in _SETTINGS}
+        start = {k: v for k, v in self.params_.items() if v is not None}
+        again = Identifier(**{**settings, 'fixed': fixed, 'channels': channels,
+                              'start': start, 'use_ga': False, 'widen': False,
+                              'bounds': {**(self.bounds or {}), **self.widened_} or None})
+        again._fit(rec, None, sample_weight)
+        res2 = again.result_
+        res2.ga, res2.warnings = res.ga, notes + res2.warnings
+        if res2.resistance is not None and 'R_m' in fixed and 'R_m' not in (self.fixed or {}):
+            res2.resistance['note'] = notes[-1]
+            res2.resistance['data_estimate'] = {'value': r.get('estimate'),
+                                                'std': r.get('std')}
+        for attr in ('problem_', 'result_', 'params_', 'covariance_'):
+            setattr(self, attr, getattr(again, attr))
+
     def _on_default_bound(self):
         """``{name: (low, high)}`` SI: the widened range of each physical parameter the
         fit left on a side of the default box (never one the caller bounded)."""
@@ -168,14 +223,17 @@ class Identifier:
         out = {}
         for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high):
             v = params.get(name, {})
+            x = v.get('value', v.get('particular_value'))
+            if x is None:
+                x = v.get('particular_value')
+            structural = v.get('value') is None and not v.get('reason')
             if name not in PARAM_NAMES or name == 'R_m' or name in caller or \
-                    not v.get('at_bound') or v.get('value') is None:
+                    not v.get('at_bound') or x is None or structural:
                 continue  # (an undetermined parameter's place in the box is arbitrary)
             if name in self.widened_:
                 lo, hi = self.widened_[name]
             else:
                 lo, hi = (prob.units.to_physical(name, x) for x in (lo, hi))
-            x = v['value']
             near_lo = x <= lo or (x < hi and math.log(x / lo) < math.log(hi / x))
             out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
         return out
@@ -269,10 +327,14 @@ class Identifier:
     # ------------------------------------------------------------ the result
     def _build_result(self, rec, problem, x_best, z_best, J, sigma, w, pred):
         names = list(problem.bounds.names)
-        state_names = ['x0:speed', 'x0:current'][:z_best.size - len(names)]
+        state_names = problem.state_names()[:z_best.size - len(names)]
         names = names + state_names
         rank, Vr, Vn, determined = uncertainty.structural(problem, z_best)
-        cov, cond = uncertainty.covariance(J, Vr, rank)
+        cov_gn, cond = uncertainty.covariance(J, Vr, rank)
+        ids, k = uncertainty.block_ids(problem.n_per, self.error_blocks)
+        cov_rob = uncertainty.robust_covariance(
+            J, problem.weighted_residuals(z_best, w), Vr, ids, k)
+        cov = uncertainty.combine(cov_gn, cov_rob)
         self.covariance_ = cov
         lg = problem.log_mask(len(names))
         std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -290,7 +352,15 @@ class Identifier:
                'fully_determined': rank == len(names),
                'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels)}
         idf.update(_prior_verdict(problem, z_best))
+        warnings = self._honesty(rec, problem, params, fit)
+        adequate, why = determinacy.adequacy(
+            {ch: m['fit_percent'] for ch, m in fit['channels'].items()})
+        if not adequate:
+            for e in params.values():
+                if not e.assumed and e.determined:
+                    determinacy.mark_undetermined(e, why[0])
         result = IdentificationResult(
+            adequate=adequate, warnings=why + warnings,
             method=self.method, input_kind=problem.kind, channels=problem.channels,
             parameters=params,
             identifiable_combinations=uncertainty.combinations(problem, z_best, cov),
@@ -303,9 +373,18 @@ class Identifier:
         if problem.kind == 'voltage':
             result.resistance = self._resistance_block(problem, params)
             if problem.r_m_prior is None:
-                dz = uncertainty.r_m_sensitivity(problem, z_best, w, J, cov)
+                dz = uncertainty.r_m_sensitivity(problem, z_best, w, J, cov_gn)
                 result.r_m_sensitivity = _sensitivity_block(problem, params, names, dz)
         return result
+
+    def _honesty(self, rec, problem, params, fit):
+        """Floors the stds and marks what this record leaves open (warnings)."""
+        for e in params.values():
+            if not e.assumed:
+                e.std = determinacy.floor_std(e.value, e.std)
+        noise = {ch: determinacy.relative_noise(getattr(rec, ch)) for ch in problem.channels}
+        r_m = params['R_m'].value if 'R_m' in params else None
+        return determinacy.practical(params, rec.sample_period, noise, r_m)
 
     def _assumptions(self, problem):
         fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
@@ -330,6 +409,10 @@ class Identifier:
             return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
                     'estimated': False, 'note': why}
         e = params['R_m']
+        if e.value is None:
+            return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
+                    'estimated': False, 'note': e.reason or 'not determined',
+                    'prior_std': problem.R_m_tolerance * given}
         rel = e.value / given - 1.0
         prior_std = problem.R_m_tolerance
         if e.std is None or e.std > 0.5 * prior_std * given:
@@ -402,7 +485,8 @@ def _effects_block(problem, x_best, std_z, determined, bound):
         e, _, p = fe.partition('.')
         k = len(problem.free) + j
         eff_out[e][p] = {'value': float(x_best[k]),
-                         'std': float(std_z[k]) if determined[k] else None,
+                         'std': determinacy.floor_std(x_best[k], std_z[k])
+                         if determined[k] else None,
                          'determined': bool(determined[k]), 'at_bound': bool(bound[k])}
     return eff_out
 
@@ -422,7 +506,8 @@ def _fit_block(rec, problem, x_best, sigma, pred, names, state_names):
         prediction[ch + '_measured'] = getattr(rec, ch)
         i += n
     fit['cost'] = float(np.mean(((pred - problem.y) * problem.weights) ** 2))
-    fit['initial_state'] = {n: float(un.physical_signal(x_best[names.index(n)], n[3:]))
+    fit['initial_state'] = {n: float(un.physical_signal(x_best[names.index(n)],
+                                                        n.split(':')[1]))
                             for n in state_names}
     return fit, prediction
 

@@ -107,6 +107,26 @@ def _search_box(box, bounds, fitted, units):
     return box
 
 
+def initial_tolerance(y):
+    """How far a run's initial state may sit from its first measured value: three times
+    the channel's sample-to-sample noise, or half its resolution if larger.
+
+    The noise is read from second differences (robust median absolute deviation), which
+    a smooth response barely moves; a channel on a grid (an encoder, a quantised current)
+    also gets half its smallest step.
+    """
+    y = np.asarray(y, dtype=float)
+    scale = float(np.std(y)) or float(np.max(np.abs(y))) or 1.0
+    if y.size < 4:
+        return 0.1 * scale
+    d2 = np.diff(y, 2)
+    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    steps = np.abs(np.diff(y))
+    steps = steps[steps > 1e-12 * scale]
+    half_step = 0.5 * float(np.min(steps)) if steps.size else 0.0
+    return max(3.0 * sigma, half_step, 1e-6 * scale)
+
+
 class IdentificationProblem:
     """What a fit minimises: the model, its free parameters, the data and the cost.
 
@@ -186,15 +206,29 @@ class IdentificationProblem:
         un = self.units
         self.time = un.signal(rec.time, 'time')
         self.input = un.signal(rec.input, 'input')
-        x0 = [un.signal(rec.speed[:1], 'speed')[0]]
+        self.segments = rec.segment_ranges
+        signals = {'speed': un.signal(rec.speed, 'speed')}
         if self.kind == 'voltage':
-            x0.append(un.signal(rec.current[:1], 'current')[0] if rec.has_current else 0.0)
+            signals['current'] = (un.signal(rec.current, 'current') if rec.has_current
+                                  else None)
+        self.state_channels = tuple(signals)
+        x0, lo, hi = [], [], []
+        for a, b in self.segments:
+            for ch, y in signals.items():
+                if y is None:  # not measured: free within a wide range
+                    v = 0.0
+                    ref = signals['speed']
+                    span = 2.0 * float(np.max(np.abs(y if y is not None else ref))) + 1.0
+                else:          # measured: data, within the noise of the first sample
+                    v = float(y[a])
+                    span = initial_tolerance(y[a:b])
+                x0.append(v)
+                lo.append(v - span)
+                hi.append(v + span)
         self.x0 = np.array(x0, dtype=float)
-        ys0 = [un.signal(rec.speed, 'speed')]
-        if self.kind == 'voltage':
-            ys0.append(un.signal(rec.current, 'current') if rec.has_current else np.zeros(1))
-        span = np.array([np.max(np.abs(y)) * 2 + 1.0 for y in ys0])
-        self.x0_bounds = (self.x0 - span, self.x0 + span)
+        self.x0_bounds = (np.array(lo), np.array(hi))
+        self.measured_states = tuple(
+            k for k, (ch, y) in enumerate(signals.items()) if y is not None)
         ys = [un.signal(getattr(rec, c), c) for c in self.channels]
         for ch, y in zip(self.channels, ys):
             if np.ptp(y) == 0:
@@ -240,12 +274,26 @@ class IdentificationProblem:
         X = np.atleast_2d(X)
         self.evaluations += X.shape[0]
         d = self.bounds.dim
-        x0 = X[:, d:] if X.shape[1] > d else self.x0
+        x0 = X[:, d:] if X.shape[1] > d else np.broadcast_to(self.x0, (X.shape[0],
+                                                                       self.x0.size))
         theta, effects = self.expand(X[:, :d], overrides)
+        ns = len(self.state_channels)
+        parts = []
         with np.errstate(all='ignore'):
-            out = simulate_batch(theta, self.time, self.input, self.kind,
-                                 self.discretisation, effects, x0)
-        return [out[c] for c in self.channels]
+            for k, (a, b) in enumerate(self.segments):
+                parts.append(simulate_batch(theta, self.time[a:b], self.input[a:b],
+                                            self.kind, self.discretisation, effects,
+                                            np.ascontiguousarray(x0[:, k * ns:(k + 1) * ns])))
+        if len(parts) == 1:
+            return [parts[0][c] for c in self.channels]
+        return [np.concatenate([p[c] for p in parts], axis=1) for c in self.channels]
+
+    def state_names(self):
+        """Names of the initial-state coordinates (``x0:speed``; ``x0[k]:speed`` for the
+        runs of a joined recording)."""
+        multi = len(self.segments) > 1
+        return [f'x0[{k}]:{ch}' if multi else f'x0:{ch}'
+                for k in range(len(self.segments)) for ch in self.state_channels]
 
     def simulate(self, X, overrides=None):
         """All fitted channels side by side, shape (P, n_channels * N)."""

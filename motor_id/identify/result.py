@@ -15,6 +15,8 @@ class Estimate:
     particular_value: float = None
     ci95: tuple = None
     at_bound: bool = False
+    reason: str = None
+    bound: dict = None
 
     def to_dict(self):
         """JSON-ready; undetermined parameters have value and std null."""
@@ -26,6 +28,10 @@ class Estimate:
             d['particular_value'] = self.particular_value
         if self.ci95 is not None:
             d['bootstrap_ci95'] = list(self.ci95)
+        if self.reason:
+            d['reason'] = self.reason
+        if self.bound:
+            d['bound'] = dict(self.bound)
         return d
 
 
@@ -58,10 +64,14 @@ class IdentificationResult:
     r_m_sensitivity: dict = None
     parameter_covariance: dict = None
     units: dict = None
+    adequate: bool = True
+    warnings: list = field(default_factory=list)
 
     def to_dict(self):
         """The JSON shape documented in the README (extra keys beyond the contract)."""
         d = {
+            'adequate': bool(self.adequate),
+            'warnings': list(self.warnings),
             'parameters': {k: v.to_dict() for k, v in self.parameters.items()},
             'identifiable_combinations': self.identifiable_combinations,
             'undetermined_directions': self.undetermined_directions,
@@ -101,6 +111,10 @@ class IdentificationResult:
             lines.append(f'  {name}: the fit sat on the default range; searched again in '
                          f'{lo:.3g} .. {hi:.3g}')
         lines += self._resistance_lines()
+        if not self.adequate:
+            lines.append('MODEL INADEQUATE: ' + self.warnings[0])
+        for w in self.warnings[(0 if self.adequate else 1):]:
+            lines.append('warning: ' + w)
         lines += self._identifiability_lines()
         for ch, m in self.fit['channels'].items():
             lines.append(f'fit {ch}: {_num(m["fit_percent"], ".2f")} %  RMS '
@@ -114,7 +128,15 @@ class IdentificationResult:
         lines = [f'{"parameter":<12}{"estimate":>14}{"std":>12}  note']
         for name, e in self.parameters.items():
             if e.value is None:
-                lines.append(f'{name:<12}{"-":>14}{"-":>12}  not determined by this data')
+                if e.bound and 'upper' in e.bound:
+                    shown = f'< {e.bound["upper"]:.3g}'
+                elif e.bound and 'interval' in e.bound:
+                    shown = '{:.3g}..{:.3g}'.format(*e.bound['interval'])
+                else:
+                    shown = '-'
+                why = 'not determined' + (' (model inadequate)' if not self.adequate else
+                                          ' by this data')
+                lines.append(f'{name:<12}{shown:>14}{"-":>12}  {why}')
                 continue
             std = '-' if e.std is None else f'{e.std:.4g}'
             note = 'assumed (given)' if e.assumed else ''

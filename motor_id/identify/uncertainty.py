@@ -102,6 +102,87 @@ def covariance(J, Vr, rank):
     return cov, cond
 
 
+def block_ids(n_per, n_blocks, segments=None):
+    """Block index of every residual row: contiguous blocks in time, the same block for
+    every channel at one sample (channels measured together share their errors).
+
+    Parameters
+    ----------
+    n_per : list of int
+        Rows per channel (each channel holds the same N samples).
+    n_blocks : int
+        Blocks per record (fewer when the record is short: at least 20 samples each).
+    segments : list of (int, int), optional
+        Sample ranges of separate recordings; each is split on its own.
+    """
+    n = n_per[0]
+    segments = segments or [(0, n)]
+    ids = np.empty(n, dtype=int)
+    nxt = 0
+    for a, b in segments:
+        k = int(max(2, min(n_blocks, (b - a) // 20)))
+        ids[a:b] = nxt + (np.arange(b - a) * k) // (b - a)
+        nxt += k
+    return np.tile(ids, len(n_per)), nxt
+
+
+def robust_covariance(J, r, Vr, ids, n_blocks):
+    """Sandwich covariance with a block (batch-means) estimate of the score variance.
+
+    The Gauss-Newton covariance ``(J^T J)^-1`` holds when the weighted residuals are white
+    with unit variance. On real records they are dominated by what the model lacks: slow,
+    correlated, and different from one stretch of the record to the next. The sandwich
+    ``H^-1 M H^-1`` (``H = J^T J``) takes the variance ``M`` of the score ``J^T r`` from
+    the record itself: the scores summed over contiguous blocks are nearly independent
+    however the residuals are correlated within a block, so their spread measures how
+    much each stretch of the record pulls the estimate its own way.
+
+    Parameters
+    ----------
+    J : ndarray, shape (M, d)
+        Weighted residual Jacobian (rows beyond ``ids.size``: prior rows).
+    r : ndarray, shape (M,)
+        Weighted residuals at the estimate.
+    Vr : ndarray, shape (d, rank)
+        Basis of the identifiable directions.
+    ids : ndarray of int
+        Block of each data row (:func:`block_ids`).
+    n_blocks : int
+
+    Returns
+    -------
+    ndarray, shape (d, d)
+
+    Notes
+    -----
+    ``M = K / (K - 1) sum_k (s_k - s_mean)(s_k - s_mean)^T`` over the K block scores,
+    plus the prior rows' own Gauss-Newton information. With white residuals ``M``
+    estimates ``H`` and the sandwich equals the Gauss-Newton covariance on average.
+    """
+    Jr = J @ Vr
+    n = ids.size
+    g = Jr[:n] * r[:n, None]
+    S = np.zeros((n_blocks, Jr.shape[1]))
+    np.add.at(S, ids, g)
+    S -= S.mean(axis=0)
+    meat = S.T @ S * (n_blocks / max(n_blocks - 1, 1))
+    if J.shape[0] > n:
+        meat += Jr[n:].T @ Jr[n:]
+    Hinv = np.linalg.pinv(Jr.T @ Jr, rcond=1e-15)
+    return Vr @ (Hinv @ meat @ Hinv) @ Vr.T
+
+
+def combine(cov_gn, cov_rob):
+    """The larger of the two standard deviations per coordinate, with the robust
+    estimate's correlations (the Gauss-Newton ones where it has none)."""
+    s_gn = np.sqrt(np.maximum(np.diag(cov_gn), 0.0))
+    s_rob = np.sqrt(np.maximum(np.diag(cov_rob), 0.0))
+    base, s_base = (cov_rob, s_rob) if np.all(s_rob[s_gn > 0] > 0) else (cov_gn, s_gn)
+    s = np.maximum(s_gn, s_rob)
+    scale = np.divide(s, s_base, out=np.zeros_like(s), where=s_base > 0)
+    return base * np.outer(scale, scale)
+
+
 def undetermined_directions(names, Vn, determined, log_mask):
     """The unseen directions with one free "pivot" parameter each (QR column pivoting).
 
@@ -141,7 +222,7 @@ def combinations(problem, z_best, cov):
             zp = z_best.copy()
             zp[j] += h
             g[j] = (problem.coefficients(zp, physical=True)[key] - val) / h
-        std = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        std = max(float(np.sqrt(max(g @ cov @ g, 0.0))), 1e-6 * abs(float(val)))
         out.append({'name': key, 'value': float(val), 'std': std, 'determined': True})
     return out
 
