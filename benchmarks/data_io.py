@@ -5,18 +5,12 @@ import sys
 import tempfile
 import time
 
+from common import render_table, target
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-for _p in (os.path.dirname(HERE), HERE):
-    if _p not in sys.path:
-        sys.path.insert(0, _p)
-
-from common import render_table, target  # noqa: E402
-
-from motor_id.data.csv_io import read_csv  # noqa: E402
-from motor_id.data.rosbag import Mapping, read_bag  # noqa: E402
-from motor_id.errors import DataError  # noqa: E402
+from motor_id.data.csv_io import read_csv
+from motor_id.data.rosbag import Mapping, read_bag
+from motor_id.errors import DataError
 
 TITLE = 'Data loading: CSV rows and rosbag2 messages to a Recording'
 CSV_TARGET_S = 3.0

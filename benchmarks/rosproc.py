@@ -12,25 +12,25 @@ import numpy as np
 
 def ros_env(domain):
     """The environment for node processes: LOCALHOST discovery, ``domain``, the repo."""
-    from motor_id.nodes.procs import ros_env as env_for
+    from motor_id.testing.procs import ros_env as env_for
     return env_for(domain, pythonpath=REPO)
 
 
 def processes(env, logdir):
-    """Named node processes with logs in ``logdir`` (:class:`motor_id.nodes.procs.Processes`)."""
-    from motor_id.nodes.procs import Processes
+    """Named node processes with logs in ``logdir`` (:class:`motor_id.testing.procs.Processes`)."""
+    from motor_id.testing.procs import Processes
     return Processes(env, logdir)
 
 
 def rows_counter_client(domain):
-    """A :class:`motor_id.nodes.client.RosClient` that counts samples and keeps diagnostics
+    """A :class:`motor_id.testing.client.RosClient` that counts samples and keeps diagnostics
     and estimates (imports rclpy)."""
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import Trigger
 
     from motor_id.nodes import messages
-    from motor_id.nodes.client import RosClient
+    from motor_id.testing.client import RosClient
 
     class BenchClient(RosClient):
         """Records what arrives: sample counts and sequence gaps, diagnostics, estimates."""
@@ -119,7 +119,7 @@ def cpu_percent(a, b):
 
 def wait_for(pred, timeout, interval=0.05):
     """Poll ``pred()`` until true or ``timeout`` [s]; return whether it became true."""
-    from motor_id.nodes.procs import wait_until
+    from motor_id.testing.procs import wait_until
     return wait_until(pred, timeout, interval)
 
 

@@ -29,11 +29,7 @@ import traceback
 
 import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-REPO = os.path.dirname(HERE)
-for _p in (REPO, HERE):  # the repository's motor_id before any installed copy
-    if _p not in sys.path:
-        sys.path.insert(0, _p)
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 SECTIONS = {
     'fit_speed': 'fit_speed',

@@ -1,10 +1,11 @@
-"""The linear Elman network: physical parameters <-> weights, and the free n-order net.
+"""The linear Elman network: its weights, and the free n-order net of the order selection.
 
 The paper's network is ``X(k) = W_xc X(k-1) + W_xu U(k-1)``, ``Y(k) = W_yx X(k)`` with
 the context weights tied to the discrete motor model: ``W_xc = A``, ``W_xu = b``,
-``W_yx = [1 0]``. Under the paper's Euler discretisation ``b = [0, T/L_m]``, which is
-where its fixed ``w11_xu = 0`` comes from; under exact zero-order hold ``b[0]`` is small
-but not zero, and it too is a function of the physical parameters, not a free weight.
+``W_yx = [1 0]`` (:func:`motor_id.model.discretize`, which the fitter simulates). Under
+the paper's Euler discretisation ``b = [0, T/L_m]``, which is where its fixed
+``w11_xu = 0`` comes from; under exact zero-order hold ``b[0]`` is small but not zero,
+and it too is a function of the physical parameters, not a free weight.
 
 The *free* net has n hidden units and unconstrained weights. Any minimal linear Elman
 net is, up to a change of basis of its hidden state, equal to its observable canonical
@@ -19,7 +20,6 @@ import numpy as np
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds, GeneticAlgorithm
-from motor_id.model import continuous_matrices, discretize
 
 
 @dataclass
@@ -45,45 +45,6 @@ class ElmanWeights:
         """JSON-ready."""
         return {'W_xc': self.W_xc.tolist(), 'W_xu': self.W_xu.tolist(),
                 'W_yx': self.W_yx.tolist()}
-
-
-def physical_weights(params, T, method='zoh'):
-    """Weights of the paper's constrained net for one parameter set and period T.
-
-    Parameters
-    ----------
-    params : dict
-        ``J, K_T, K_b, B, L_m, R_m``.
-    T : float
-        Sample period [s].
-    method : {'zoh', 'euler'}
-
-    Returns
-    -------
-    ElmanWeights
-        ``W_xc = A`` (2x2), ``W_xu = b`` (voltage column), ``W_yx = [1, 0]``.
-    """
-    F, G = continuous_matrices({k: np.atleast_1d(v) for k, v in params.items()})
-    A, Bd = discretize(F, G, [T], method)
-    return ElmanWeights(A[0, 0], Bd[0, 0, :, 0], np.array([1.0, 0.0]))
-
-
-def weights_to_physical(weights, T, R_m, K_b=None):
-    """Invert the paper's Euler weights to physical parameters.
-
-    Under Euler, ``A = I + F T``: ``a12 = K_T T/J``, ``a11 = 1 - B T/J``,
-    ``a21 = -K_b T/L``, ``a22 = 1 - R T/L`` and ``b2 = T/L``. With R_m known this gives
-    L_m and K_b; J, K_T and B only as ratios unless one of them is known.
-    """
-    A = weights.W_xc
-    L = T / weights.W_xu[1]
-    K_b_est = -A[1, 0] * L / T
-    out = {'L_m': L, 'K_b': K_b_est, 'R_m_implied': (1 - A[1, 1]) * L / T,
-           'K_T/J': A[0, 1] / T, 'B/J': (1 - A[0, 0]) / T}
-    if K_b is not None:
-        J = K_b / out['K_T/J']
-        out.update({'J_if_K_T_eq_K_b': J, 'B_if_K_T_eq_K_b': out['B/J'] * J})
-    return out
 
 
 def canonical_weights(a, b):

@@ -105,11 +105,7 @@ def test_dunker_current_input_grid_is_reported_as_input_noise():
 
 
 def _independent_sim():
-    import sys
-    bench = str(Path(__file__).resolve().parents[1] / 'benchmarks')
-    if bench not in sys.path:
-        sys.path.insert(0, bench)
-    import independent_sim
+    from motor_id.testing import independent_sim
     return independent_sim
 
 
@@ -127,7 +123,7 @@ def test_the_speed_reading_of_a_grid_is_chosen_by_the_data(source):
         rec, r_known, q = sim.to_recording(data), data['known']['R_m'], \
             case.to_dict()['effect_params']['q']
     else:
-        from motor_id.hidden import make_case
+        from motor_id.testing.hidden import make_case
         rec, case = make_case(3, effect='speed_quantization', noise=(0.005, 0.005))
         d = case.to_dict()
         rec, r_known, q = rec, d['known']['R_m'], d['effect_params']['q']

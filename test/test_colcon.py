@@ -8,7 +8,8 @@ import sys
 import time
 
 import pytest
-from rosutil import domain_id, REPO, ros_env
+
+from motor_id.testing.ros import domain_id, REPO, ros_env
 
 COLCON = shutil.which('colcon') or os.path.join(os.path.dirname(sys.executable), 'colcon')
 

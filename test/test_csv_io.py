@@ -1,6 +1,5 @@
 """CSV input: files as users have them (names, mappings, BOM), one line per bad file."""
 
-from conftest import paper_recording
 import numpy as np
 import pytest
 
@@ -8,6 +7,7 @@ from motor_id.cli import main
 from motor_id.data.csv_io import parse_columns, read_csv, write_csv
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import Recording
+from motor_id.testing.recordings import paper_recording
 
 HEADER = 'time,voltage,speed,current\n'
 

@@ -6,7 +6,8 @@ import subprocess
 import sys
 
 import pytest
-from rosutil import domain_id, REPO, ros_env
+
+from motor_id.testing.ros import domain_id, REPO, ros_env
 
 
 @pytest.fixture(scope='module')

@@ -7,7 +7,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 from rclpy.qos import QoSProfile, ReliabilityPolicy
-from rosutil import latest_status, REPO, rows_of, stop_cleanly, wait_until
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
@@ -17,6 +16,7 @@ from motor_id.card.profile import profile_samples
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.nodes import messages
 from motor_id.nodes.driver import PARAMETERS
+from motor_id.testing.ros import latest_status, REPO, rows_of, stop_cleanly, wait_until
 
 DRIVER = 'motor_id: driver'
 BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)

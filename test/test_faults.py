@@ -22,7 +22,16 @@ from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 import numpy as np
 import pytest
-from rosutil import (
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+
+from motor_id.card import protocol as pr
+from motor_id.errors import ProtocolError
+from motor_id.excitation import make_excitation
+from motor_id.model import MotorParams, Plant
+from motor_id.nodes import messages
+from motor_id.simulate import simulate_recording
+from motor_id.testing.ros import (
     domain_id,
     latest_status,
     publish_samples,
@@ -33,15 +42,6 @@ from rosutil import (
     stop_cleanly,
     wait_until,
 )
-from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import Trigger
-
-from motor_id.card import protocol as pr
-from motor_id.errors import ProtocolError
-from motor_id.excitation import make_excitation
-from motor_id.model import MotorParams, Plant
-from motor_id.nodes import messages
-from motor_id.simulate import simulate_recording
 
 DOMAIN = domain_id(__name__)
 SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)

@@ -1,9 +1,10 @@
 """Hidden-effect tests: the analysis, told R_m 2-5 % off and nothing else, names the effect.
 
-Cases come from :func:`motor_id.hidden.make_case` (0.5 % speed / 1 % current noise, R_m
-given off by a seeded 2 to 5 %, either sign). A case is *named* when the hidden effect is
-in the verdict or in ``ambiguous_with``; a *false alarm* is any effect named on a clean
-case; a *spurious second effect* is a dynamic combination when one effect was hidden.
+Cases come from :func:`motor_id.testing.hidden.make_case` (0.5 % speed / 1 % current
+noise, R_m given off by a seeded 2 to 5 %, either sign). A case is *named* when the
+hidden effect is in the verdict or in ``ambiguous_with``; a *false alarm* is any effect
+named on a clean case; a *spurious second effect* is a dynamic combination when one
+effect was hidden.
 The asserted numbers are the measured ones (``pytest -s`` prints the table).
 """
 
@@ -14,7 +15,7 @@ import pytest
 
 from motor_id.analysis import DiscrepancyAnalysis
 from motor_id.data.csv_io import read_csv, write_csv
-from motor_id.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS
+from motor_id.testing.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS
 
 QUICK = ('speed_quantization', 'resistance_drift', 'brush_drop', 'none')
 SLOW_SEEDS_PER_EFFECT = 3
@@ -75,7 +76,7 @@ def test_generator_is_seeded_and_keeps_the_truth_apart(tmp_path):
     assert case1.effect in VOLTAGE_EFFECTS
     assert 'truth' not in rec1.meta and set(rec1.meta) == {'source', 'seed'}
     path = tmp_path / 'case.csv'
-    write_csv(rec1, path, {'source': 'motor_id.hidden', 'seed': rec1.meta['seed']})
+    write_csv(rec1, path, {'source': 'motor_id.testing.hidden', 'seed': rec1.meta['seed']})
     text = path.read_text()
     assert case1.effect not in text and 'truth' not in text
     back = read_csv(path)

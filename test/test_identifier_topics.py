@@ -76,11 +76,11 @@ def robot_args(qos, order, seconds=10.0, seed=0):
 @pytest.mark.parametrize('qos, align', [('best_effort', 'hold'), ('reliable', 'next')])
 def test_identifier_recovers_the_motor_from_joint_states_and_commands(client, launch, qos,
                                                                      align):
-    from rosutil import wait_until
     from std_msgs.msg import String
     from std_srvs.srv import Trigger
 
     from motor_id.nodes import messages
+    from motor_id.testing.ros import wait_until
     ident = launch('identifier', identifier_args(
         'input:=topics', f'joint_name:={JOINT}', f'align:={align}', 'window_s:=1000.0',
         'generations:=60', 'hardware_id:=robot_arm/wrist'))
@@ -124,8 +124,9 @@ def test_identifier_warns_naming_the_type_of_a_wrongly_remapped_topic(client, la
 def test_estimates_become_parameters_and_users_cannot_set_them(client, launch):
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import GetParameters, SetParameters
-    from rosutil import wait_until
     from std_srvs.srv import Trigger
+
+    from motor_id.testing.ros import wait_until
     ident = launch('identifier', identifier_args(
         'input:=topics', f'joint_name:={JOINT}', 'window_s:=1000.0', 'generations:=40'))
     ident.wait_for('identifier ready', 60.0)

@@ -9,8 +9,7 @@ from motor_id.errors import ConfigError, DataError, IdentificationError, MotorId
 from motor_id.identify import Identifier, parse_bounds, parse_fixed
 from motor_id.model import MotorParams, PAPER_MOTOR
 from motor_id.recording import Recording
-
-from conftest import paper_recording, SI_MOTOR
+from motor_id.testing.recordings import paper_recording, SI_MOTOR
 
 FIVE = ('J', 'K_T', 'K_b', 'B', 'L_m')
 
@@ -222,7 +221,7 @@ def test_r_m_is_estimated_from_current_within_1_percent():
 def test_r_m_estimate_on_a_hidden_case(seed):
     """Perturbed motors from motor_id.hidden, R_m given as the case's ohmmeter reading
     (2 to 5 % off), 1 % noise: the estimate is within 1 % of the true R_m."""
-    from motor_id.hidden import make_case
+    from motor_id.testing.hidden import make_case
     rec, case = make_case(seed, effect='none', noise=(0.01, 0.01))
     given, truth = case.known['R_m'], case.motor['R_m']
     assert rel_err(given, truth) > 0.02

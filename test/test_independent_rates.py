@@ -1,24 +1,18 @@
 """Hidden effects simulated by the independent simulator: the rates the analysis achieves.
 
-The cases come from ``benchmarks/independent_sim.py``, which shares no code with
-motor_id, through the case plan of ``benchmarks/discrepancy_rates.py`` (seeded; R_m told
-off by 2-5 % of either sign). The default test runs one round at 0.5 % noise (every
-effect once and four clean cases, at most 4,000 samples each); the slow test runs the
-benchmark's independent cases at 0.5 and 2 % noise. Both assert the issue's targets for
-false alarms (0), spurious second effects (<= 1 per 20 cases), the encoder grid (100 %)
-and the named rate (95 %).
+The cases come from :mod:`motor_id.testing.independent_sim`, which shares no model
+code with motor_id, through the case plan of :mod:`motor_id.testing.discrepancy`
+(seeded; R_m told off by 2-5 % of either sign). The default test runs one round at
+0.5 % noise (every effect once and four clean cases, at most 4,000 samples each); the
+slow test runs the benchmark's independent cases at 0.5 and 2 % noise. Both assert the
+issue's targets for false alarms (0), spurious second effects (<= 1 per 20 cases), the
+encoder grid (100 %) and the named rate (95 %).
 """
-
-import os
-import sys
 
 import pytest
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                                'benchmarks'))
-
-import discrepancy_rates as dr
-import independent_sim
+from motor_id.testing import discrepancy as dr
+from motor_id.testing import independent_sim
 
 ROUND_SEED = 7100
 """Seed of the first case of the default round."""

@@ -1,17 +1,12 @@
-"""Tests of the independent second simulator (benchmarks/independent_sim.py) against physics."""
+"""Tests of the independent second simulator (motor_id.testing.independent_sim) against physics."""
 
 import math
-import os
-import sys
 
 import numpy as np
 import pytest
 from scipy.linalg import expm
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                                'benchmarks'))
-
-import independent_sim as sim
+from motor_id.testing import independent_sim as sim
 
 SERVO = sim.Motor(J=5e-5, K=0.08, R=1.5, L=1.5e-3, B=2e-5, V_supply=36.0,
                   motor_class='servo')

@@ -4,8 +4,9 @@ import ast
 import os
 import re
 
-from rosutil import REPO
 import yaml
+
+from motor_id.testing.ros import REPO
 
 LAUNCH = os.path.join(REPO, 'launch', 'motor_id.launch.py')
 

@@ -9,7 +9,6 @@ import time
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
 import pytest
-from rosutil import latest_status, publish_samples, REPO, rows_of, stop_cleanly, wait_until
 from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -19,6 +18,14 @@ from motor_id.excitation import paper_steps
 from motor_id.model import MotorParams, Plant, transfer_coefficients
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
+from motor_id.testing.ros import (
+    latest_status,
+    publish_samples,
+    REPO,
+    rows_of,
+    stop_cleanly,
+    wait_until,
+)
 
 T = np.arange(4000) * 0.01
 

@@ -1,11 +1,11 @@
 """Recording: validation gives one clear error per kind of unusable data."""
 
-from conftest import paper_recording
 import numpy as np
 import pytest
 
 from motor_id.errors import DataError
 from motor_id.recording import Recording
+from motor_id.testing.recordings import paper_recording
 
 T = np.arange(30) * 0.1
 V = np.r_[np.zeros(10), np.ones(20)]

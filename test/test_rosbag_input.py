@@ -389,13 +389,12 @@ def test_profile_values_are_checked(tmp_path, rec, capsys):
 
 def test_replay_rate_republishes_the_mapped_recording(tmp_path, rec):
     """`replay BAG --rate X` with mapping flags: a live subscriber gets the mapped rows."""
-    from rosutil import Client, domain_id, ros_env, rows_of, wait_until
-
     from motor_id.nodes import messages
-    from motor_id.nodes.procs import Process
+    from motor_id.testing.client import RosClient
+    from motor_id.testing.ros import domain_id, Process, ros_env, rows_of, wait_until
     bag = write_robot_bag(tmp_path / 'live', rec.slice(0, 300), 'sqlite3')
     domain = domain_id('test_rosbag_input')
-    client = Client(domain)
+    client = RosClient(domain)
     try:
         got = client.collect(messages.Float64MultiArray, 'samples', messages.SAMPLES_QOS)
         proc = Process(['-m', 'motor_id.cli', 'replay', str(bag), '--rate', '20',

@@ -47,7 +47,7 @@ def run(args):
     domain = args.domain or random.SystemRandom().randint(1, 101)
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain must be in 0..232, got {domain}')
-    from motor_id.nodes.procs import Processes, ros_env, use_ros_env
+    from motor_id.testing.procs import Processes, ros_env, use_ros_env
     env = ros_env(domain)
     use_ros_env(domain)
     from motor_id.nodes.shm import clean_stale_shm
@@ -65,7 +65,7 @@ def run(args):
     speedup = '40' if args.fast else '10'
     link = os.path.join(out, 'card')
     kids = Processes(env, out)
-    from motor_id.nodes.demo_client import DemoClient
+    from motor_id.testing.demo_client import DemoClient
     client = None
     try:
         _say(f'demo: ROS_DOMAIN_ID={domain}, LOCALHOST discovery; logs in {out}'

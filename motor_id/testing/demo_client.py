@@ -10,8 +10,8 @@ from std_msgs.msg import Float64MultiArray, String
 
 from motor_id.contracts import FLAG_PROFILE_END, FLAGS
 from motor_id.nodes import messages
-from motor_id.nodes.client import RosClient
-from motor_id.nodes.procs import wait_until
+from motor_id.testing.client import RosClient
+from motor_id.testing.procs import wait_until
 
 
 class DemoClient(RosClient):

@@ -1,34 +1,35 @@
-"""Test helpers for ROS node tests, on the package's process and client helpers."""
+"""Helpers of the node tests: the nodes' environment, sample rows, diagnostics, stopping.
+
+Node processes come from :mod:`motor_id.testing.procs`, the in-process client from
+:mod:`motor_id.testing.client`; this module adds what only the tests need. ROS message
+packages are imported where they are used, so a test that only needs :data:`REPO` or
+:func:`ros_env` loads no rclpy.
+"""
 
 import os
+import signal
 
 import numpy as np
 
-from motor_id.nodes import procs
-from motor_id.nodes.procs import Process, wait_until  # noqa: F401  (used by the tests)
+from motor_id.contracts import SAMPLE_COLUMNS
+from motor_id.testing import procs
+from motor_id.testing.procs import domain_id, Process, wait_until
 
-REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+__all__ = ['domain_id', 'latest_status', 'Process', 'publish_samples', 'REPO', 'ros_env',
+           'rows_of', 'samples_publisher', 'stop_cleanly', 'wait_until']
+
+REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+"""The directory this ``motor_id`` is imported from: the repository in a source checkout."""
 
 
-def domain_id(name):
-    """A ROS_DOMAIN_ID in 1..101 for one test module, varied by process id."""
-    return procs.domain_id(name)
-
-
-def ros_env(domain, **extra):
-    """The environment of a node process started from the tests (the repo on the path)."""
+def ros_env(domain: int, **extra: object) -> dict[str, str]:
+    """The environment of a node process started by a test: :func:`procs.ros_env` with
+    :data:`REPO` first on PYTHONPATH, so the node runs the code under test."""
     return procs.ros_env(domain, pythonpath=REPO, **extra)
-
-
-def Client(domain, name='test_client'):   # noqa: N802  (was a class; kept for the tests)
-    """A threaded ROS client in this process (:class:`motor_id.nodes.client.RosClient`)."""
-    from motor_id.nodes.client import RosClient
-    return RosClient(domain, name)
 
 
 def stop_cleanly(proc, sig=None):
     """Stop ``proc`` with ``sig`` (SIGINT); assert exit code 0 and no traceback."""
-    import signal
     code = proc.stop(signal.SIGINT if sig is None else sig)
     err = proc.stderr()
     assert not proc.killed, f'{proc.name} ignored the signal:\n{proc.output()}'
@@ -41,7 +42,7 @@ def rows_of(msgs):
     from motor_id.nodes import messages
     msgs = list(msgs)
     if not msgs:
-        return np.zeros((0, 6))
+        return np.zeros((0, len(SAMPLE_COLUMNS)))
     return np.vstack([messages.msg_to_rows(m) for m in msgs])
 
 

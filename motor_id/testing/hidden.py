@@ -210,7 +210,7 @@ def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=
     if r_m_error is None:
         r_m_error = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.02, 0.05))
     rec = Recording(t, u, speed, current, 'voltage',
-                    {'source': 'motor_id.hidden', 'seed': int(seed)})
+                    {'source': 'motor_id.testing.hidden', 'seed': int(seed)})
     case = HiddenCase(int(seed), effect, params, motor.to_dict(), excitation, amplitude,
                       sample_period, n_samples, {'speed': noise[0], 'current': noise[1]},
                       {'R_m': motor.R_m * (1.0 + r_m_error), 'R_m_error': r_m_error})

@@ -851,7 +851,7 @@ def make_case(seed, effect=None, motor_class=None, sample_period=None, n_samples
 def to_recording(data):
     """Build a ``motor_id.recording.Recording`` from the data of :func:`make_case`."""
     from motor_id.recording import Recording
-    meta = {'source': 'benchmarks.independent_sim', 'known': dict(data['known'])}
+    meta = {'source': 'motor_id.testing.independent_sim', 'known': dict(data['known'])}
     return Recording(data['time'], data['input'], data['speed'], data['current'],
                      data['input_kind'], meta)
 

@@ -7,7 +7,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
 from motor_id.errors import MotorIdError
-from motor_id.nodes.procs import use_ros_env
+from motor_id.testing.procs import use_ros_env
 
 
 class RosClient:
