@@ -1,10 +1,17 @@
-"""Controller-ready results from an identified DC motor: feedforward constants and PI gains."""
+"""Controller design: feedforward constants and cascaded PI gains with error bars.
+
+From identified motor parameters (and their covariance) to the WPILib SysId feedforward
+``V = kS sgn(w) + kV w + kA dw/dt``, the electrical and mechanical time constants and PI
+gains for a current and a speed loop; each loop is then checked on the full model
+(:mod:`motor_id.controller.loops`).
+"""
 
 from dataclasses import dataclass, field
 import math
 
 import numpy as np
 
+from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
 from motor_id.errors import ConfigError
 
 VOLTAGE_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
@@ -18,13 +25,15 @@ KS_SOURCES = ('coulomb_friction', 'brush_drop', 'coulomb_friction+brush_drop', '
 # up (1/tau_e for the current loop, 1/tau_m for a torque plant's speed loop), and a
 # decade between the current and the speed loop of a cascade.
 BANDWIDTH_RATIO = 10.0
-# With a sample period T the loop sees about 1.5 T of delay (half a sample of ZOH plus one
-# sample of computation); a default crossover at most f_s / 20 costs 27 deg at crossover.
+
+# With DELAY_SAMPLES of delay a default crossover at most f_s / 20 costs 27 deg at
+# crossover.
 SAMPLE_FRACTION = 1.0 / 20.0
-DELAY_SAMPLES = 1.5
+
 # Speed PI zero a factor below crossover when no inner loop sets the symmetric-optimum
 # ratio (torque plants): a = 4 makes the loop on an integrating plant critically damped.
 TORQUE_ZERO_RATIO = 4.0
+
 FD_RELATIVE_STEP = 1e-5
 
 _OUTPUTS = ('kV', 'kA', 'tau_e', 'tau_m', 'current_kp', 'current_ki', 'speed_kp', 'speed_ki')
@@ -90,9 +99,8 @@ def _entry(value, std=None):
     return {'value': float(value), 'std': None if std is None else float(std)}
 
 
-# --- validation --------------------------------------------------------------------------
-
-def _check_kind(input_kind):
+def check_input_kind(input_kind):
+    """The parameter names of an ``input_kind`` plant; ConfigError for an unknown kind."""
     if input_kind not in INPUT_KINDS:
         raise ConfigError(f'input_kind must be one of {INPUT_KINDS}, got {input_kind!r}')
     return VOLTAGE_NAMES if input_kind == 'voltage' else TORQUE_NAMES
@@ -100,7 +108,7 @@ def _check_kind(input_kind):
 
 def _check_values(values, input_kind):
     """Return ``{name: float}`` with NaN for an unknown (None) parameter."""
-    names = _check_kind(input_kind)
+    names = check_input_kind(input_kind)
     if not isinstance(values, dict):
         raise ConfigError(f'values must be a dict {{name: float}} with {", ".join(names)}')
     missing = [n for n in names if n not in values]
@@ -187,8 +195,6 @@ def _check_positive(x, name, allow_none=True):
         raise ConfigError(f'{name} must be a finite number > 0, got {x!r}')
     return float(x)
 
-
-# --- the design equations ----------------------------------------------------------------
 
 def time_constants(values, input_kind='voltage'):
     """Electrical and mechanical time constants [s] (works element-wise on arrays).
@@ -320,216 +326,6 @@ def _propagate(vals, input_kind, bandwidths, names, cov):
     return {k: math.sqrt(max(var[i], 0.0)) for i, k in enumerate(_OUTPUTS)}
 
 
-# --- verification on the full model ------------------------------------------------------
-
-# The checks' sample delay as a 3rd-order Pade approximant (as python-control's pade).
-PADE_ORDER = 3
-# Crossings are bracketed on a log grid this dense, reaching this many decades beyond the
-# loop's slowest and fastest pole or zero, then refined by brentq.
-GRID_POINTS_PER_DECADE = 50
-GRID_MARGIN_DECADES = 3
-
-
-def _trim(p):
-    """Drop a polynomial's leading exact zeros (keeps ``[0.]`` for the zero polynomial)."""
-    p = np.atleast_1d(np.asarray(p, dtype=float))
-    nz = np.flatnonzero(p)
-    return p[nz[0]:] if nz.size else p[-1:]
-
-
-def pade_delay(delay, order=PADE_ORDER):
-    """Pade approximant of a pure delay ``exp(-s delay)`` as a numerator/denominator pair.
-
-    Parameters
-    ----------
-    delay : float
-        The delay [s], >= 0.
-    order : int
-        Degree of numerator and denominator.
-
-    Returns
-    -------
-    num, den : ndarray
-        Coefficients in s, highest power first; ``den`` is ``sum c_k (s delay)^k`` and
-        ``num`` the same with ``-s``, ``c_k = C(n, k) (2n - k)! / (2n)!`` (``n = order``).
-    """
-    n = order
-    c = np.array([math.comb(n, k) * math.factorial(2 * n - k) / math.factorial(2 * n)
-                  * delay ** k for k in range(n + 1)])
-    sign = (-1.0) ** np.arange(n + 1)
-    return _trim((sign * c)[::-1]), _trim(c[::-1])
-
-
-def _state_transfer_functions(F, g):
-    """Input -> each state of ``dx/dt = F x + g u``: ``([num_row, ...], den)`` in s.
-
-    Faddeev-LeVerrier: ``adj(sI - F) = sum_k M_k s^(n-k)`` and the characteristic
-    polynomial follow from traces, so structural zeros stay exact zeros.
-    """
-    n = F.shape[0]
-    den = np.ones(n + 1)
-    m = np.zeros_like(F)
-    adj = np.zeros((n, n))  # adj[k - 1] = M_k g, the coefficient of s^(n-k)
-    for k in range(1, n + 1):
-        m = F @ m + den[k - 1] * np.eye(n)
-        adj[k - 1] = m @ g
-        den[k] = -np.trace(F @ m) / k
-    return [_trim(adj[:, row]) for row in range(n)], den
-
-
-def loop_transfer_functions(values, input_kind, gains, sample_period=None):
-    """Loop transfer functions of the cascade on the full identified model.
-
-    Parameters
-    ----------
-    values : dict
-        Plant parameters in SI units.
-    input_kind : {'voltage', 'torque'}
-        The plant kind (see :func:`design_controller`).
-    gains : dict
-        ``current_kp, current_ki, speed_kp, speed_ki`` as from :func:`controller_constants`.
-    sample_period : float, optional
-        If given, each loop includes a delay of 1.5 sample periods (3rd-order Pade).
-
-    Returns
-    -------
-    dict of (ndarray, ndarray)
-        ``{name: (num, den)}``, polynomial coefficients in s (highest power first, as
-        ``numpy.polyval``) of ``'current'`` (V -> i with the PI, voltage plant only) and
-        ``'speed'`` (i_ref or torque command -> w with the PI; for a voltage plant the
-        inner current loop is closed around the full two-state model, back-EMF
-        included). The loops are negative-feedback loop gains ``L``: closed loop
-        ``L / (1 + L)``.
-    """
-    from motor_id.model import continuous_matrices  # the one model; lazy: cheap import
-
-    d_num, d_den = np.ones(1), np.ones(1)
-    if sample_period is not None:
-        d_num, d_den = pade_delay(DELAY_SAMPLES * sample_period)
-    F, G = continuous_matrices({k: [x] for k, x in values.items()}, input_kind)
-    nums, den = _state_transfer_functions(F[0], G[0][:, 0])
-    integrator = np.array([1.0, 0.0])
-    # speed PI with the delay: (kp s + ki) d_num / (s d_den)
-    cs_num = np.polymul([gains['speed_kp'], gains['speed_ki']], d_num)
-    cs_den = np.polymul(integrator, d_den)
-    if input_kind == 'torque':
-        return {'speed': (_trim(np.polymul(cs_num, nums[0])), _trim(np.polymul(cs_den, den)))}
-    ci_num = np.polymul([gains['current_kp'], gains['current_ki']], d_num)
-    ci_den = np.polymul(integrator, d_den)
-    # inner: w / i_ref = P_w C / (1 + C P_i) = N_w N_c / (D_c D + N_c N_i) (D cancels)
-    inner_num = np.polymul(nums[0], ci_num)
-    inner_den = np.polyadd(np.polymul(ci_den, den), np.polymul(ci_num, nums[1]))
-    return {'current': (_trim(np.polymul(ci_num, nums[1])), _trim(np.polymul(ci_den, den))),
-            'speed': (_trim(np.polymul(cs_num, inner_num)),
-                      _trim(np.polymul(cs_den, inner_den)))}
-
-
-def _grid(*polys):
-    """Log-spaced frequencies [rad/s] covering every pole and zero by some decades."""
-    mags = np.concatenate([np.abs(np.roots(p)) for p in polys if len(p) > 1] + [[]])
-    mags = mags[(mags > 0) & np.isfinite(mags)]
-    if not mags.size:
-        mags = np.array([1.0])
-    lo = math.floor(math.log10(mags.min())) - GRID_MARGIN_DECADES
-    hi = math.ceil(math.log10(mags.max())) + GRID_MARGIN_DECADES
-    return np.logspace(lo, hi, (hi - lo) * GRID_POINTS_PER_DECADE + 1)
-
-
-def _extend(w, response, target, num, den):
-    """Extend the grid by decades until ``|response|`` has crossed ``target`` at its ends.
-
-    Upwards while it is still above ``target`` (strictly proper: it falls as w grows),
-    downwards while it is still below (an integrator: it grows as w falls).
-    """
-    decades = np.logspace(0, 3, 3 * GRID_POINTS_PER_DECADE + 1)
-    for _ in range(10):
-        if len(den) <= len(num) or abs(response(w[-1:]))[0] < target:
-            break
-        w = np.concatenate([w, w[-1] * decades[1:]])
-    for _ in range(10):
-        if den[-1] != 0 or abs(response(w[:1]))[0] > target:
-            break
-        w = np.concatenate([w[0] / decades[:0:-1], w])
-    return w
-
-
-def _roots_on_grid(fun, w):
-    """Every root of ``fun`` between sign changes on the grid ``w``, refined by brentq."""
-    from scipy.optimize import brentq  # lazy: a fit has imported it already
-
-    y = fun(w)
-    idx = np.flatnonzero(np.sign(y[:-1]) * np.sign(y[1:]) <= 0)
-    roots = []
-    for i in idx:
-        if y[i] == 0:
-            roots.append(w[i])
-        elif y[i + 1] != 0 and np.isfinite(y[i]) and np.isfinite(y[i + 1]):
-            roots.append(brentq(fun, w[i], w[i + 1], xtol=1e-14 * w[i], rtol=1e-13))
-    return np.unique(roots)
-
-
-def _response(num, den, w):
-    """``num / den`` at ``s = j w`` (an infinite or undefined value where ``den`` is 0)."""
-    s = 1j * np.asarray(w)
-    with np.errstate(divide='ignore', invalid='ignore'):
-        return np.polyval(num, s) / np.polyval(den, s)
-
-
-def _margins(num, den):
-    """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts.
-
-    ``num / den`` is the loop gain L(s). The crossover is where ``|L(jw)| = 1`` (of
-    several, the one with the smallest ``|phase margin|``), the gain margin is taken where
-    the phase crosses -180 deg (the one closest to 0 dB), as ``control.stability_margins``
-    does; the closed loop ``L / (1 + L)`` is stable when every root of ``den + num`` lies in
-    the open left half plane, and its bandwidth is the first frequency where its gain
-    falls 3 dB below the DC gain.
-    """
-    def loop(w):
-        return _response(num, den, w)
-
-    w = _extend(_grid(num, den), loop, 1.0, num, den)
-    with np.errstate(divide='ignore'):
-        wc = _roots_on_grid(lambda x: np.log(np.abs(loop(x))), w)
-        w180 = _roots_on_grid(lambda x: loop(x).imag, w)
-    w180 = w180[loop(w180).real < 0]
-    pm = np.remainder(np.angle(loop(wc), deg=True), 360.0) - 180.0
-    with np.errstate(divide='ignore'):
-        gm = 1.0 / np.abs(loop(w180))
-    gm = gm[np.isfinite(gm)]  # |L| = 0 on the negative real axis: no finite gain margin
-    out = {'phase_margin_deg': None, 'crossover_hz': None, 'gain_margin_db': None}
-    if wc.size:
-        j = np.argmin(np.abs(pm))
-        out['phase_margin_deg'] = float(pm[j])
-        out['crossover_hz'] = float(wc[j] / (2 * np.pi))
-    if gm.size:
-        out['gain_margin_db'] = float(20 * np.log10(gm[np.argmin(np.abs(np.log(gm)))]))
-    closed_den = np.polyadd(den, num)
-    out['closed_loop_stable'] = bool(np.all(np.roots(closed_den).real < 0))
-    out['closed_loop_bandwidth_hz'] = None
-    if out['closed_loop_stable']:
-        bw = _bandwidth(num, closed_den)
-        out['closed_loop_bandwidth_hz'] = None if bw is None else float(bw / (2 * np.pi))
-    return out
-
-
-def _bandwidth(num, den, drop_db=-3.0):
-    """First frequency [rad/s] where ``|num/den (jw)|`` falls ``drop_db`` below DC; or None."""
-    dc = abs(np.polyval(num, 0.0) / np.polyval(den, 0.0))
-    if not np.isfinite(dc) or dc == 0:
-        return None
-    level = dc * 10 ** (drop_db / 20)
-
-    def excess(w):
-        return np.abs(_response(num, den, w)) - level
-
-    w = _extend(_grid(num, den), lambda x: excess(x) + level, level, num, den)
-    if excess(w[:1])[0] < 0:  # below the level already at the lowest frequency
-        return None
-    drops = _roots_on_grid(excess, w)
-    return drops[0] if drops.size else None
-
-
 def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
     """Margins of each loop on the full model; notes for low margins or instability."""
     known = all(np.isfinite(nominal[k]) for k in ('speed_kp', 'speed_ki')) and \
@@ -542,7 +338,7 @@ def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
     loops = loop_transfer_functions(vals, input_kind, nominal, sample_period)
     out = {}
     for name, (num, den) in loops.items():
-        m = _margins(num, den)
+        m = margins(num, den)
         out[name] = m
         pm = m['phase_margin_deg']
         if not m['closed_loop_stable']:
@@ -553,8 +349,6 @@ def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
                          f'{pm_min:g} deg: lower its bandwidth')
     return out
 
-
-# --- the public entry points -------------------------------------------------------------
 
 def design_controller(values, covariance=None, input_kind='voltage', kS=None,
                       current_bandwidth_hz=None, speed_bandwidth_hz=None,
@@ -706,153 +500,3 @@ def _loop_entry(kp, ki, bandwidth_hz, check, units, design):
            'units': units, 'design': design,
            'form': 'u = kp e + ki integral(e dt)'}
     return out
-
-
-def _kS_from_effects(effects, vals, input_kind):  # noqa: N802 - kS: WPILib's symbol
-    """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
-
-    The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.
-    """
-    def val_std(entry):
-        if isinstance(entry, dict):
-            return entry.get('value'), entry.get('std') or 0.0
-        return entry, 0.0
-
-    value, var, sources = 0.0, 0.0, []
-    tc = (effects.get('coulomb_friction') or {}).get('T_c')
-    if tc is not None:
-        t, ts = val_std(tc)
-        if t is None:
-            return None
-        scale = 1.0 if input_kind == 'torque' else vals['R_m'] / vals['K_T']
-        if not np.isfinite(scale):
-            return None
-        value, var = value + abs(t) * scale, var + (ts * scale) ** 2
-        sources.append('coulomb_friction')
-    vb = (effects.get('brush_drop') or {}).get('V_b')
-    if vb is not None and input_kind == 'voltage':
-        b, bs = val_std(vb)
-        if b is None:
-            return None
-        value, var = value + abs(b), var + bs ** 2
-        sources.append('brush_drop')
-    if not sources:
-        return None
-    return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
-
-
-def _covariance_from_fit(result_dict, params, values, notes):
-    """The fit's parameter_covariance over the known parameters, else a diagonal one."""
-    covariance = result_dict.get('parameter_covariance')
-    if covariance is not None:
-        if not isinstance(covariance, dict) or set(covariance) != {'names', 'matrix'}:
-            raise ConfigError("parameter_covariance must be {'names': [...], "
-                              "'matrix': [[...]]}")
-        cov_names = list(covariance['names'])
-        keep = [j for j, n in enumerate(cov_names) if values.get(n) is not None]
-        try:
-            m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
-        except (TypeError, ValueError, IndexError) as exc:
-            raise ConfigError(f'parameter_covariance matrix is unusable: {exc}') from None
-        return {'names': [cov_names[j] for j in keep], 'matrix': m.tolist()}
-    with_std = [n for n, v in values.items() if v is not None
-                and params[n].get('std') is not None]
-    if not with_std:
-        return None
-    notes.append('the fit JSON has no parameter_covariance: stds are combined as '
-                 'independent (correlations ignored), so error bars of ratios such '
-                 'as kA = R_m J / K_T can be far too large or too small')
-    return {'names': with_std,
-            'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
-
-
-def from_identification(result_dict, **kw):
-    """Design a controller from the fit JSON of ``motor-id fit --json``.
-
-    Parameters
-    ----------
-    result_dict : dict
-        ``{'parameters': {name: {'value', 'std', 'determined'}}, ...}``; an optional
-        top-level ``'parameter_covariance': {'names', 'matrix'}`` (linear units) is used
-        as the covariance, else the stds form a diagonal one (correlations ignored, said
-        in the notes). ``'input_kind'`` and fitted ``'effects'`` (coulomb_friction T_c,
-        brush_drop V_b, for kS) are used when present.
-    **kw
-        Passed to :func:`design_controller` (``covariance`` and ``values`` are taken from
-        the dict; ``input_kind`` and ``kS`` override what the dict says).
-
-    Returns
-    -------
-    ControllerDesign
-        Entries that need an undetermined parameter are null, with a note naming the
-        assumption that would determine it.
-    """
-    if not isinstance(result_dict, dict) or not isinstance(result_dict.get('parameters'),
-                                                           dict):
-        raise ConfigError("result_dict must be the fit JSON with a 'parameters' dict "
-                          '(motor-id fit --json OUT)')
-    for k in ('values', 'covariance'):
-        if k in kw:
-            raise ConfigError(f'{k} comes from result_dict; do not pass it')
-    input_kind = kw.pop('input_kind', result_dict.get('input_kind', 'voltage'))
-    names = _check_kind(input_kind)
-    params = result_dict['parameters']
-    missing = [n for n in names if n not in params]
-    if missing:
-        raise ConfigError(f'the fit JSON lacks parameters {", ".join(missing)} for a '
-                          f'{input_kind} plant')
-    if not all(isinstance(params[n], dict) for n in names):
-        raise ConfigError("each fit parameter must be {'value', 'std', 'determined'}")
-    values = {n: params[n].get('value') for n in names}
-    undetermined = [n for n in names if values[n] is None]
-    notes = []
-    covariance = _covariance_from_fit(result_dict, params, values, notes)
-    if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
-        vals = {n: math.nan if values[n] is None else values[n] for n in names}
-        kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
-    design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
-    if undetermined:
-        how = ('state one with --fix NAME=VALUE (e.g. --fix J=...)' if input_kind == 'torque'
-               else 'record the current channel (with the K_T = K_b tie, on by default) or '
-                    'state one with --fix NAME=VALUE (e.g. --fix J=...)')
-        notes.append(f'{", ".join(undetermined)} not determined by the data, so the entries '
-                     f'that need them are null: {how} to determine them')
-    design.notes.extend(notes)
-    return design
-
-
-def to_ros_parameters(design, node_name='/**'):
-    """Return the design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (params file).
-
-    Parameters
-    ----------
-    design : ControllerDesign or dict
-        A design or its ``to_dict()``.
-    node_name : str
-        The node the parameters are for; ``'/**'`` applies to every node.
-
-    Returns
-    -------
-    dict
-        ``{node_name: {'ros__parameters': {'controller.kS': float, ...}}}`` with plain
-        floats; null (unknown) entries are left out, since ROS parameters have no null.
-        Keys: ``controller.{kS,kV,kA,tau_e,tau_m}``,
-        ``controller.{current,speed}.{kp,ki,bandwidth_hz}``.
-    """
-    if not isinstance(node_name, str) or not node_name:
-        raise ConfigError(f'node_name must be a non-empty string, got {node_name!r}')
-    d = design.to_dict() if isinstance(design, ControllerDesign) else design
-    if not isinstance(d, dict) or set(d) != {'feedforward', 'time_constants', 'pi', 'notes'}:
-        raise ConfigError('design must be a ControllerDesign or its to_dict()')
-    flat = {}
-    for k in ('kS', 'kV', 'kA'):
-        flat[f'controller.{k}'] = d['feedforward'][k]['value']
-    flat['controller.tau_e'] = d['time_constants']['electrical']['value']
-    flat['controller.tau_m'] = d['time_constants']['mechanical']['value']
-    for loop in ('current', 'speed'):
-        entry = d['pi'][loop] or {}
-        for k in ('kp', 'ki'):
-            flat[f'controller.{loop}.{k}'] = (entry.get(k) or {}).get('value')
-        flat[f'controller.{loop}.bandwidth_hz'] = entry.get('bandwidth_hz')
-    params = {k: float(v) for k, v in flat.items() if v is not None}
-    return {node_name: {'ros__parameters': params}}

@@ -1,0 +1,36 @@
+"""Controller-ready results from an identified DC motor: feedforward constants and PI gains.
+
+design    the design rules: time constants, feedforward, PI gains, error bars
+loops     the loop checks on the full model (margins, crossovers, closed-loop bandwidth)
+export    a design from the fit JSON, and as ROS parameters
+"""
+
+from motor_id.controller.design import (
+    BANDWIDTH_RATIO,
+    controller_constants,
+    ControllerDesign,
+    CONVENTION,
+    design_controller,
+    FD_RELATIVE_STEP,
+    INPUT_KINDS,
+    KS_SOURCES,
+    SAMPLE_FRACTION,
+    time_constants,
+    TORQUE_NAMES,
+    TORQUE_ZERO_RATIO,
+    VOLTAGE_NAMES,
+)
+from motor_id.controller.export import from_identification, to_ros_parameters
+from motor_id.controller.loops import (
+    DELAY_SAMPLES,
+    loop_transfer_functions,
+    margins,
+    pade_delay,
+    PADE_ORDER,
+)
+
+__all__ = ['BANDWIDTH_RATIO', 'CONVENTION', 'controller_constants', 'ControllerDesign',
+           'DELAY_SAMPLES', 'design_controller', 'FD_RELATIVE_STEP', 'from_identification',
+           'INPUT_KINDS', 'KS_SOURCES', 'loop_transfer_functions', 'margins', 'pade_delay',
+           'PADE_ORDER', 'SAMPLE_FRACTION', 'time_constants', 'to_ros_parameters',
+           'TORQUE_NAMES', 'TORQUE_ZERO_RATIO', 'VOLTAGE_NAMES']

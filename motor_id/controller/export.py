@@ -1,0 +1,158 @@
+"""Controller results out: a design from the fit JSON, and as ROS parameters."""
+
+import math
+
+import numpy as np
+
+from motor_id.controller.design import check_input_kind, ControllerDesign, design_controller
+from motor_id.errors import ConfigError
+
+
+def _kS_from_effects(effects, vals, input_kind):  # noqa: N802 - kS: WPILib's symbol
+    """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
+
+    The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.
+    """
+    def val_std(entry):
+        if isinstance(entry, dict):
+            return entry.get('value'), entry.get('std') or 0.0
+        return entry, 0.0
+
+    value, var, sources = 0.0, 0.0, []
+    tc = (effects.get('coulomb_friction') or {}).get('T_c')
+    if tc is not None:
+        t, ts = val_std(tc)
+        if t is None:
+            return None
+        scale = 1.0 if input_kind == 'torque' else vals['R_m'] / vals['K_T']
+        if not np.isfinite(scale):
+            return None
+        value, var = value + abs(t) * scale, var + (ts * scale) ** 2
+        sources.append('coulomb_friction')
+    vb = (effects.get('brush_drop') or {}).get('V_b')
+    if vb is not None and input_kind == 'voltage':
+        b, bs = val_std(vb)
+        if b is None:
+            return None
+        value, var = value + abs(b), var + bs ** 2
+        sources.append('brush_drop')
+    if not sources:
+        return None
+    return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
+
+
+def _covariance_from_fit(result_dict, params, values, notes):
+    """The fit's parameter_covariance over the known parameters, else a diagonal one."""
+    covariance = result_dict.get('parameter_covariance')
+    if covariance is not None:
+        if not isinstance(covariance, dict) or set(covariance) != {'names', 'matrix'}:
+            raise ConfigError("parameter_covariance must be {'names': [...], "
+                              "'matrix': [[...]]}")
+        cov_names = list(covariance['names'])
+        keep = [j for j, n in enumerate(cov_names) if values.get(n) is not None]
+        try:
+            m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f'parameter_covariance matrix is unusable: {exc}') from None
+        return {'names': [cov_names[j] for j in keep], 'matrix': m.tolist()}
+    with_std = [n for n, v in values.items() if v is not None
+                and params[n].get('std') is not None]
+    if not with_std:
+        return None
+    notes.append('the fit JSON has no parameter_covariance: stds are combined as '
+                 'independent (correlations ignored), so error bars of ratios such '
+                 'as kA = R_m J / K_T can be far too large or too small')
+    return {'names': with_std,
+            'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
+
+
+def from_identification(result_dict, **kw):
+    """Design a controller from the fit JSON of ``motor-id fit --json``.
+
+    Parameters
+    ----------
+    result_dict : dict
+        ``{'parameters': {name: {'value', 'std', 'determined'}}, ...}``; an optional
+        top-level ``'parameter_covariance': {'names', 'matrix'}`` (linear units) is used
+        as the covariance, else the stds form a diagonal one (correlations ignored, said
+        in the notes). ``'input_kind'`` and fitted ``'effects'`` (coulomb_friction T_c,
+        brush_drop V_b, for kS) are used when present.
+    **kw
+        Passed to :func:`design_controller` (``covariance`` and ``values`` are taken from
+        the dict; ``input_kind`` and ``kS`` override what the dict says).
+
+    Returns
+    -------
+    ControllerDesign
+        Entries that need an undetermined parameter are null, with a note naming the
+        assumption that would determine it.
+    """
+    if not isinstance(result_dict, dict) or not isinstance(result_dict.get('parameters'),
+                                                           dict):
+        raise ConfigError("result_dict must be the fit JSON with a 'parameters' dict "
+                          '(motor-id fit --json OUT)')
+    for k in ('values', 'covariance'):
+        if k in kw:
+            raise ConfigError(f'{k} comes from result_dict; do not pass it')
+    input_kind = kw.pop('input_kind', result_dict.get('input_kind', 'voltage'))
+    names = check_input_kind(input_kind)
+    params = result_dict['parameters']
+    missing = [n for n in names if n not in params]
+    if missing:
+        raise ConfigError(f'the fit JSON lacks parameters {", ".join(missing)} for a '
+                          f'{input_kind} plant')
+    if not all(isinstance(params[n], dict) for n in names):
+        raise ConfigError("each fit parameter must be {'value', 'std', 'determined'}")
+    values = {n: params[n].get('value') for n in names}
+    undetermined = [n for n in names if values[n] is None]
+    notes = []
+    covariance = _covariance_from_fit(result_dict, params, values, notes)
+    if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
+        vals = {n: math.nan if values[n] is None else values[n] for n in names}
+        kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
+    design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
+    if undetermined:
+        how = ('state one with --fix NAME=VALUE (e.g. --fix J=...)' if input_kind == 'torque'
+               else 'record the current channel (with the K_T = K_b tie, on by default) or '
+                    'state one with --fix NAME=VALUE (e.g. --fix J=...)')
+        notes.append(f'{", ".join(undetermined)} not determined by the data, so the entries '
+                     f'that need them are null: {how} to determine them')
+    design.notes.extend(notes)
+    return design
+
+
+def to_ros_parameters(design, node_name='/**'):
+    """Return the design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (params file).
+
+    Parameters
+    ----------
+    design : ControllerDesign or dict
+        A design or its ``to_dict()``.
+    node_name : str
+        The node the parameters are for; ``'/**'`` applies to every node.
+
+    Returns
+    -------
+    dict
+        ``{node_name: {'ros__parameters': {'controller.kS': float, ...}}}`` with plain
+        floats; null (unknown) entries are left out, since ROS parameters have no null.
+        Keys: ``controller.{kS,kV,kA,tau_e,tau_m}``,
+        ``controller.{current,speed}.{kp,ki,bandwidth_hz}``.
+    """
+    if not isinstance(node_name, str) or not node_name:
+        raise ConfigError(f'node_name must be a non-empty string, got {node_name!r}')
+    d = design.to_dict() if isinstance(design, ControllerDesign) else design
+    if not isinstance(d, dict) or set(d) != {'feedforward', 'time_constants', 'pi', 'notes'}:
+        raise ConfigError('design must be a ControllerDesign or its to_dict()')
+    flat = {}
+    for k in ('kS', 'kV', 'kA'):
+        flat[f'controller.{k}'] = d['feedforward'][k]['value']
+    flat['controller.tau_e'] = d['time_constants']['electrical']['value']
+    flat['controller.tau_m'] = d['time_constants']['mechanical']['value']
+    for loop in ('current', 'speed'):
+        entry = d['pi'][loop] or {}
+        for k in ('kp', 'ki'):
+            flat[f'controller.{loop}.{k}'] = (entry.get(k) or {}).get('value')
+        flat[f'controller.{loop}.bandwidth_hz'] = entry.get('bandwidth_hz')
+    params = {k: float(v) for k, v in flat.items() if v is not None}
+    return {node_name: {'ros__parameters': params}}
