@@ -13,6 +13,7 @@ from motor_id.card.profile import profile_samples
 from motor_id.card.session import HostProfile, Session
 from motor_id.card.simulator import CardSimulator
 from motor_id.card.supervisor import Limits, Supervisor
+from motor_id.card.transport import TransportError
 from motor_id.card.virtual_card import VirtualCard
 from motor_id.cli import card_sim
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
@@ -88,7 +89,7 @@ def test_link_sends_commands_and_routes_replies():
     replies = []
     log = Log()
     link = CardLink('loop://', read_timeout=0.02, log=log, on_reply=replies.append)
-    with pytest.raises(pr.TransportError, match='not open'):
+    with pytest.raises(TransportError, match='not open'):
         link.send(pr.Stop())
     link.poll()
     link.send(pr.Ping(5))   # loop:// reads it back: a host frame is garbage to the card side

@@ -11,7 +11,9 @@ import pytest
 
 from motor_id.card import protocol as pr
 from motor_id.card.faults import FaultConfig, FaultInjector
+from motor_id.card.sequence import SequenceTracker
 from motor_id.card.simulator import CardSimulator
+from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError
 from motor_id.card.virtual_card import VirtualCard
 from motor_id.errors import ConfigError
@@ -136,8 +138,8 @@ def _inject(config, n=3000, seed=0):
     card = VirtualCard(period=0.001)
     inj = FaultInjector(config, random_state=seed)
     data = b''.join(inj.apply(pr.encode_sample(s)) for s in card.samples(n))
-    parser = pr.FrameParser()
-    tracker = pr.SequenceTracker()
+    parser = FrameParser()
+    tracker = SequenceTracker()
     items = parser.feed(data) + parser.flush()
     for item in items:
         if isinstance(item, pr.Sample):
@@ -195,7 +197,7 @@ def test_pty_profile_matches_simulate_batch():
         port = open_transport(sim.path, timeout=0.05)
         try:
             port.write(pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 32.0)))
-            parser = pr.FrameParser()
+            parser = FrameParser()
             items = _read_until(port, parser, lambda it: any(
                 isinstance(s, pr.Sample) and s.flags & pr.FLAG_PROFILE_END for s in it))
         finally:
@@ -221,7 +223,7 @@ def test_pty_faults_reach_the_parser():
     faults = FaultConfig(garbage=0.02, drop=0.01, bad_crc=0.01, duplicate=0.01, reorder=0.01)
     with CardSimulator(speedup=0, faults=faults, random_state=5) as sim:
         port = open_transport(sim.path, timeout=0.05)
-        parser, tracker = pr.FrameParser(), pr.SequenceTracker()
+        parser, tracker = FrameParser(), SequenceTracker()
         first = None  # opening the port flushes what the card sent before
         try:
             end = time.monotonic() + 10.0
@@ -248,7 +250,7 @@ def test_pty_disconnect_comes_back_at_the_link(tmp_path):
     faults = FaultConfig(disconnect_every=0.4, disconnect_for=0.2)
     with CardSimulator(speedup=5.0, faults=faults, link=link, random_state=0) as sim:
         port = open_transport(link, timeout=0.05)
-        parser, tracker = pr.FrameParser(), pr.SequenceTracker()
+        parser, tracker = FrameParser(), SequenceTracker()
         events, vanished = [], False
         end = time.monotonic() + 5.0
         while sum(e.kind == 'gap' for e in events) < 1 and time.monotonic() < end:
@@ -304,7 +306,7 @@ def test_cli_prints_the_path_and_stops_cleanly(tmp_path, sig):
         assert first == str(link) and os.path.islink(link)
         port = open_transport(first, timeout=0.05)
         port.write(pr.encode_command(pr.Ping(7)))
-        parser = pr.FrameParser()
+        parser = FrameParser()
         _read_until(port, parser, lambda it: len(parser.replies) > 0)
         assert parser.replies[0] == pr.Reply('ping', 'ok', 7)
         port.close()

@@ -26,6 +26,8 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from motor_id.card import protocol as pr
+from motor_id.card.sequence import SequenceTracker
+from motor_id.card.stream import FrameParser
 from motor_id.errors import ProtocolError
 from motor_id.excitation import make_excitation
 from motor_id.model import MotorParams, Plant
@@ -245,7 +247,7 @@ def test_stream_parser_keeps_every_good_frame_between_faults(plan, step):
     last = sample(len(plan), rng)   # a last good frame closes the stream
     data += pr.encode_sample(last)
     good.append(last)
-    parser = pr.FrameParser()
+    parser = FrameParser()
     items = []
     for i in range(0, len(data), step):
         items += parser.feed(bytes(data[i:i + step]))
@@ -260,7 +262,7 @@ def test_stream_parser_keeps_every_good_frame_between_faults(plan, step):
 def test_crafted_stream_expectations_hold_for_the_parser():
     """The expectations of :func:`crafted_stream` are right (checked without ROS)."""
     data, exp = crafted_stream()
-    parser, tracker = pr.FrameParser(), pr.SequenceTracker()
+    parser, tracker = FrameParser(), SequenceTracker()
     published = []
     for i in range(0, len(data), 37):
         for item in parser.feed(data[i:i + 37]):

@@ -13,6 +13,7 @@ import pytest
 
 from motor_id.card import protocol as pr
 from motor_id.card.simulator import VirtualCard
+from motor_id.card.stream import CommandParser
 from motor_id.errors import ConfigError, ProtocolError
 from motor_id.excitation import make_excitation
 
@@ -295,7 +296,7 @@ def test_byte_stream_splits_like_python_command_parser(host):
     out = run(host, lines)
     n_items = n_errors = 0
     for k, stream in enumerate(streams):
-        parser = pr.CommandParser()
+        parser = CommandParser()
         want = [describe(x) for x in parser.feed(stream) + parser.flush()]
         fed, flushed = out[3 * k + 1].split(), out[3 * k + 2].split()
         got = fed[1:-1] + flushed[1:-1]

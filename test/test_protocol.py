@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from motor_id.card import protocol as pr
+from motor_id.card.sequence import SequenceTracker
+from motor_id.card.stream import CommandParser, FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError
 from motor_id.errors import ConfigError, ProtocolError
 
@@ -143,7 +145,7 @@ def test_command_round_trip():
     stream = b''.join(pr.encode_command(c) for c in commands)
     for c in commands:
         assert pr.parse_command(pr.encode_command(c)) == c
-    parser = pr.CommandParser()
+    parser = CommandParser()
     got = []
     for i in range(0, len(stream), 5):  # arrives in pieces
         got += parser.feed(stream[i:i + 5])
@@ -164,7 +166,7 @@ def test_stream_resynchronises_after_garbage():
             junk_total += junk.size
         stream += pr.encode_sample(s)
     stream += b'\xa5\x5a\x01'  # a torn frame at the end stays buffered
-    parser = pr.FrameParser()
+    parser = FrameParser()
     items = []
     for i in range(0, len(stream), 17):
         items += parser.feed(bytes(stream[i:i + 17]))
@@ -178,7 +180,7 @@ def test_stream_resynchronises_after_garbage():
 
 def test_stream_sync_pattern_inside_garbage():
     frame = pr.encode_sample(SAMPLE)
-    parser = pr.FrameParser()
+    parser = FrameParser()
     # false syncs: unknown type, impossible length, sync + start of a frame
     data = b'\xa5\x5a\x7f\x00' + b'\xa5\x5a\x01\x05' + b'\xa5' + frame + b'\xa5\x5a' + frame
     assert parser.feed(data) == [SAMPLE, SAMPLE]
@@ -189,7 +191,7 @@ def test_stream_reports_bad_crc_and_keeps_the_next_frame():
     good = pr.encode_sample(SAMPLE)
     bad = bytearray(good)
     bad[12] ^= 0x80
-    parser = pr.FrameParser()
+    parser = FrameParser()
     items = parser.feed(bytes(bad))
     assert items == []  # waits to see whether the next frame follows
     items = parser.feed(good + bytes(bad) + b'\x01\x02' + good)
@@ -202,21 +204,21 @@ def test_stream_reports_bad_crc_and_keeps_the_next_frame():
 
 def test_stream_recovers_a_frame_after_a_torn_one():
     good = pr.encode_sample(SAMPLE)
-    parser = pr.FrameParser()
+    parser = FrameParser()
     items = parser.feed(good[:15] + good + good)
     kinds = [i.kind if isinstance(i, ProtocolError) else 'sample' for i in items]
     assert kinds == ['bad_crc', 'sample', 'sample']
 
 
 def test_replies_are_kept_aside():
-    parser = pr.FrameParser(max_replies=2)
+    parser = FrameParser(max_replies=2)
     data = b''.join(pr.encode_reply(pr.Reply('ping', 'ok', k)) for k in range(3))
     assert parser.feed(data + pr.encode_sample(SAMPLE)) == [SAMPLE]
     assert [r.value for r in parser.replies] == [1, 2]
 
 
 def test_sequence_tracker_counts_gaps_duplicates_and_late_frames():
-    tr = pr.SequenceTracker(window=8)
+    tr = SequenceTracker(window=8)
     kinds = [tr.update(s).kind for s in [10, 11, 13, 12, 12, 14, 18, 18, 19]]
     assert kinds == ['first', 'ok', 'gap', 'late', 'duplicate', 'ok', 'gap', 'duplicate',
                      'ok']
@@ -225,14 +227,14 @@ def test_sequence_tracker_counts_gaps_duplicates_and_late_frames():
 
 
 def test_sequence_tracker_wraps_and_resets():
-    tr = pr.SequenceTracker(window=4)
+    tr = SequenceTracker(window=4)
     kinds = [tr.update(s).kind for s in [2 ** 32 - 2, 2 ** 32 - 1, 0, 2]]
     assert kinds == ['first', 'ok', 'ok', 'gap'] and tr.lost == 1
     assert tr.update(100, restart=True).kind == 'reset'
     assert tr.update(50).kind == 'reset'  # far back: the card restarted
     assert tr.update(51).kind == 'ok'
     assert tr.update(51 + 2 ** 20, ).kind == 'gap'
-    big = pr.SequenceTracker(max_gap=100)
+    big = SequenceTracker(max_gap=100)
     big.update(0)
     assert big.update(1000).kind == 'reset' and big.lost == 0
     with pytest.raises(ConfigError):
@@ -244,7 +246,7 @@ def test_transport_loop_round_trip():
     try:
         frames = [pr.Sample(k, k / 1000, 1.0, 2.0 * k, 0.5, pr.FLAG_CURRENT) for k in range(20)]
         port.write(b'\x00\x01' + b''.join(pr.encode_sample(s) for s in frames))
-        parser = pr.FrameParser()
+        parser = FrameParser()
         got = []
         while len(got) < 20:
             data = read_available(port)
@@ -252,7 +254,7 @@ def test_transport_loop_round_trip():
             got += parser.feed(data)
         assert got == frames and parser.garbage_bytes == 2
         port.write(pr.encode_command(pr.Ping(5)))
-        assert pr.CommandParser().feed(read_available(port)) == [pr.Ping(5)]
+        assert CommandParser().feed(read_available(port)) == [pr.Ping(5)]
     finally:
         port.close()
 
@@ -262,7 +264,6 @@ def test_transport_errors_are_domain_errors(tmp_path):
         open_transport(str(tmp_path / 'no-such-tty'))
     with pytest.raises(ConfigError):
         open_transport('loop://', baudrate=0)
-    assert pr.open_transport is open_transport
 
 
 def test_a_frame_ending_in_a_sync_byte_does_not_depend_on_read_splitting():
@@ -271,9 +272,9 @@ def test_a_frame_ending_in_a_sync_byte_does_not_depend_on_read_splitting():
                  if pr.encode_command(pr.Ping(k))[-1] == pr.SYNC[0])
     frame = pr.encode_command(pr.Ping(token))
     tail = b'\x5a\x01\x02\x03'
-    whole = pr.CommandParser()
+    whole = CommandParser()
     at_once = whole.feed(frame + tail) + whole.flush()
-    split = pr.CommandParser()
+    split = CommandParser()
     first = split.feed(frame)
     assert split.garbage_bytes == 0
     in_two = first + split.feed(tail) + split.flush()

@@ -6,6 +6,7 @@ from hypothesis import given, HealthCheck, settings
 from hypothesis import strategies as st
 
 from motor_id.card import protocol as pr
+from motor_id.card.stream import CommandParser, FrameParser
 from motor_id.errors import ProtocolError
 
 SETTINGS = settings(max_examples=300, deadline=None, derandomize=True,
@@ -79,7 +80,7 @@ def test_parse_frame_raises_only_protocol_error(data):
        st.integers(1, 64))
 def test_stream_parsers_raise_nothing(chunks, step):
     data = b''.join(chunks)
-    for parser in (pr.FrameParser(), pr.CommandParser()):
+    for parser in (FrameParser(), CommandParser()):
         items = []
         for i in range(0, len(data), step):
             items += parser.feed(data[i:i + step])
@@ -96,7 +97,7 @@ def test_stream_parsers_raise_nothing(chunks, step):
 def test_sample_round_trip(sample):
     frame = pr.encode_sample(sample)
     assert pr.parse_frame(frame) == sample
-    assert pr.FrameParser().feed(b'\x00' + frame + frame) == [sample, sample]
+    assert FrameParser().feed(b'\x00' + frame + frame) == [sample, sample]
 
 
 @SETTINGS

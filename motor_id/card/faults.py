@@ -24,7 +24,7 @@ class FaultConfig:
     garbage : float
         Probability per frame of a burst of 1..``garbage_max`` random bytes before it.
         The bytes never contain 0xA5 (the first sync byte), so each one is counted
-        exactly once as garbage by :class:`~motor_id.card.protocol.FrameParser`.
+        exactly once as garbage by :class:`~motor_id.card.stream.FrameParser`.
     garbage_max : int
     drop : float
         Probability that a frame is not sent (a sequence gap).

@@ -1,8 +1,8 @@
 """The host's end of the serial line: open with back-off, read, parse, count, batch (no ROS).
 
 :class:`CardLink` owns the port (opened with :func:`serial.serial_for_url`, so a device
-path, a pty or ``loop://``), the :class:`~motor_id.card.protocol.FrameParser` and the
-:class:`~motor_id.card.protocol.SequenceTracker`. One thread calls :meth:`CardLink.poll`
+path, a pty or ``loop://``), the :class:`~motor_id.card.stream.FrameParser` and the
+:class:`~motor_id.card.sequence.SequenceTracker`. One thread calls :meth:`CardLink.poll`
 in a loop; any thread may call :meth:`CardLink.send`. It logs through a plain callable,
 each kind of fault once per outage, and counts everything for diagnostics.
 """
@@ -11,14 +11,9 @@ from collections import Counter
 import threading
 import time
 
-from motor_id.card.protocol import (
-    encode_command,
-    FLAG_STARTUP,
-    FrameParser,
-    MAX_FRAME,
-    OVERHEAD,
-    SequenceTracker,
-)
+from motor_id.card.protocol import encode_command, FLAG_STARTUP, MAX_FRAME, OVERHEAD
+from motor_id.card.sequence import SequenceTracker
+from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
 from motor_id.errors import ConfigError, MotorIdError, ProtocolError
 

@@ -1,4 +1,4 @@
-"""The binary serial protocol between host and card: frames, commands, CRC, stream parsing.
+"""The binary serial protocol between host and card: frames, messages, CRC (bytes only).
 
 Every message travels in one frame (all integers little-endian)::
 
@@ -13,15 +13,13 @@ specification, with the payload of every frame type, is ``docs/protocol.md``.
 Public API (stable; the driver node and the simulated card import it):
 
 * card -> host: :class:`Sample`, :class:`Reply`; :func:`encode_sample`,
-  :func:`encode_reply`; :func:`parse_frame` (one frame -> Sample or Reply);
-  :class:`FrameParser` (byte stream -> Sample / ProtocolError items, replies kept in
-  ``FrameParser.replies``).
+  :func:`encode_reply`; :func:`parse_frame` (one frame -> Sample or Reply).
 * host -> card: :class:`SetVoltage`, :class:`StartProfile`, :class:`Stop`,
-  :class:`SetPeriod`, :class:`Ping`; :func:`encode_command`, :func:`parse_command`,
-  :class:`CommandParser` (byte stream -> command / ProtocolError items).
-* :class:`SequenceTracker` classifies successive sequence numbers (lost, duplicated,
-  late, reset); :func:`open_transport` (re-exported from
-  :mod:`motor_id.card.transport`) opens a device path, a pty or ``loop://``.
+  :class:`SetPeriod`, :class:`Ping`; :func:`encode_command`, :func:`parse_command`.
+
+A byte stream is cut into frames by :mod:`motor_id.card.stream` (``FrameParser``,
+``CommandParser``); :mod:`motor_id.card.sequence` classifies successive sequence numbers
+and :mod:`motor_id.card.transport` opens a device path, a pty or ``loop://``.
 
 Decoding never raises anything but :class:`motor_id.errors.ProtocolError`, whose
 ``kind`` is one of :data:`ERROR_KINDS`; encoding raises
@@ -29,13 +27,11 @@ Decoding never raises anything but :class:`motor_id.errors.ProtocolError`, whose
 logs, sleeps or touches a device: callers count and report.
 """
 
-from collections import Counter, deque
 from dataclasses import dataclass
 import math
 import struct
 import zlib
 
-from motor_id.card.transport import open_transport, TransportError  # noqa: F401
 from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
     FLAG_CURRENT,
     FLAG_LIMIT,
@@ -44,7 +40,6 @@ from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
     FLAG_PROFILE,
     FLAG_PROFILE_END,
     FLAG_STARTUP,
-    seq_step,
 )
 from motor_id.errors import ConfigError, ProtocolError
 
@@ -234,7 +229,8 @@ def _f32(name, value, finite=True):
     return v
 
 
-def _uint(name, value, limit):
+def check_uint(name, value, limit):
+    """``value`` as an int in ``[0, limit)`` (for encoding); ConfigError otherwise."""
     if isinstance(value, bool) or not isinstance(value, int):
         try:
             if float(value) != int(value):
@@ -277,9 +273,9 @@ def _enc_sample(s):
     has_current = not math.isnan(_f32('current', s.current, finite=False))
     if has_current and math.isinf(s.current):
         raise ConfigError(f'current must be finite or nan, got {s.current}')
-    flags = _uint('flags', s.flags, 2 ** 16)
+    flags = check_uint('flags', s.flags, 2 ** 16)
     flags = (flags | FLAG_CURRENT) if has_current else (flags & ~FLAG_CURRENT)
-    head = (_uint('seq', s.seq, _U32), _micros('t_card', s.t_card, _U64), flags,
+    head = (check_uint('seq', s.seq, _U32), _micros('t_card', s.t_card, _U64), flags,
             _f32('voltage', s.voltage), _f32('speed', s.speed))
     if has_current:
         return _SAMPLE_I.pack(*head, s.current)
@@ -308,7 +304,7 @@ def _enc_reply(r):
     if r.status not in STATUS_NAMES:
         raise ConfigError(f'unknown reply status {r.status!r}; '
                           f'expected one of {sorted(STATUS_NAMES)}')
-    return _REPLY.pack(command, STATUS_NAMES[r.status], _uint('value', r.value, _U32))
+    return _REPLY.pack(command, STATUS_NAMES[r.status], check_uint('value', r.value, _U32))
 
 
 def _dec_reply(p):
@@ -336,7 +332,7 @@ def _enc_start_profile(c):
     if not 1 <= len(name) <= MAX_NAME:
         raise ConfigError(f'profile name must have 1..{MAX_NAME} characters, got {c.name!r}')
     return _PROFILE.pack(_f32('amplitude', c.amplitude), _f32('duration', c.duration),
-                         _uint('seed', c.seed, _U32), len(name)) + name
+                         check_uint('seed', c.seed, _U32), len(name)) + name
 
 
 def _dec_start_profile(p):
@@ -388,7 +384,7 @@ _HOST_KINDS = (
     _Kind(TYPE_SET_PERIOD, 'set_period', SetPeriod, frozenset((_U.size,)),
           _enc_set_period, _dec_set_period),
     _Kind(TYPE_PING, 'ping', Ping, frozenset((_U.size,)),
-          lambda c: _U.pack(_uint('token', c.token, _U32)), lambda p: Ping(_U.unpack(p)[0])),
+          lambda c: _U.pack(check_uint('token', c.token, _U32)), lambda p: Ping(_U.unpack(p)[0])),
 )
 CARD_TYPES = {k.code: k for k in _CARD_KINDS}
 """Frame types the card sends: code -> table row."""
@@ -514,276 +510,3 @@ def parse_frame(frame):
 def parse_command(frame):
     """Decode one complete host -> card frame into a command; errors as :func:`parse_frame`."""
     return _decode(*_split(frame), HOST_TYPES)
-
-
-# ---------------------------------------------------------------------------------------
-# streams
-
-
-class _StreamSplitter:
-    """Cut a byte stream into frames of one direction; resynchronise after garbage."""
-
-    def __init__(self, table):
-        self._table = table
-        self._buf = bytearray()
-        self.garbage_bytes = 0
-        """Bytes skipped while looking for a frame (noise, torn or corrupted frames)."""
-        self.frames = 0
-        """Frames decoded successfully."""
-        self.errors = Counter()
-        """ProtocolError count by kind."""
-
-    @property
-    def buffered(self):
-        """Bytes held back waiting for the rest of a frame."""
-        return len(self._buf)
-
-    def reset(self):
-        """Forget buffered bytes (after reopening the device); counters stay."""
-        self._buf.clear()
-
-    def _items(self, data, final=False):
-        buf = self._buf
-        buf += data
-        out = []
-        pos = 0
-        while True:
-            i = buf.find(SYNC, pos)
-            if i < 0:
-                keep = 1 if (pos < len(buf) and buf[-1:] == SYNC[:1] and not final) else 0
-                self.garbage_bytes += len(buf) - pos - keep
-                pos = len(buf) - keep
-                break
-            self.garbage_bytes += i - pos
-            pos = i
-            if len(buf) - pos < HEADER.size:
-                break
-            ftype, length = buf[pos + 2], buf[pos + 3]
-            kind = self._table.get(ftype)
-            if kind is None or length not in kind.lengths:
-                # not a frame of ours: a sync pattern inside garbage
-                self.garbage_bytes += 1
-                pos += 1
-                continue
-            end = pos + OVERHEAD + length
-            if len(buf) < end:
-                break
-            body = bytes(buf[pos + 2:end - CRC.size])
-            if crc(body) != CRC.unpack_from(buf, end - CRC.size)[0]:
-                # A corrupted frame if the next frame follows right after it; else the
-                # length may be wrong (torn frame): rescan from the next byte.
-                if len(buf) < end + len(SYNC) and not final:
-                    break
-                err = ProtocolError('bad_crc', f'type {ftype:#04x}, {length} byte payload')
-                out.append(err)
-                self.errors[err.kind] += 1
-                if buf[end:end + len(SYNC)] == SYNC or len(buf) == end:
-                    pos = end
-                else:
-                    self.garbage_bytes += 1
-                    pos += 1
-                continue
-            try:
-                item = kind.decode(body[2:])
-            except ProtocolError as err:
-                out.append(err)
-                self.errors[err.kind] += 1
-            else:
-                out.append(item)
-                self.frames += 1
-            pos = end
-        del buf[:pos]
-        if final and buf:
-            short = ProtocolError('short', f'stream ends inside a frame ({len(buf)} bytes)')
-            out.append(short)
-            self.errors[short.kind] += 1
-            buf.clear()
-        return out
-
-
-class FrameParser(_StreamSplitter):
-    """Split the card -> host byte stream into samples and errors.
-
-    Feed it whatever the transport returns; it keeps partial frames between calls and
-    resynchronises on the next sync marker after garbage.
-
-    Attributes
-    ----------
-    garbage_bytes : int
-        Bytes skipped that belonged to no valid frame.
-    frames : int
-        Frames decoded (samples and replies).
-    errors : collections.Counter
-        ProtocolError count by kind.
-    replies : collections.deque of Reply
-        Replies to commands, oldest first (the last ``max_replies``); pop them to read.
-
-    Notes
-    -----
-    A frame with a bad CRC is reported as soon as the bytes after it arrive: if the
-    next frame starts right after it, the whole frame is skipped, otherwise only its
-    first byte (its length byte may be wrong) and scanning resumes.
-    """
-
-    def __init__(self, max_replies=64):
-        super().__init__(CARD_TYPES)
-        self.replies = deque(maxlen=max_replies)
-
-    def _route(self, items):
-        out = []
-        for item in items:
-            if isinstance(item, Reply):
-                self.replies.append(item)
-            else:
-                out.append(item)
-        return out
-
-    def feed(self, data):
-        """Add received bytes; return the new items in stream order.
-
-        Parameters
-        ----------
-        data : bytes
-
-        Returns
-        -------
-        list of Sample or ProtocolError
-            Replies are not in the list: they go to :attr:`replies`.
-        """
-        return self._route(self._items(bytes(data)))
-
-    def flush(self):
-        """End of stream: report what is still buffered (``bad_crc`` or ``short``)."""
-        return self._route(self._items(b'', final=True))
-
-
-class CommandParser(_StreamSplitter):
-    """Split the host -> card byte stream into commands and errors (the card's side)."""
-
-    def __init__(self):
-        super().__init__(HOST_TYPES)
-
-    def feed(self, data):
-        """Add received bytes; return a list of commands and ProtocolError items."""
-        return self._items(bytes(data))
-
-    def flush(self):
-        """End of stream: report what is still buffered."""
-        return self._items(b'', final=True)
-
-
-# ---------------------------------------------------------------------------------------
-# sequence numbers
-
-
-@dataclass(frozen=True)
-class SeqEvent:
-    """What one sequence number means relative to the ones before it.
-
-    Attributes
-    ----------
-    kind : {'first', 'ok', 'gap', 'duplicate', 'late', 'reset'}
-        ``first``: the first number seen; ``ok``: the previous + 1; ``gap``: numbers
-        were skipped (``lost`` of them); ``duplicate``: seen recently; ``late``: an
-        older number not seen before (out of order; it had been counted lost);
-        ``reset``: the sequence restarted (startup flag, jump back beyond the window or
-        forward beyond ``max_gap``).
-    seq : int
-    lost : int
-        Frames missing before this one (``gap`` only).
-    """
-
-    kind: str
-    seq: int
-    lost: int = 0
-
-
-class SequenceTracker:
-    """Classify successive uint32 sequence numbers; count lost, duplicated, late frames.
-
-    Parameters
-    ----------
-    window : int
-        How many recent numbers are remembered to recognise duplicates and late frames.
-    max_gap : int
-        A forward jump larger than this is a reset, not a loss.
-    modulus : int
-        Sequence numbers wrap at this value.
-
-    Attributes
-    ----------
-    received, lost, duplicates, late, resets : int
-        Counters. ``lost`` is net: a late frame that arrives after all is taken off.
-    """
-
-    def __init__(self, window=256, max_gap=2 ** 24, modulus=_U32):
-        if window < 1 or max_gap < 1 or modulus < 2 * (window + 1):
-            raise ConfigError('SequenceTracker needs window >= 1, max_gap >= 1 and '
-                              'modulus > 2 * window')
-        self.window = int(window)
-        self.max_gap = int(max_gap)
-        self.modulus = int(modulus)
-        self.received = self.lost = self.duplicates = self.late = self.resets = 0
-        self.last = None
-        self._first = None
-        self._seen = deque()
-        self._seen_set = set()
-
-    def _signed(self, d):
-        return seq_step(0, d, self.modulus)
-
-    def _remember(self, seq):
-        self._seen.append(seq)
-        self._seen_set.add(seq)
-        if len(self._seen) > self.window:
-            self._seen_set.discard(self._seen.popleft())
-
-    def _restart(self, seq):
-        self.last = self._first = seq
-        self._seen.clear()
-        self._seen_set.clear()
-        self._remember(seq)
-
-    def update(self, seq, restart=False):
-        """Account for one received sequence number.
-
-        Parameters
-        ----------
-        seq : int
-            The frame's sequence number, 0 <= seq < modulus.
-        restart : bool
-            The card says it restarted (:data:`FLAG_STARTUP`).
-
-        Returns
-        -------
-        SeqEvent
-        """
-        seq = _uint('seq', seq, self.modulus)
-        self.received += 1
-        if self.last is None or restart:
-            kind = 'first' if self.last is None else 'reset'
-            self.resets += kind == 'reset'
-            self._restart(seq)
-            return SeqEvent(kind, seq)
-        d = self._signed(seq - self.last)
-        if d == 1:
-            self.last = seq
-            self._remember(seq)
-            return SeqEvent('ok', seq)
-        if 1 < d <= self.max_gap:
-            self.lost += d - 1
-            self.last = seq
-            self._remember(seq)
-            return SeqEvent('gap', seq, d - 1)
-        if seq in self._seen_set:
-            self.duplicates += 1
-            return SeqEvent('duplicate', seq)
-        if -self.window <= d < 0:
-            self.late += 1
-            if self._signed(seq - self._first) > 0:
-                self.lost -= 1
-            self._remember(seq)
-            return SeqEvent('late', seq)
-        self.resets += 1
-        self._restart(seq)
-        return SeqEvent('reset', seq)

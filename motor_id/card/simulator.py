@@ -19,9 +19,10 @@ import tty
 import numpy as np
 
 from motor_id.card.faults import FaultConfig, FaultInjector
-from motor_id.card.protocol import CommandParser, encode_reply, encode_sample, ProtocolError
+from motor_id.card.protocol import encode_reply, encode_sample
+from motor_id.card.stream import CommandParser
 from motor_id.card.virtual_card import VirtualCard
-from motor_id.errors import ConfigError
+from motor_id.errors import ConfigError, ProtocolError
 
 __all__ = ['CardSimulator', 'FaultConfig', 'FaultInjector', 'VirtualCard']
 
@@ -184,7 +185,7 @@ class CardSimulator:
     def _serve(self):
         try:
             self._loop()
-        except Exception as exc:  # noqa: BLE001 - reported through .error; the thread must not vanish
+        except Exception as exc:  # noqa: BLE001 - reported via .error; the thread lives on
             self.error = exc
 
     def _emit(self, n):
