@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from motor_id.errors import ConfigError
+from motor_id.linalg import expm
 
 PARAM_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
 PARAM_UNITS = {
@@ -441,10 +442,9 @@ def discretize(F, G, dt, method='zoh'):
             phi = np.where(fdt != 0.0, np.expm1(fdt) / np.where(fdt != 0.0, fdt, 1.0), 1.0)
         Bd = G[:, None] * (phi * dt[None, :])[:, :, None, None]
         return a[:, :, None, None], Bd
-    from scipy.linalg import expm  # lazy: scipy costs ~0.2 s to import, only ZOH needs it
 
     M = _held_input_matrix(F, G, dt)
-    E = expm(M.reshape(P * K, n + m, n + m)).reshape(P, K, n + m, n + m)
+    E = expm(M)
     return E[:, :, :n, :n], E[:, :, :n, n:]
 
 
@@ -482,8 +482,6 @@ def interval_integrals(F, G, dt, row=1):
     m : ndarray, shape (P, K, n + m)
     Q : ndarray, shape (P, K, n + m, n + m)
     """
-    from scipy.linalg import expm  # lazy, as in discretize
-
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
     P, n, _ = F.shape
     d = n + G.shape[2]
@@ -494,13 +492,13 @@ def interval_integrals(F, G, dt, row=1):
     big = np.zeros((P, K, 2 * d, 2 * d))  # [[M, I], [0, 0]] dt: top right = int exp(M s)
     big[:, :, :d, :d] = M
     big[:, :, :d, d:] = np.eye(d) * dt[None, :, None, None]
-    E = expm(big.reshape(P * K, 2 * d, 2 * d)).reshape(P, K, 2 * d, 2 * d)
+    E = expm(big)
     m = E[:, :, row, d:]
     vl = np.zeros((P, K, 2 * d, 2 * d))  # [[-M', c c'], [0, M]] dt
     vl[:, :, :d, :d] = -np.swapaxes(M, -1, -2)
     vl[:, :, :d, d:] = np.outer(c, c) * dt[None, :, None, None]
     vl[:, :, d:, d:] = M
-    V = expm(vl.reshape(P * K, 2 * d, 2 * d)).reshape(P, K, 2 * d, 2 * d)
+    V = expm(vl)
     Q = np.swapaxes(V[:, :, d:, d:], -1, -2) @ V[:, :, :d, d:]
     return np.ascontiguousarray(m), np.ascontiguousarray(Q)
 

@@ -389,6 +389,33 @@ def simulate_batch(theta, t, u, input_kind='voltage', method='zoh', effects=None
     return out
 
 
+def simulate_runs(theta, t, u, input_kind='voltage', method='zoh', effects=None, x0=None,
+                  segments=None):
+    """:func:`simulate_batch` over separate runs joined in one record.
+
+    Each run ``[a, b)`` of ``segments`` is simulated on its own, from its own initial
+    state: ``x0`` holds one block of ``n0`` values per run side by side (shape
+    ``(n_runs * n0,)`` or ``(P, n_runs * n0)``). Without ``segments`` this is
+    :func:`simulate_batch`.
+
+    Returns
+    -------
+    dict
+        ``'speed'`` and, for a voltage plant, ``'current'``, each (P, N).
+    """
+    if not segments or len(segments) == 1:
+        return simulate_batch(theta, t, u, input_kind, method, effects, x0)
+    x0 = None if x0 is None else np.asarray(x0, dtype=float)
+    n0 = None if x0 is None else x0.shape[-1] // len(segments)
+    parts = []
+    for k, (a, b) in enumerate(segments):
+        xk = None if x0 is None else np.ascontiguousarray(x0[..., k * n0:(k + 1) * n0])
+        parts.append(simulate_batch(theta, t[a:b], u[..., a:b], input_kind, method,
+                                    effects, xk))
+    return {c: np.concatenate([p[c] for p in parts], axis=1)
+            for c in ('speed', 'current') if c in parts[0]}
+
+
 def interval_mean(y):
     """Mean of a sampled signal over each sample's preceding interval (trapezoid rule).
 

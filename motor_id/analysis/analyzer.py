@@ -19,11 +19,13 @@ from motor_id.analysis import outcome, selection
 from motor_id.analysis.candidates import (CandidateFitter, data_scales, dynamic_effects,
                                           FIT_ERRORS)
 from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
-from motor_id.analysis.heldout import HeldOutSplit
+from motor_id.analysis.heldout import HeldOutSplit, noise_floor
 from motor_id.analysis.inverse_dynamics import electrical_evidence
 from motor_id.analysis.measurement import find_measurement_effects
 from motor_id.analysis.report import DiscrepancyReport
 from motor_id.errors import ConfigError, DataError, IdentificationError
+from motor_id.identify import determinacy
+from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS
 
 CANDIDATES = tuple(EFFECTS)
@@ -141,6 +143,9 @@ class DiscrepancyAnalysis:
             int(min(40, max(2, len(rec) // 25)))
         self._T = float(rec.time[-1] - rec.time[0])
         self._dt = float(np.median(np.diff(rec.time)))
+        self._at_once = selection.responds_at_once(rec, noise_floor(rec.speed))
+        self._one_way = selection.one_direction(rec)
+        self._steady = selection.steady_offset(map_summary(steady_state_map(rec)))
         self._fitter = CandidateFitter(rec, self._split, self.R_m, self.random_state,
                                        self.starts, max_delay, self.R_m_tolerance)
 
@@ -213,6 +218,7 @@ class DiscrepancyAnalysis:
         singles = []
         for name in self._cands:
             s = self._judge(self._fitter.fit(name, base), base)
+            self._evidence_against(s)
             singles.append(s)
             self._say(f'  {name:<20} ' + (f'failed: {s.failed}' if s.failed else
                                           f'gain {100 * s.gain:6.1f} %') +
@@ -233,13 +239,27 @@ class DiscrepancyAnalysis:
             singles.sort(key=_order)
         return singles
 
+    def _evidence_against(self, s):
+        """What the record itself says against a candidate (in place): a delay of two
+        samples or more while the speed answers input steps within one."""
+        d = s.effects.get('input_delay', {}).get('d')
+        if d is not None and d >= 2 and self._at_once:
+            s.implausible = (f'a delay of {d:.0f} samples, but the speed answers input '
+                             'steps within one sample')
+            s.significant = False
+
     def _structure(self, model):
         return model.heldout_error > self.structure_ratio * self._split.floor
 
     def _add_effect(self, base, chosen, singles):
         """The best significant extension of ``chosen`` by one more effect, or None."""
         have = chosen.name.split('+')
-        pool = [s for s in singles if s.gain > 0 and not s.failed and s.name not in have]
+        # an effect that alone cut the held-out error by less than a quarter of min_gain,
+        # or that made the previous, smaller model worse, is not tried again
+        pool = [s for s in singles if s.gain >= self.min_gain / 4 and not s.failed
+                and s.name not in have and self._added.get(s.name, 1.0) > 0]
+        if self._one_way:  # one sign of speed: friction and a constant load are one term
+            pool = [s for s in pool if not set(selection.ONE_WAY) <= set(have + [s.name])]
         trials = []
         for s in pool[:self.pool_size]:
             t = self._judge(self._fitter.fit(s.name, base, prior=chosen), chosen)
@@ -256,6 +276,7 @@ class DiscrepancyAnalysis:
             self._say(f'  {t.name:<40} ' + (f'failed: {t.failed}' if t.failed else
                       f'gain over {chosen.name} {100 * t.gain_over_reference:6.1f} %'))
             trials.append(t)
+            self._added[s.name] = t.gain_over_reference if not t.failed else -1.0
         self._ranked.extend(trials)
         ok = sorted((t for t in trials if t.significant), key=lambda t: t.heldout_error)
         return self._confirm(base, chosen, ok[0]) if ok else None
@@ -286,8 +307,17 @@ class DiscrepancyAnalysis:
 
     def _select(self, base, singles):
         self._ranked = list(singles)
+        self._added = {}
         chosen = selection.pick_single(singles, CANDIDATES, self._structure, self.ambiguity,
                                        self._electrical) or base
+        if self._steady and chosen.name not in ('coulomb_friction', 'dead_zone'):
+            # the plateaus show a static offset both ways: a friction-like effect that
+            # does as well on held-out data is named before others
+            alt = [s for s in singles if s.significant and s.name in
+                   ('coulomb_friction', 'dead_zone') and
+                   s.heldout_error <= (1 + self.ambiguity) * chosen.heldout_error]
+            if alt:
+                chosen = alt[0]
         while (chosen is not base and len(chosen.name.split('+')) < self.max_effects
                and self._structure(chosen)):
             nxt = self._add_effect(base, chosen, singles)
@@ -358,8 +388,11 @@ class DiscrepancyAnalysis:
     def _assemble(self, rec, base, chosen, ranked, verdict, params, chosen_d, diag,
                   points, full_base, idyn):
         held = list(range(2, self.n_blocks, 3))
-        heldout = {'scheme': f'{self.n_blocks} blocks, blocks {held} held out (the '
-                             'simulation runs through them)',
+        scheme = (f'{len(rec.segment_ranges)} separate runs; the last is held out whole'
+                  if self._split.by_run else
+                  f'{self.n_blocks} blocks, blocks {held} held out (the simulation runs '
+                  'through them)')
+        heldout = {'scheme': scheme, 'by_run': self._split.by_run,
                    'fraction': float(np.mean(self._split.test)),
                    'blocks': self._split.blocks, 'base_error': base.heldout_error,
                    'final_error': chosen.heldout_error, 'noise_floor': self._split.floor,
@@ -373,14 +406,44 @@ class DiscrepancyAnalysis:
                      'points': points}
         failed = [{'name': s.name, 'reason': s.failed} for s in ranked if s.failed]
         ambiguous = [] if chosen is base else selection.ambiguous(
-            chosen, ranked, self.ambiguity, rec.input_kind)
+            chosen, ranked, self.ambiguity, rec.input_kind, self._one_way)
+        adequate, warnings = self._adequacy(chosen, verdict, params)
         return DiscrepancyReport(
             verdict=verdict, effects=list(self._meas) + list(ranked),
             unexplained=bool(self._structure(chosen)), ambiguous_with=ambiguous,
             parameters=params, baseline=baseline, chosen=chosen_d, diagnostics=diag,
             heldout=heldout, input_kind=rec.input_kind, channels=self._split.channels,
             measurement=self._meas_evidence, failed=failed, inverse_dynamics=idyn,
-            plot_data=plot_data)
+            plot_data=plot_data, adequate=adequate, warnings=warnings)
+
+    def _adequacy(self, chosen, verdict, params):
+        """``(adequate, warnings)``: the chosen model's held-out fit of the speed, the
+        steady-state evidence the verdict leaves out, one-direction data."""
+        k = self._split.channels.index('speed')
+        y = self._split.ys[k][self._split.test]
+        yh = np.asarray(chosen.prediction['preds'][k])[self._split.test]
+        fit = normalised_fit(y, yh)
+        adequate, warnings = determinacy.adequacy(
+            {'speed': fit}, hint='no named effect explains this record (a load that '
+            'changes along it, a second input?)')
+        if warnings:
+            warnings[0] = warnings[0].replace('the model explains',
+                                              'the chosen model explains (held out)')
+        if not adequate:
+            for key, p in params.items():
+                if isinstance(p, dict) and p.get('determined') and not p.get('grid'):
+                    p['particular_value'] = p.get('value')
+                    p['value'], p['std'], p['determined'] = None, None, False
+                    p['reason'] = 'model inadequate'
+        if self._steady and not any(e in verdict for e in
+                                    ('coulomb_friction', 'dead_zone', 'brush_drop')):
+            warnings.append('the steady states show a static offset both ways (zero speed '
+                            f'at input {self._steady[0]:.3g} and {self._steady[1]:.3g}): '
+                            'Coulomb friction or a dead band that the verdict does not name')
+        if self._one_way:
+            warnings.append('the speed kept one sign: the model holds for this direction '
+                            'only')
+        return adequate, warnings
 
 
 def _order(s):

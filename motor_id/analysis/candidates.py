@@ -18,11 +18,16 @@ from motor_id.analysis.report import ModelScore
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
 from motor_id.model import EFFECTS
-from motor_id.simulate import simulate_batch
+from motor_id.simulate import simulate_runs
 
 FLAT = 0.95 ** 2
 """A start grid whose best point does not cut the reference's training error by 5 % (the
 squared error by this factor) cannot rank its points (see :func:`_spread`)."""
+
+CANDIDATE_NFEV = 25
+"""Residual evaluations of a candidate's refinement: enough to rank it (most converge in
+5-15; a fit still crawling along a friction kink at 25 gains little more by 60, and the
+final fit of the chosen model runs to the Identifier's full budget)."""
 
 FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
 """What a candidate's fit may raise; each is recorded as a failed candidate."""
@@ -144,7 +149,8 @@ class CandidateFitter:
         kw = {}
         if effects:
             kw = {'effects': effects, 'free_effects': free}
-        est = self.identifier(start=start, use_ga=False, **kw)
+        est = self.identifier(start=start, use_ga=False, settle=False, reweight=1,
+                              max_nfev=CANDIDATE_NFEV, **kw)
         bounds = {**self.physical_bounds, **{fe: self.bounds_for(fe) for fe in free}}
         if bounds:
             est.bounds = bounds
@@ -247,7 +253,9 @@ class CandidateFitter:
         if grid_only(name):
             return self._fit_integer(name, base, fixed_eff, free_prior, t0)
         grid = EFFECTS[name].start_grid(self.scales)
-        rows = self.grid_best(base, name, grid, fixed_eff, top=self.starts)
+        # an effect added to a fitted model starts from its best grid point only
+        rows = self.grid_best(base, name, grid, fixed_eff,
+                              top=1 if prior is not None else self.starts)
         extra = self.extra_starts.get(name)
         if extra and set(extra) == set(rows[0] if rows else extra):
             rows.append({p: float(np.clip(v, *self.bounds_for(f'{name}.{p}')))
@@ -299,8 +307,8 @@ class CandidateFitter:
         phys = dict(ref.physical)
         x0 = np.array(list(ref.x0.values())) if ref.x0 else None
         with np.errstate(all='ignore'):
-            out = simulate_batch(phys, self.rec.time, self.rec.input, self.rec.input_kind,
-                                 'zoh', effects, x0)
+            out = simulate_runs(phys, self.rec.time, self.rec.input, self.rec.input_kind,
+                                'zoh', effects, x0, self.rec.segment_ranges)
             cost = np.zeros(P)
             for c, y, s in zip(self.split.channels, self.split.ys, self.split.scales):
                 r = (out[c] - y[None, :]) / s
@@ -329,7 +337,7 @@ class CandidateFitter:
         """
         t0 = time.perf_counter()
         sw = self.split.train.astype(float)
-        est = self.identifier(generations=generations)
+        est = self.identifier(generations=generations, settle=False)
         with np.errstate(all='ignore'):
             est.fit(self.rec, sample_weight=sw)
         self.physical_bounds = dict(est.widened_)

@@ -134,12 +134,23 @@ class HeldOutSplit:
         self.channels = rec.channels()
         self.ys = [getattr(rec, c) for c in self.channels]
         self.scales = [float(np.std(y)) or 1.0 for y in self.ys]
-        self.test, self.blocks = heldout_mask(len(rec), n_blocks)
+        runs = rec.segment_ranges
+        if len(runs) > 1:   # separate runs: the last is held out whole
+            a, b = runs[-1]
+            self.test = np.zeros(len(rec), dtype=bool)
+            self.test[a:b] = True
+            self.blocks = [(a, b)]
+            self.by_run = True
+            e = np.linspace(a, b, 13).astype(int)
+            subs = list(zip(e[:-1], e[1:]))
+        else:
+            self.test, self.blocks = heldout_mask(len(rec), n_blocks)
+            self.by_run = False
+            subs = []
+            for a, b in self.blocks:
+                e = np.linspace(a, b, 5).astype(int)
+                subs.extend(zip(e[:-1], e[1:]))
         self.train = ~self.test
-        subs = []
-        for a, b in self.blocks:
-            e = np.linspace(a, b, 5).astype(int)
-            subs.extend(zip(e[:-1], e[1:]))
         self.subblocks = subs
         self.grids = dict(quantization or {})
         floors = []

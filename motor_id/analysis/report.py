@@ -83,10 +83,13 @@ class DiscrepancyReport:
     inverse_dynamics: dict = None
     plot_data: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
+    adequate: bool = True
+    warnings: list = field(default_factory=list)
 
     def to_dict(self):
         """JSON-ready dict (the documented keys first)."""
-        d = {'verdict': self.verdict,
+        d = {'verdict': self.verdict, 'adequate': bool(self.adequate),
+             'warnings': list(self.warnings),
              'effects': [e.to_dict() for e in self.effects],
              'unexplained': self.unexplained,
              'ambiguous_with': self.ambiguous_with,
@@ -109,6 +112,10 @@ class DiscrepancyReport:
         lines = _fit_lines(self) + _diagnostic_lines(self.diagnostics)
         lines += _measurement_lines(self) + _candidate_lines(self)
         lines += _parameter_lines(self)
+        if not self.adequate:
+            lines.append('MODEL INADEQUATE: ' + self.warnings[0])
+        for w in self.warnings[(0 if self.adequate else 1):]:
+            lines.append('warning: ' + w)
         lines.append(f'analysis time {self.seconds:.2f} s')
         return '\n'.join(lines)
 
@@ -199,9 +206,9 @@ def _candidate_lines(rep):
                          f'rest {100 * g["marginal"]:.1f} %')
     lines.append(f'verdict: {rep.verdict}')
     for a in rep.ambiguous_with:
-        lines.append(f'  cannot be told apart from {a["name"]} with this excitation '
-                     f'(gain {100 * a["gain"]:.1f} %); to separate them: '
-                     f'{a["experiment"]}')
+        gain = '' if a.get('gain') is None else f' (gain {100 * a["gain"]:.1f} %)'
+        lines.append(f'  cannot be told apart from {a["name"]} with this excitation'
+                     f'{gain}; to separate them: {a["experiment"]}')
     h = rep.heldout
     ratio = h['final_error'] / h['noise_floor'] if h['noise_floor'] > 0 else float('inf')
     lines.append(f'unexplained structure: {"yes" if rep.unexplained else "no"} '

@@ -112,6 +112,8 @@ def judge(score, ref, split, min_gain, scales):
         score.delta_bic = float(n_eff * 2 * math.log(score.train_error / ref.train_error)
                                 + dk * math.log(n_eff))
     if not score.implausible:
+        score.implausible = aliased(score.effects, scales)
+    if not score.implausible:
         for e, vals in score.effects.items():
             if e in EFFECTS and vals:
                 score.implausible = EFFECTS[e].implausible(vals, scales)
@@ -124,6 +126,72 @@ def judge(score, ref, split, min_gain, scales):
                              and score.delta_bic < 0 and not score.at_bound
                              and not score.implausible)
     return score
+
+
+ALIAS = 0.8
+"""A mode above this fraction of the Nyquist frequency is an alias, not a resonance."""
+
+
+def aliased(effects, scales):
+    """Why a model's pole is an alias of the sampling ('' when it is not).
+
+    A resonance at or near the Nyquist frequency (half the sample rate) cannot be told
+    from an alias of anything faster, nor from a discrete-time artefact of the fit.
+    """
+    res = effects.get('resonance')
+    rate = scales.get('per_sample')
+    if not res or not rate or 'f_r' not in res:
+        return ''
+    nyquist = 0.5 * rate
+    if res['f_r'] >= ALIAS * nyquist:
+        return (f'a resonance at {res["f_r"]:.3g} Hz is at or above {ALIAS:.0%} of the '
+                f'Nyquist frequency ({nyquist:.3g} Hz): an alias, not a physical mode')
+    return ''
+
+
+def responds_at_once(rec, floor_speed):
+    """True when the speed answers input steps within one sample.
+
+    At every large input step (over a fifth of the input's range) the speed change over
+    the next sample, in the step's direction, is compared with the noise: when most
+    steps move the speed by over three noise stds at once, no input delay of two or more
+    samples is plausible.
+    """
+    du = np.diff(rec.input)   # du[j]: the input held from t[j+1] on changes
+    big = np.flatnonzero(np.abs(du) > 0.2 * (np.ptp(rec.input) or 1.0))
+    big = big[big + 2 < len(rec)]
+    if big.size < 2 or floor_speed <= 0:
+        return False
+    w = rec.speed
+    before = w[big + 1] - w[big]         # the interval before the new input acts
+    after = w[big + 2] - w[big + 1]      # the first interval under the new input
+    moved = np.sign(du[big]) * (after - before) > 3.0 * math.sqrt(2.0) * floor_speed
+    return bool(np.mean(moved) > 0.5)
+
+
+def one_direction(rec):
+    """True when the speed keeps one sign (at least 97 % of the moving samples)."""
+    w = rec.speed
+    moving = np.abs(w) > 0.05 * (np.max(np.abs(w)) or 1.0)
+    if not np.any(moving):
+        return False
+    pos = float(np.mean(w[moving] > 0))
+    return pos >= 0.97 or pos <= 0.03
+
+
+def steady_offset(summary):
+    """The zero-speed inputs of the steady-state map when they point to static friction
+    (or a dead band): positive on the positive side and negative on the negative side.
+
+    Returns ``(u_pos, u_neg)`` or None.
+    """
+    pos, neg = summary.get('positive'), summary.get('negative')
+    if not pos or not neg:
+        return None
+    up, un = pos.get('zero_speed_input'), neg.get('zero_speed_input')
+    if up is None or un is None or not (up > 0 > un):
+        return None
+    return up, un
 
 
 def _blind_heldout(score, ref, split, min_gain):
@@ -180,13 +248,29 @@ def components(combo, singles, parts_error):
     return out
 
 
-def ambiguous(chosen, ranked, ambiguity, input_kind):
-    """Other significant single models as good as the chosen one, with experiments."""
+ONE_WAY = ('coulomb_friction', 'load_torque')
+
+
+def ambiguous(chosen, ranked, ambiguity, input_kind, one_way=False):
+    """Other significant single models as good as the chosen one, with experiments.
+
+    With ``one_way`` (the speed kept one sign) Coulomb friction and a constant load act
+    alike: whichever the verdict names, the other is listed, and the model holds for
+    that direction only.
+    """
     out = []
+    have = chosen.name.split('+')
+    if one_way:
+        for a, b in (ONE_WAY, ONE_WAY[::-1]):
+            if a in have and b not in have:
+                out.append({'name': b, 'gain': None,
+                            'experiment': experiment(a, b, input_kind),
+                            'note': f'the speed kept one sign: {a} and {b} act alike; the '
+                                    'model holds for this direction only'})
     for s in ranked:
         if s is chosen or not s.significant or '+' in s.name:
             continue
-        if s.name in chosen.name.split('+'):
+        if s.name in have or any(o['name'] == s.name for o in out):
             continue
         if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error:
             main = chosen.name.split('+')[0]

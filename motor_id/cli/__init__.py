@@ -17,6 +17,7 @@ COMMANDS = {
     'fit': ('motor_id.cli.fit', 'identify motor parameters from a CSV or MCAP recording'),
     'simulate': ('motor_id.cli.simulate', 'write simulated motor data to CSV'),
     'analyze': ('motor_id.cli.analyze', 'find what the linear model misses and extend it'),
+    'validate': ('motor_id.cli.validate', 'score a saved model on another recording'),
     'card-sim': ('motor_id.cli.card_sim', 'run a simulated serial card on a pseudo-terminal'),
     'import': ('motor_id.cli.import_data', 'convert measured data (emps, dunker, csv) to MCAP'),
     'replay': ('motor_id.cli.replay', 'identify from a bag offline or republish it'),

@@ -4,12 +4,14 @@ import os
 import sys
 
 from motor_id.analysis import DiscrepancyAnalysis, plot_report
-from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_from_args
+from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 
 def add_arguments(parser):
     """CLI arguments of `motor-id analyze`."""
-    parser.add_argument('data', metavar='DATA', help=DATA_HELP)
+    parser.add_argument('data', metavar='DATA', nargs='+',
+                        help=DATA_HELP + '; several: separate runs of one motor (the last '
+                             'is held out whole)')
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
                         help='armature resistance R_m [Ohm] as measured (voltage plants); '
                              'with current data it is the prior of the estimate')
@@ -28,7 +30,7 @@ def add_arguments(parser):
 
 def run(args):
     """Analyse the recording, print the report, write JSON / plots."""
-    rec = load_from_args(args)
+    rec = load_runs(args)
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(',') if c.strip()]
@@ -52,16 +54,20 @@ def run(args):
     ana.fit(rec, progress=progress)
     rep = ana.report_
     print(rep.summary())
+    if not rep.adequate:
+        print(f'motor-id analyze: the model is inadequate for this record: '
+              f'{rep.warnings[0]}', file=sys.stderr)
     if args.json:
         from motor_id.report import write_json
         out = rep.to_dict()
-        out['data'] = {'source': rec.meta.get('source', str(args.data)), 'samples': len(rec)}
+        out['data'] = {'source': rec.meta.get('source', str(args.data[0])),
+                       'samples': len(rec), 'runs': len(rec.segment_ranges)}
         if 'shift_check' in rec.meta:
             out['data']['shift_check'] = rec.meta['shift_check']
         write_json(out, args.json)
         print(f'wrote {args.json}')
     if args.plot:
-        name = os.path.basename(str(args.data).rstrip(os.sep))
+        name = ', '.join(os.path.basename(str(p).rstrip(os.sep)) for p in args.data)
         plot_report(rep, args.plot, title=f'motor-id analyze: {name}')
         print(f'wrote {args.plot}')
     return 0

@@ -4,7 +4,7 @@ import sys
 
 from motor_id.data.csv_io import parse_columns
 from motor_id.data.load import load_recording
-from motor_id.data.rosbag import load_profile, Mapping
+from motor_id.data.mapping import load_profile, Mapping
 from motor_id.data.shift import detect_shift, shift_input
 from motor_id.errors import ConfigError, DataError
 
@@ -117,4 +117,21 @@ def load_from_args(args, path=None, validate=True, stream=None):
         rec.meta['shift_check'] = check.to_dict()
         if check.samples:
             print(f'warning: {path}: {check.message()}', file=stream or sys.stderr)
+    return rec
+
+
+def load_runs(args, paths=None, stream=None):
+    """Read one or several recordings of one motor (separate runs) as one recording.
+
+    Each path is read and checked as by :func:`load_from_args`; several are joined with
+    :meth:`motor_id.recording.Recording.concatenate` (shared parameters, an initial
+    state per run).
+    """
+    from motor_id.recording import Recording
+    paths = list(paths if paths is not None else args.data)
+    recs = [load_from_args(args, path=p, stream=stream) for p in paths]
+    if len(recs) == 1:
+        return recs[0]
+    rec = Recording.concatenate(recs)
+    rec.meta['source'] = ', '.join(str(p) for p in paths)
     return rec

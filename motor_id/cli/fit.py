@@ -8,7 +8,7 @@ import time
 import yaml
 
 from motor_id.controller import from_identification, to_ros_parameters
-from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_from_args
+from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import EFFECTS, parse_effect_args
@@ -69,7 +69,9 @@ def add_fit_arguments(parser):
 
 def add_arguments(parser):
     """CLI arguments of `motor-id fit`."""
-    parser.add_argument('data', metavar='DATA', help=DATA_HELP)
+    parser.add_argument('data', metavar='DATA', nargs='+',
+                        help=DATA_HELP + '; several: separate runs of one motor, fitted '
+                             'together (shared parameters, an initial state per run)')
     add_fit_arguments(parser)
     add_data_arguments(parser)
 
@@ -181,7 +183,11 @@ def identify_and_report(rec, args, extra=None):
     report = res.to_dict()
     report['data'] = {'source': rec.meta.get('source'), 'samples': len(rec),
                       'sample_period': rec.sample_period, 'regular': rec.is_regular,
-                      'channels': list(rec.channels()), 'input_kind': rec.input_kind}
+                      'channels': list(rec.channels()), 'input_kind': rec.input_kind,
+                      'runs': len(rec.segment_ranges)}
+    if not res.adequate:
+        print(f'motor-id fit: the model is inadequate for this record: {res.warnings[0]}',
+              file=sys.stderr)
     if extra:
         report.update(extra)
     print(res.summary())
@@ -200,15 +206,20 @@ def identify_and_report(rec, args, extra=None):
         write_yaml(ros_parameters(report, design), args.yaml)
         print(f'wrote {args.yaml}')
     if args.plot:
-        plot_fit(res, args.plot, title=f'motor_id fit: {os.path.basename(str(args.data))}')
+        names = ', '.join(os.path.basename(str(p)) for p in _paths(args.data))
+        plot_fit(res, args.plot, title=f'motor_id fit: {names}')
         print(f'wrote {args.plot}')
     return res, report
+
+
+def _paths(data):
+    return data if isinstance(data, (list, tuple)) else [data]
 
 
 def run(args):
     """Read the data, fit, print the table, write JSON / plots."""
     warm_up()   # load (or compile once) the simulation kernels before the GA's clock starts
-    rec = load_from_args(args)
+    rec = load_runs(args)
     extra = {'shift_check': rec.meta['shift_check']} if 'shift_check' in rec.meta else None
     identify_and_report(rec, args, extra=extra)
     return 0

@@ -123,7 +123,11 @@ def practical(params: dict, period: float, noise: dict, R_m: float | None) -> li
     return warnings
 
 
-def adequacy(fit_percent: dict, primary: str = 'speed') -> tuple[bool, list[str]]:
+HINT = 'look for what the record contains that the model lacks (motor-id analyze)'
+
+
+def adequacy(fit_percent: dict, primary: str = 'speed',
+             hint: str = HINT) -> tuple[bool, list[str]]:
     """``(adequate, warnings)`` from the fit % of each channel.
 
     A model that explains less than :data:`ADEQUATE_FIT` % of the primary channel is
@@ -137,8 +141,7 @@ def adequacy(fit_percent: dict, primary: str = 'speed') -> tuple[bool, list[str]
         shown = 'no' if p is None or not math.isfinite(p) else f'{p:.1f} %'
         warnings.append(f'the model explains {shown} of the {primary} (an adequate model '
                         f'explains at least {ADEQUATE_FIT:.0f} %): its parameters are not '
-                        'presented as determined; look for what the record contains that '
-                        'the model lacks (motor-id analyze)')
+                        f'presented as determined; {hint}')
     for ch, v in fit_percent.items():
         if ch != primary and v is not None and math.isfinite(v) and v < CHANNEL_FIT:
             warnings.append(f'the model explains {v:.1f} % of the {ch}: that channel '

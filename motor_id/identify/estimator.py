@@ -25,7 +25,7 @@ bound, as on a hobby motor)."""
 _SETTINGS = ('method', 'R_m', 'tie', 'population', 'generations', 'crossover', 'mutation',
              'random_state', 'fixed', 'bounds', 'channels', 'effects', 'free_effects',
              'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen',
-             'error_blocks')
+             'error_blocks', 'settle', 'reweight', 'max_nfev')
 
 
 class Identifier:
@@ -74,13 +74,24 @@ class Identifier:
         :data:`WIDEN_ROUNDS` times, keeping the lower cost. Ranges given in ``bounds``,
         fixed parameters and R_m (held by its prior) are never widened; nor are warm
         starts (``use_ga=False``). ``widened_`` holds the ranges that were moved.
+    error_blocks : int
+        Contiguous blocks per run of the robust covariance's score variance
+        (:func:`motor_id.identify.uncertainty.robust_covariance`).
+    settle : bool
+        Refit without what the record cannot carry (a current channel the model does not
+        explain, an R_m its prior holds): see :meth:`_settle`. The discrepancy analysis
+        turns it off for its candidates, which must all be scored on the same channels.
+    reweight : int
+        Largest number of refinements re-weighted by the estimated noise levels.
+    max_nfev : int
+        Largest number of residual evaluations of each least-squares refinement.
     """
 
     def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
                  crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
                  channels=None, effects=None, free_effects=None, start=None, use_ga=True,
                  bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True,
-                 error_blocks=10):
+                 error_blocks=10, settle=True, reweight=4, max_nfev=60):
         self.method = method
         self.R_m = R_m
         self.tie = tie
@@ -101,6 +112,9 @@ class Identifier:
         self.R_m_tolerance = R_m_tolerance
         self.widen = widen
         self.error_blocks = error_blocks
+        self.settle = settle
+        self.reweight = reweight
+        self.max_nfev = max_nfev
 
     def fit(self, rec, progress=None, sample_weight=None):
         """Fit the model to a recording.
@@ -139,7 +153,8 @@ class Identifier:
             self.widened_ = {}
             if self.widen and self.use_ga:
                 self._widen(rec, progress, sample_weight)
-            self._settle(rec, progress, sample_weight)
+            if self.settle:
+                self._settle(rec, progress, sample_weight)
         except MotorIdError:
             raise
         except (ArithmeticError, ValueError, IndexError, np.linalg.LinAlgError) as exc:
@@ -309,15 +324,15 @@ class Identifier:
                 zk = np.concatenate([pop[k], problem.x0])
                 if all(np.max(np.abs(zk - s)) > 0.05 for s in starts):
                     starts.append(zk)
-        sols = [problem.refine(s, problem.weights) for s in starts]
+        sols = [problem.refine(s, problem.weights, self.max_nfev) for s in starts]
         sol = min(sols, key=lambda s: s.cost)
         z_best = sol.x
         # re-weight by the estimated noise levels and restart until the cost settles
         # (a trust-region run can stall on a tiny step far from the optimum)
-        for _ in range(4):
+        for _ in range(self.reweight):
             w = uncertainty.noise_levels(problem, z_best)[1]
             prev = np.sum(problem.weighted_residuals(z_best, w) ** 2)
-            sol = problem.refine(z_best, w)
+            sol = problem.refine(z_best, w, self.max_nfev)
             z_best = sol.x
             if prev - 2 * sol.cost <= 1e-9 * prev:
                 break

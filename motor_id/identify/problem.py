@@ -10,7 +10,7 @@ from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds
 from motor_id.identify.units import InternalUnits
 from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
-from motor_id.simulate import simulate_batch
+from motor_id.simulate import simulate_runs
 
 METHODS = ('zoh', 'euler', 'paper')
 VOLTAGE_FREE = ('J', 'K_T', 'K_b', 'B', 'L_m')
@@ -277,16 +277,10 @@ class IdentificationProblem:
         x0 = X[:, d:] if X.shape[1] > d else np.broadcast_to(self.x0, (X.shape[0],
                                                                        self.x0.size))
         theta, effects = self.expand(X[:, :d], overrides)
-        ns = len(self.state_channels)
-        parts = []
         with np.errstate(all='ignore'):
-            for k, (a, b) in enumerate(self.segments):
-                parts.append(simulate_batch(theta, self.time[a:b], self.input[a:b],
-                                            self.kind, self.discretisation, effects,
-                                            np.ascontiguousarray(x0[:, k * ns:(k + 1) * ns])))
-        if len(parts) == 1:
-            return [parts[0][c] for c in self.channels]
-        return [np.concatenate([p[c] for p in parts], axis=1) for c in self.channels]
+            out = simulate_runs(theta, self.time, self.input, self.kind,
+                                self.discretisation, effects, x0, self.segments)
+        return [out[c] for c in self.channels]
 
     def state_names(self):
         """Names of the initial-state coordinates (``x0:speed``; ``x0[k]:speed`` for the

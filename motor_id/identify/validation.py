@@ -1,0 +1,240 @@
+"""Score a saved model on another recording: simulation from the input alone.
+
+A model (the JSON of ``motor-id fit`` or ``motor-id analyze``: physical parameters, named
+effects, the speed reading) is simulated on a recording it was not fitted to. Only what
+the recording does not measure is estimated, and only from its first samples: the
+measured channels start at their first measured values, an unmeasured current from a
+least-squares match of the first ``init_samples`` samples. Each run of a joined recording
+starts anew. The score is per channel, over the samples after the initial ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+from typing import Any
+
+import numpy as np
+
+from motor_id.errors import ConfigError, DataError
+from motor_id.metrics import normalised_fit
+from motor_id.model import EFFECTS, PARAM_NAMES
+from motor_id.recording import Recording
+from motor_id.simulate import simulate_batch
+
+TORQUE_PARAMS = ('J', 'B')
+
+
+@dataclass
+class SavedModel:
+    """A model as a report saved it: plant kind, physical parameters (SI), effects."""
+
+    input_kind: str
+    parameters: dict[str, float]
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    source: str = ''
+
+    @classmethod
+    def from_report(cls, report: dict, source: str = '') -> 'SavedModel':
+        """Read the JSON of ``motor-id fit`` or ``motor-id analyze``.
+
+        Undetermined parameters enter with their particular value: any point on an
+        unseen direction gives the same input-output behaviour.
+
+        Raises
+        ------
+        ConfigError
+            Not a report of either command, or a parameter without any value.
+        """
+        if not isinstance(report, dict) or 'parameters' not in report:
+            raise ConfigError(f'{source or "the model"}: not a motor-id fit or analyze '
+                              'report (no "parameters")')
+        kind = report.get('input_kind') or report.get('data', {}).get('input_kind')
+        if kind not in ('voltage', 'torque'):
+            raise ConfigError(f'{source or "the model"}: the report names no plant kind '
+                              '("input_kind": voltage or torque)')
+        names = PARAM_NAMES if kind == 'voltage' else TORQUE_PARAMS
+        params = {}
+        for n in names:
+            p = report['parameters'].get(n)
+            v = None
+            if isinstance(p, dict):
+                v = p.get('value')
+                if v is None:
+                    v = p.get('particular_value')
+            elif isinstance(p, (int, float)):
+                v = p
+            if v is None or not math.isfinite(float(v)):
+                raise ConfigError(f'{source or "the model"}: parameter {n} has no value '
+                                  'to simulate with')
+            params[n] = float(v)
+        effects = _effects(report)
+        return cls(kind, params, effects, source)
+
+
+def _effects(report: dict) -> dict[str, dict[str, float]]:
+    """Named effects of a fit report (``effects``) or of an analyze report (the chosen
+    model's effects and the speed reading)."""
+    out: dict[str, dict[str, float]] = {}
+    if 'verdict' in report:      # analyze
+        for e, vals in (report.get('chosen') or {}).get('effects', {}).items():
+            out[e] = {p: float(v['value'] if isinstance(v, dict) else v)
+                      for p, v in vals.items()}
+        counted = report['parameters'].get('speed_quantization.counted')
+        if isinstance(counted, dict) and counted.get('value'):
+            out['speed_quantization'] = {'q': 0.0, 'counted': 1.0}
+        return out
+    for e, vals in (report.get('effects') or {}).items():
+        if e not in EFFECTS:
+            raise ConfigError(f'unknown effect {e!r} in the model')
+        out[e] = {p: float(v['value'] if isinstance(v, dict) else v) for p, v in vals.items()}
+        if e in ('speed_quantization', 'current_quantization'):
+            out[e] = {k: (0.0 if k in ('q', 'q_i') else v) for k, v in out[e].items()}
+    return out
+
+
+@dataclass
+class Validation:
+    """What a model does on a recording: per-channel scores and the simulation."""
+
+    channels: dict[str, dict[str, float]]
+    init_samples: int
+    initial_states: list[dict[str, float]]
+    time: np.ndarray = field(repr=False)
+    segment: np.ndarray = field(repr=False)
+    measured: dict[str, np.ndarray] = field(repr=False)
+    simulated: dict[str, np.ndarray] = field(repr=False)
+    model: str = ''
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (no sample arrays)."""
+        return {'model': self.model, 'init_samples': self.init_samples,
+                'channels': self.channels, 'initial_states': self.initial_states,
+                'samples': int(self.time.size),
+                'segments': int(self.segment.max()) + 1 if self.segment.size else 0}
+
+    def summary(self) -> str:
+        """One line per channel for people."""
+        lines = [f'model {self.model or "(given)"} on {self.time.size} samples, '
+                 f'{int(self.segment.max()) + 1} run(s); the first {self.init_samples} '
+                 'sample(s) of each run set its initial state']
+        for ch, m in self.channels.items():
+            lines.append(f'  {ch:<8} fit {m["fit_percent"]:7.2f} %   RMSE {m["rmse"]:.4g}')
+        return '\n'.join(lines)
+
+    def rows(self) -> tuple[list[str], np.ndarray]:
+        """CSV header and rows: ``time,segment,<ch>_measured,<ch>_simulated,...``."""
+        header = ['time', 'segment']
+        cols = [self.time, self.segment.astype(float)]
+        for ch in self.channels:
+            header += [f'{ch}_measured', f'{ch}_simulated']
+            cols += [self.measured[ch], self.simulated[ch]]
+        return header, np.column_stack(cols)
+
+
+def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
+             ) -> Validation:
+    """Simulate ``model`` on ``rec`` from its input and score every measured channel.
+
+    Parameters
+    ----------
+    model : SavedModel
+    rec : Recording
+        Possibly joined runs (:meth:`Recording.concatenate`); each starts anew.
+    init_samples : int, optional
+        Samples at the start of each run used to set its initial state (and left out of
+        the score). Default: 1, or 2 when the current is not measured (the first speed
+        change shows the initial current).
+
+    Returns
+    -------
+    Validation
+
+    Raises
+    ------
+    DataError
+        A plant kind other than the model's, or runs too short for the initial samples.
+    """
+    rec.validate()
+    if rec.input_kind != model.input_kind:
+        raise DataError(f'the model is of a {model.input_kind} plant, the recording has '
+                        f'{rec.input_kind} input')
+    unmeasured = model.input_kind == 'voltage' and not rec.has_current
+    n_init = init_samples if init_samples is not None else (2 if unmeasured else 1)
+    if n_init < 1:
+        raise ConfigError(f'--init-samples must be at least 1, got {n_init}')
+    channels = rec.channels()
+    sims = {ch: np.empty(len(rec)) for ch in channels}
+    states = []
+    score_mask = np.ones(len(rec), dtype=bool)
+    for a, b in rec.segment_ranges:
+        if b - a <= n_init:
+            raise DataError(f'a run of {b - a} samples leaves nothing to score after '
+                            f'{n_init} initial sample(s)')
+        seg = rec.slice(a, b)
+        x0 = _initial_state(model, seg, n_init, unmeasured)
+        out = _simulate(model, seg, x0)
+        for ch in channels:
+            sims[ch][a:b] = out[ch]
+        states.append({'speed': float(x0[0]), **({'current': float(x0[1])}
+                                                  if x0.size > 1 else {})})
+        score_mask[a:a + n_init] = False
+    scores = {}
+    for ch in channels:
+        y = getattr(rec, ch)[score_mask]
+        yh = sims[ch][score_mask]
+        scores[ch] = {'fit_percent': normalised_fit(y, yh),
+                      'rmse': float(np.sqrt(np.mean((y - yh) ** 2))),
+                      'samples': int(y.size)}
+    return Validation(channels=scores, init_samples=n_init, initial_states=states,
+                      time=rec.time, segment=rec.segment_index(),
+                      measured={ch: getattr(rec, ch) for ch in channels}, simulated=sims,
+                      model=model.source)
+
+
+def _simulate(model: SavedModel, rec: Recording, x0: np.ndarray) -> dict[str, np.ndarray]:
+    with np.errstate(all='ignore'):
+        out = simulate_batch(model.parameters, rec.time, rec.input, model.input_kind, 'zoh',
+                             model.effects, x0)
+    res = {'speed': out['speed'][0]}
+    if 'current' in out:
+        res['current'] = out['current'][0]
+    if not all(np.all(np.isfinite(v)) for v in res.values()):
+        raise DataError('the model diverges on this recording (non-finite simulation)')
+    return res
+
+
+def _initial_state(model: SavedModel, rec: Recording, n_init: int,
+                   unmeasured: bool) -> np.ndarray:
+    """Measured states from the first sample; an unmeasured current by least squares on
+    the first ``n_init`` speed samples."""
+    speed0 = float(rec.speed[0])
+    if model.input_kind != 'voltage':
+        return np.array([speed0])
+    if not unmeasured:
+        return np.array([speed0, float(rec.current[0])])
+    # the current that drives the first samples: quasi-static guess, then least squares
+    p = model.parameters
+    guess = (rec.input[0] - p['K_b'] * speed0) / p['R_m']
+    if n_init < 2:
+        return np.array([speed0, guess])
+    head = rec.slice(0, n_init)
+    scale = max(abs(guess), float(np.max(np.abs(rec.input))) / p['R_m'], 1e-12)
+    grid = guess + scale * np.linspace(-2.0, 2.0, 81)
+    with np.errstate(all='ignore'):
+        out = simulate_batch(p, head.time, head.input, 'voltage', 'zoh', model.effects,
+                             np.column_stack([np.full(grid.size, speed0), grid]))
+    cost = np.sum((out['speed'] - head.speed[None, :]) ** 2, axis=1)
+    k = int(np.nanargmin(np.where(np.isfinite(cost), cost, np.inf)))
+    from scipy.optimize import minimize_scalar  # lazy: only without a measured current
+
+    step = grid[1] - grid[0]
+
+    def err(i0: float) -> float:
+        with np.errstate(all='ignore'):
+            o = simulate_batch(p, head.time, head.input, 'voltage', 'zoh', model.effects,
+                               np.array([speed0, i0]))
+        return float(np.sum((o['speed'][0] - head.speed) ** 2))
+
+    sol = minimize_scalar(err, bounds=(grid[k] - step, grid[k] + step), method='bounded')
+    return np.array([speed0, float(sol.x)])
