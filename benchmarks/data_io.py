@@ -9,7 +9,8 @@ from common import render_table, target
 import numpy as np
 
 from motor_id.data.csv_io import read_csv
-from motor_id.data.rosbag import Mapping, read_bag
+from motor_id.data.mapping import Mapping
+from motor_id.data.rosbag import read_bag
 from motor_id.errors import DataError
 
 TITLE = 'Data loading: CSV rows and rosbag2 messages to a Recording'

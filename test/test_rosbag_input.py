@@ -12,7 +12,8 @@ import yaml
 
 from motor_id.cli import main
 from motor_id.data.csv_io import write_csv
-from motor_id.data.rosbag import Mapping, parse_field_spec, read_bag
+from motor_id.data.mapping import Mapping, parse_field_spec
+from motor_id.data.rosbag import read_bag
 from motor_id.data.shift import detect_shift, shift_input
 from motor_id.errors import BagError, ConfigError
 from motor_id.excitation import prbs

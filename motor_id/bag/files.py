@@ -26,6 +26,14 @@ def resolve(path):
     return p
 
 
+def is_single_mcap(path):
+    """True for one MCAP file, or a folder holding exactly one (this project's bags)."""
+    p = Path(path)
+    if p.is_file():
+        return p.suffix == '.mcap'
+    return p.is_dir() and len(list(p.glob('*.mcap'))) == 1 and not list(p.glob('*.db3'))
+
+
 def open_mcap(path):
     """Open an MCAP file for reading, positioned at its start.
 

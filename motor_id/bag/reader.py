@@ -1,9 +1,12 @@
 """Reading a motor_id bag back: the ``/samples`` rows, the ``/motor_id/meta`` JSON, a Recording.
 
-The file is read with the mcap library's ``StreamReader`` (CRCs checked); messages are
-decoded with the ROS 2 Jazzy type store of rosbags. A file the library cannot read to
-the end of its data section is reported in one line, with what ``motor-id bag recover``
-would salvage (found by the tolerant scan of :mod:`motor_id.bag.scan`).
+The one reader of the ``/samples`` topic. An MCAP file is read with the mcap library's
+``StreamReader`` (CRCs checked); messages are decoded with the ROS 2 Jazzy type store of
+rosbags. A file the library cannot read to the end of its data section is reported in
+one line, with what ``motor-id bag recover`` would salvage (found by the tolerant scan
+of :mod:`motor_id.bag.scan`). Other rosbag2 storages (sqlite3, split folders) are read
+through rosbags (:func:`read_any_recording`); both paths share :func:`sorted_samples`
+and :func:`samples_recording`.
 """
 
 from dataclasses import dataclass, field
@@ -13,7 +16,8 @@ from mcap.records import Channel, DataEnd, Message, Schema
 from mcap.stream_reader import StreamReader
 import numpy as np
 
-from motor_id.bag.files import open_mcap
+from motor_id.bag.anyreader import open_reader, reading, topic_table
+from motor_id.bag.files import is_single_mcap, open_mcap
 from motor_id.bag.scan import DAMAGE_ERRORS, scan_file
 from motor_id.bag.schemas import (
     DECODE_ERRORS,
@@ -263,3 +267,61 @@ def samples_recording(samples, meta, path, note=None):
     if note:
         meta['bag_note'] = note
     return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)
+
+
+def read_any_recording(path):
+    """The ``/samples`` recording of any rosbag2 storage.
+
+    One MCAP file (or a folder holding one): :func:`read_recording`; a ``.db3`` file or a
+    folder of split files: the same rows read through rosbags, sorted and noted by the
+    same rules.
+
+    Raises
+    ------
+    BagError
+        Unreadable bag, no ``/samples`` topic (naming the topics present), or a message
+        that is not a sample batch.
+    """
+    if is_single_mcap(path):
+        return read_recording(path)
+    reader = open_reader(path)
+    try:
+        topics = reader.topics
+        if BAG_SAMPLES_TOPIC not in topics:
+            raise BagError(f'{path}: no {BAG_SAMPLES_TOPIC} topic (topics: '
+                           f'{topic_table(topics)})')
+        return _rosbag2_recording(reader, path)
+    finally:
+        reader.close()
+
+
+def _rosbag2_recording(reader, path):
+    """The ``/samples`` rows (and ``/motor_id/meta``) of an open rosbags reader."""
+    conns = [c for c in reader.connections if c.topic in (BAG_SAMPLES_TOPIC, BAG_META_TOPIC)]
+    rows, log_times, meta = [], [], {}
+    with reading(path):
+        messages = [(c.topic, log_ns, reader.deserialize(raw, c.msgtype))
+                    for c, log_ns, raw in reader.messages(connections=conns)]
+    for topic, log_ns, msg in messages:
+        if topic == BAG_META_TOPIC:
+            try:
+                item = json.loads(msg.data)
+            except (ValueError, AttributeError) as exc:
+                raise BagError(f'{path}: a {BAG_META_TOPIC} message is not JSON') from exc
+            if isinstance(item, dict):
+                meta.update(item)
+            continue
+        try:
+            dims = msg.layout.dim
+            rows.append(batch_rows([d.label for d in dims], [d.size for d in dims],
+                                   msg.layout.data_offset, msg.data))
+        except (AttributeError, ValueError) as exc:
+            raise BagError(f'{path}: {BAG_SAMPLES_TOPIC} is not a sample batch ({exc})') \
+                from exc
+        log_times.append(np.full(rows[-1].shape[0], log_ns, dtype=np.int64))
+    if not rows or sum(r.shape[0] for r in rows) == 0:
+        raise BagError(f'{path}: {BAG_SAMPLES_TOPIC} holds no sample rows')
+    samples = sorted_samples(np.concatenate(rows), np.concatenate(log_times))
+    rec = samples_recording(samples, meta, path)
+    rec.meta['source'] = str(path)
+    return rec

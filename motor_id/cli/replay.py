@@ -61,7 +61,7 @@ def run(args):
 def _flags(path):
     """The /samples flags of a single-MCAP motor_id bag, or None."""
     from motor_id.bag import read_samples
-    from motor_id.data.rosbag import is_single_mcap
+    from motor_id.bag.files import is_single_mcap
     if not is_single_mcap(path):
         return None
     return read_samples(path)['flags']

@@ -17,7 +17,7 @@ def load_recording(path, columns=None, input_kind=None, mapping=None):
         CSV only: column mapping ``{role: name}``.
     input_kind : {'voltage', 'torque'}, optional
         Plant kind when the names cannot tell (CSV, or a bag mapping).
-    mapping : motor_id.data.rosbag.Mapping, optional
+    mapping : motor_id.data.mapping.Mapping, optional
         Bags only: the topic/field mapping (None or empty: the ``/samples`` topic).
 
     Returns
@@ -25,7 +25,8 @@ def load_recording(path, columns=None, input_kind=None, mapping=None):
     motor_id.recording.Recording
         Validated for CSV; a bag's recording is validated by the caller.
     """
-    from motor_id.data.rosbag import is_rosbag, Mapping, read_bag
+    from motor_id.data.mapping import Mapping
+    from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
         if columns:
             raise ConfigError('--columns maps CSV columns; a bag is mapped with --input, '
