@@ -23,6 +23,7 @@ COMMANDS = {
     'replay': ('motor_id.cli.replay', 'identify from a bag offline or republish it'),
     'bag': ('motor_id.cli.bag', 'inspect or recover an MCAP recording'),
     'demo': ('motor_id.cli.demo', 'simulated card + driver + identifier, end to end'),
+    'fleet': ('motor_id.cli.fleet', 'every motor of every recording on Dask: histories, drift'),
 }
 
 
