@@ -90,18 +90,7 @@ def run(args):
         if not ok:
             raise MotorIdError(f'the driver could not start the profile: {text}')
         _say('driver:     paper_steps profile started (0 / 3.8 / 7 / 9 V at 0, 3, 16, 28 s)')
-        t0 = time.monotonic()
-        client.samples = 0
-        limit = 40.0 / float(speedup) * 3 + 20.0
-        last = -1
-        while not client.profile_end.wait(0.5):
-            kids.check()
-            if client.samples // 1000 != last:
-                last = client.samples // 1000
-                _say(f'  {client.samples:5d} / 4000 samples')
-            if time.monotonic() - t0 > limit:
-                raise MotorIdError(f'the profile did not end within {limit:.0f} s')
-        _say(f'  {client.samples:5d} / 4000 samples: profile done')
+        _wait_for_profile_end(client, kids, 40.0 / float(speedup) * 3 + 20.0)
         t_call = time.monotonic()
         ok, text = client.identify()
         latency = time.monotonic() - t_call
@@ -121,6 +110,21 @@ def run(args):
                       'seconds': time.monotonic() - t_start}
     _finish(report, truth, bag, out)
     return 0
+
+
+def _wait_for_profile_end(client, kids, limit):
+    """Print the sample count while the profile runs; MotorIdError after ``limit`` [s]."""
+    t0 = time.monotonic()
+    client.samples = 0
+    last = -1
+    while not client.profile_end.wait(0.5):
+        kids.check()
+        if client.samples // 1000 != last:
+            last = client.samples // 1000
+            _say(f'  {client.samples:5d} / 4000 samples')
+        if time.monotonic() - t0 > limit:
+            raise MotorIdError(f'the profile did not end within {limit:.0f} s')
+    _say(f'  {client.samples:5d} / 4000 samples: profile done')
 
 
 def _finish(report, truth, bag, out):
