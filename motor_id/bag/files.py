@@ -55,10 +55,10 @@ def open_mcap(path):
     p = resolve(path)
     try:
         fh = open(p, 'rb')
-    except FileNotFoundError:
-        raise BagError(f'{path}: no such file') from None
+    except FileNotFoundError as exc:
+        raise BagError(f'{path}: no such file') from exc
     except OSError as exc:
-        raise BagError(f'{path}: cannot read ({exc.strerror})') from None
+        raise BagError(f'{path}: cannot read ({exc.strerror})') from exc
     try:
         size = fh.seek(0, 2)
         fh.seek(0)
@@ -66,7 +66,7 @@ def open_mcap(path):
         fh.seek(0)
     except OSError as exc:
         fh.close()
-        raise BagError(f'{path}: cannot read ({exc.strerror})') from None
+        raise BagError(f'{path}: cannot read ({exc.strerror})') from exc
     if not start:
         fh.close()
         raise BagError(f'{path}: empty file, not an MCAP recording')

@@ -87,7 +87,7 @@ def _read(path):
                 contents.take(record)
         except DAMAGE_ERRORS as exc:
             if not contents.data_end:
-                raise _damaged(path, exc) from None
+                raise _damaged(path, exc) from exc
             contents.note = 'data complete but the summary/footer is missing'
     return contents
 
@@ -132,7 +132,7 @@ def _batches(contents, topic):
             rows = batch_rows(labels, sizes, decoded.layout.data_offset, decoded.data)
         except DECODE_ERRORS as exc:
             raise BagError(f'{contents.path}: {topic} message {i} (log time {msg.log_time} '
-                           f'ns) is not a valid sample batch: {exc}') from None
+                           f'ns) is not a valid sample batch: {exc}') from exc
         yield rows, msg.log_time
 
 
@@ -187,7 +187,7 @@ def _meta(contents):
                 item = json.loads(deserialize(msg.data, STRING).data)
             except DECODE_ERRORS as exc:
                 raise BagError(f'{contents.path}: a {BAG_META_TOPIC} message is not valid '
-                               f'JSON ({exc})') from None
+                               f'JSON ({exc})') from exc
             if not isinstance(item, dict):
                 raise BagError(f'{contents.path}: a {BAG_META_TOPIC} message is not a JSON '
                                'object')

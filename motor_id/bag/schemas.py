@@ -121,7 +121,7 @@ def serialize(msgtype, fields):
         return bytes(typestore().serialize_cdr(msg, msgtype))
     except (SerdeError, TypesysError, ValueError, TypeError, AttributeError, OverflowError,
             struct.error) as exc:
-        raise BagError(f'cannot serialise a {msgtype}: {exc}') from None
+        raise BagError(f'cannot serialise a {msgtype}: {exc}') from exc
 
 
 def deserialize(data, msgtype):

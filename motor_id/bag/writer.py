@@ -135,7 +135,7 @@ class BagWriter:
         try:
             self._file = _DirectFile(self.path)
         except OSError as exc:
-            raise BagError(f'{self.path}: cannot create ({exc.strerror})') from None
+            raise BagError(f'{self.path}: cannot create ({exc.strerror})') from exc
         self._writer = McapWriter(self._file, chunk_size=self.chunk_size,
                                   compression=COMPRESSIONS[compression])
         self._writer.start(profile='ros2', library=library_string())
@@ -276,7 +276,7 @@ class BagWriter:
         try:
             text = json.dumps(to_jsonable(meta))
         except (TypeError, ValueError) as exc:
-            raise ConfigError(f'bag metadata is not JSON-serialisable: {exc}') from None
+            raise ConfigError(f'bag metadata is not JSON-serialisable: {exc}') from exc
         self.write(BAG_META_TOPIC, STRING, {'data': text}, log_time_ns)
 
     def write_estimate(self, values, log_time_ns, name='motor_id identifier', message='',

@@ -44,7 +44,7 @@ def open_transport(url, baudrate=115200, timeout=0.1):
     try:
         return serial.serial_for_url(url, baudrate=baudrate, timeout=timeout)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise TransportError(f'cannot open {url}: {exc}') from None
+        raise TransportError(f'cannot open {url}: {exc}') from exc
 
 
 def read_available(port, max_bytes=4096):
@@ -69,7 +69,7 @@ def read_available(port, max_bytes=4096):
         waiting = port.in_waiting
         return port.read(max(1, min(max_bytes, waiting)))
     except (serial.SerialException, OSError) as exc:
-        raise TransportError(f'read from {port.name or port.port} failed: {exc}') from None
+        raise TransportError(f'read from {port.name or port.port} failed: {exc}') from exc
 
 
 def write_all(port, data):
@@ -78,4 +78,4 @@ def write_all(port, data):
         port.write(data)
         port.flush()
     except (serial.SerialException, OSError) as exc:
-        raise TransportError(f'write to {port.name or port.port} failed: {exc}') from None
+        raise TransportError(f'write to {port.name or port.port} failed: {exc}') from exc

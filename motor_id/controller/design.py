@@ -154,7 +154,7 @@ def _check_covariance(covariance, values):
     try:
         m = np.array(covariance['matrix'], dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f'covariance matrix is not numeric: {exc}') from None
+        raise ConfigError(f'covariance matrix is not numeric: {exc}') from exc
     k = len(names)
     if m.shape != (k, k):
         raise ConfigError(f'covariance matrix must be {k}x{k} for names {names}, got shape '

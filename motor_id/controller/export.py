@@ -53,7 +53,7 @@ def _covariance_from_fit(result_dict, params, values, notes):
         try:
             m = np.asarray(covariance['matrix'], dtype=float)[np.ix_(keep, keep)]
         except (TypeError, ValueError, IndexError) as exc:
-            raise ConfigError(f'parameter_covariance matrix is unusable: {exc}') from None
+            raise ConfigError(f'parameter_covariance matrix is unusable: {exc}') from exc
         return {'names': [cov_names[j] for j in keep], 'matrix': m.tolist()}
     with_std = [n for n, v in values.items() if v is not None
                 and params[n].get('std') is not None]

@@ -128,9 +128,9 @@ def _split_lines(path):
         with open(path, encoding='utf-8-sig', newline='') as fh:
             lines = fh.read().splitlines()
     except OSError as exc:
-        raise DataError(f'{path}: cannot read ({exc.strerror})') from None
-    except UnicodeDecodeError:
-        raise DataError(f'{path}: not a text CSV file (expected UTF-8)') from None
+        raise DataError(f'{path}: cannot read ({exc.strerror})') from exc
+    except UnicodeDecodeError as exc:
+        raise DataError(f'{path}: not a text CSV file (expected UTF-8)') from exc
     meta = {'source': path}
     # only blank, comment or indented lines need a closer look (one cheap pass)
     special = [i for i, line in enumerate(lines) if not line or line[0] in '# \t']

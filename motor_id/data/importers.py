@@ -68,10 +68,10 @@ def load_emps(path):
     path = str(path)
     try:
         mat = loadmat(path)
-    except FileNotFoundError:
-        raise DataError(f'{path}: no such file') from None
+    except FileNotFoundError as exc:
+        raise DataError(f'{path}: no such file') from exc
     except (ValueError, TypeError, OSError, NotImplementedError) as exc:
-        raise DataError(f'{path}: not a MATLAB .mat file readable by scipy ({exc})') from None
+        raise DataError(f'{path}: not a MATLAB .mat file readable by scipy ({exc})') from exc
     missing = [v for v in EMPS_VARIABLES if v not in mat]
     if missing:
         present = sorted(k for k in mat if not k.startswith('__'))
@@ -150,13 +150,13 @@ def load_dunker(path, motor=1):
     try:
         with open(path, newline='') as fh:
             lines = fh.read().splitlines()
-    except FileNotFoundError:
-        raise DataError(f'{path}: no such file') from None
+    except FileNotFoundError as exc:
+        raise DataError(f'{path}: no such file') from exc
     except OSError as exc:
-        raise DataError(f'{path}: cannot read ({exc.strerror})') from None
-    except UnicodeDecodeError:
+        raise DataError(f'{path}: cannot read ({exc.strerror})') from exc
+    except UnicodeDecodeError as exc:
         raise DataError(f'{path}: not a text file (expected the ;-separated Dunker log)') \
-            from None
+            from exc
     if len(lines) < 4:
         raise DataError(f'{path}: {len(lines)} line(s); expected 3 header lines and data')
     names = [c.strip() for c in lines[2].split(';')]

@@ -139,11 +139,11 @@ def load_profile(path):
         with open(path, encoding='utf-8') as fh:
             data = yaml.safe_load(fh)
     except OSError as exc:
-        raise ConfigError(f'--profile {path}: cannot read ({exc.strerror})') from None
+        raise ConfigError(f'--profile {path}: cannot read ({exc.strerror})') from exc
     except yaml.YAMLError as exc:
         where = getattr(exc, 'problem_mark', None)
         line = f' line {where.line + 1}' if where is not None else ''
-        raise ConfigError(f'--profile {path}:{line} not valid YAML') from None
+        raise ConfigError(f'--profile {path}:{line} not valid YAML') from exc
     if data is None:
         return {}
     if not isinstance(data, dict):

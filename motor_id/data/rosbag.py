@@ -188,7 +188,7 @@ class _Stream:
                 self._values[role].append(get(msg))
             except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
                 raise BagError(f'{self.path}: {self.topic} message {self.count}: cannot read '
-                               f'the {role} ({exc})') from None
+                               f'the {role} ({exc})') from exc
         self.count += 1
 
     def finish(self):

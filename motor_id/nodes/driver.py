@@ -173,7 +173,7 @@ class DriverNode(Node):
                     extra = json.load(fh)
             except (OSError, ValueError) as exc:
                 raise ConfigError(f'parameter meta_file: cannot read {s["meta_file"]!r}: '
-                                  f'{exc}') from None
+                                  f'{exc}') from exc
             if not isinstance(extra, dict):
                 raise ConfigError(f'parameter meta_file: {s["meta_file"]!r} must hold a '
                                   'JSON object')
@@ -187,7 +187,7 @@ class DriverNode(Node):
             writer.write_meta(meta, log_time_ns=self.get_clock().now().nanoseconds)
         except (MotorIdError, OSError) as exc:
             raise ConfigError(f'parameter record_path: cannot record to {path!r}: '
-                              f'{exc}') from None
+                              f'{exc}') from exc
         return writer
 
     # ------------------------------------------------------------ the reader thread
