@@ -1,0 +1,86 @@
+"""`motor-id fleet`: every motor of every recording on Dask, histories, drift, a report."""
+
+import sys
+import time
+
+from motor_id.fleet.discover import ROBOT_RULES
+from motor_id.fleet.profile import load_fleet_profile
+
+
+def add_arguments(parser):
+    """CLI arguments of `motor-id fleet`."""
+    parser.add_argument('recordings', nargs='*', metavar='RECORDING',
+                        help='rosbag2 recordings: bag folders, .mcap / .db3 files, folders '
+                             'to search, globs (none: recompute drift and the report from '
+                             'DIR)')
+    parser.add_argument('--profile', required=True, metavar='FLEET.yaml',
+                        help='motors: {NAME: {input, speed, current, joint, effort_is, '
+                             'resistance, ...}} (docs/fleet.md)')
+    parser.add_argument('--out', required=True, metavar='DIR',
+                        help='results: estimates.parquet, estimates.csv, failed.json, '
+                             'drift.json, report.html')
+    parser.add_argument('--workers', type=int, metavar='N',
+                        help='worker processes of the embedded cluster (default: cores)')
+    parser.add_argument('--scheduler', metavar='ADDRESS',
+                        help='run on an existing Dask scheduler (tcp://host:8786)')
+    parser.add_argument('--analyze', action='store_true',
+                        help='also run the discrepancy analysis per recording and motor')
+    parser.add_argument('--robot-from', default='parent', metavar='RULE',
+                        help=f'robot name from the path: {ROBOT_RULES}')
+    parser.add_argument('--retry-failed', action='store_true',
+                        help='fit again the tasks that failed on their data before')
+    parser.add_argument('--quiet', '-q', action='store_true', help='no progress line')
+
+
+def progress_line(quiet, stream=None):
+    """A progress callback: tasks done / failed / left and the rate, on stderr."""
+    stream = stream or sys.stderr
+    tty = stream.isatty()
+    state = {'start': time.perf_counter(), 'last': 0.0}
+
+    def progress(done, failed, left, result):
+        if quiet:
+            return
+        now = time.perf_counter()
+        total = done + failed + left
+        finished = left == 0
+        if not (tty or finished or result is None or now - state['last'] >= 5.0):
+            return
+        state['last'] = now
+        elapsed = now - state['start']
+        width = 30
+        filled = int(width * (done + failed) / max(total, 1))
+        rate = (done + failed) / elapsed * 60 if elapsed > 0 and done + failed else 0.0
+        text = (f'[{"#" * filled}{"." * (width - filled)}] {done} done, {failed} failed, '
+                f'{left} left  {rate:.0f}/min  {elapsed:.0f} s')
+        stream.write(('\r' + text) if tty else (text + '\n'))
+        if tty and finished:
+            stream.write('\n')
+        stream.flush()
+    return progress
+
+
+def run(args):
+    """Run the fleet, print the drifting motors and where the files are."""
+    from motor_id.fleet.run import run_fleet
+    profile = load_fleet_profile(args.profile)
+    res = run_fleet(args.recordings, profile, args.out, workers=args.workers,
+                    scheduler=args.scheduler, analyze=args.analyze,
+                    robot_from=args.robot_from, retry_failed=args.retry_failed,
+                    progress=progress_line(args.quiet))
+    if args.recordings:
+        print(f'{res.tasks} task(s): {res.done} fitted, {res.failed} failed, '
+              f'{res.skipped} already in {args.out}; {res.seconds:.1f} s')
+    drifting = res.drifting()
+    if drifting:
+        print(f'drifting ({len(drifting)}):')
+        for d in drifting:
+            print(f'  {d["robot"]} {d["motor"]} {d["parameter"]}: {d["change"] * 100:+.1f} % '
+                  f'since {d["since"]} (z {d["z"]:.1f}; {d["baseline"]:.4g} -> '
+                  f'{d["latest"]:.4g} {d["unit"]})')
+    else:
+        print('no drift detected')
+    for name in ('estimates', 'csv', 'drift', 'report'):
+        if name in res.files:
+            print(f'wrote {res.files[name]}')
+    return 1 if res.failed and not res.done else 0

@@ -1,0 +1,166 @@
+"""The fleet profile: every motor of a robot's recordings mapped, with the fit settings.
+
+A YAML file::
+
+    motors:
+      wheel_left:  {input: /left_cmd,  speed: "/joint_states:velocity",
+                    current: "/joint_states:effort", joint: wheel_left,
+                    effort_is: current, resistance: 1.2}
+      wheel_right: {...}
+    defaults: {effort_is: current}       # optional: keys every motor starts from
+    fit: {seed: 0, method: zoh}          # optional: Identifier settings
+    drift: {h: 7.0}                      # optional: DriftRule settings
+
+A motor takes the keys of ``motor-id fit --profile`` (input, speed, current, joint,
+effort_is, align, input_kind, shift) plus ``resistance`` [Ohm] (required for a voltage
+plant), ``resistance_tolerance`` [%], ``fix`` and ``bounds`` (mappings as ``--fix`` /
+``--bounds`` take them).
+"""
+
+from dataclasses import asdict, dataclass, field
+import hashlib
+import json
+import math
+
+from motor_id.data.rosbag import Mapping, PROFILE_KEYS
+from motor_id.errors import ConfigError
+from motor_id.fleet.drift import DriftRule
+
+MOTOR_KEYS = tuple(k for k in PROFILE_KEYS if k != 'columns') + (
+    'resistance', 'resistance_tolerance', 'fix', 'bounds')
+FIT_KEYS = ('method', 'seed', 'population', 'generations', 'tie')
+TOP_KEYS = ('motors', 'defaults', 'fit', 'drift')
+
+
+@dataclass(frozen=True)
+class MotorSpec:
+    """One motor of the profile: where its channels are and what is known of it."""
+
+    name: str
+    input: str = None
+    speed: str = None
+    current: str = None
+    joint: str = None
+    effort_is: str = None
+    align: str = 'hold'
+    input_kind: str = None
+    shift: int = None
+    resistance: float = None
+    resistance_tolerance: float = 10.0
+    fix: dict = field(default_factory=dict)
+    bounds: dict = field(default_factory=dict)
+
+    def mapping(self):
+        """The bag mapping of :mod:`motor_id.data.rosbag`."""
+        return Mapping(input=self.input, speed=self.speed, current=self.current,
+                       joint=self.joint, effort_is=self.effort_is, align=self.align,
+                       input_kind=self.input_kind)
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    """Identifier settings shared by every task."""
+
+    method: str = 'zoh'
+    seed: int = 0
+    population: int = 20
+    generations: int = 160
+    tie: bool = None
+
+
+@dataclass(frozen=True)
+class FleetProfile:
+    """The parsed profile."""
+
+    motors: tuple
+    fit: FitSettings
+    drift: DriftRule
+
+    def settings_hash(self, motor, analyze):
+        """A short hash of everything that decides a motor's result (a changed profile
+        fits the recordings again)."""
+        text = json.dumps({'motor': asdict(motor), 'fit': asdict(self.fit),
+                           'analyze': bool(analyze)}, sort_keys=True, default=str)
+        return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def load_fleet_profile(path):
+    """Read and check a fleet profile.
+
+    Parameters
+    ----------
+    path : str
+
+    Returns
+    -------
+    FleetProfile
+
+    Raises
+    ------
+    ConfigError
+        Unreadable file, bad YAML, unknown keys, bad values; the message names the file,
+        the motor and the key.
+    """
+    import yaml
+    try:
+        with open(path, encoding='utf-8') as fh:
+            data = yaml.safe_load(fh)
+    except OSError as exc:
+        raise ConfigError(f'--profile {path}: cannot read ({exc.strerror})') from None
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, 'problem_mark', None)
+        line = f' line {mark.line + 1}' if mark is not None else ''
+        raise ConfigError(f'--profile {path}:{line} not valid YAML') from None
+    return parse_fleet_profile(data, str(path))
+
+
+def parse_fleet_profile(data, where='profile'):
+    """A :class:`FleetProfile` from the profile's parsed YAML (see :func:`load_fleet_profile`)."""
+    if not isinstance(data, dict) or not isinstance(data.get('motors'), dict) \
+            or not data['motors']:
+        raise ConfigError(f'{where}: expected "motors:" mapping each motor name to its '
+                          f'topics, e.g. motors: {{wheel_left: {{input: /left_cmd, speed: '
+                          f'"/joint_states:velocity", joint: wheel_left, resistance: 1.2}}}}')
+    unknown = sorted(set(map(str, data)) - set(TOP_KEYS))
+    if unknown:
+        raise ConfigError(f'{where}: unknown key(s) {", ".join(unknown)} (known: '
+                          f'{", ".join(TOP_KEYS)})')
+    defaults = _keys(data.get('defaults') or {}, f'{where}: defaults', MOTOR_KEYS)
+    motors = []
+    for name, entry in data['motors'].items():
+        entry = _keys(entry or {}, f'{where}: motor {name}', MOTOR_KEYS)
+        motors.append(_motor(str(name), {**defaults, **entry}, f'{where}: motor {name}'))
+    fit = _keys(data.get('fit') or {}, f'{where}: fit', FIT_KEYS)
+    try:
+        drift = DriftRule.from_dict(data.get('drift'))
+    except (TypeError, ConfigError) as exc:
+        raise ConfigError(f'{where}: {exc}') from None
+    return FleetProfile(tuple(motors), FitSettings(**fit), drift)
+
+
+def _keys(entry, where, known):
+    if not isinstance(entry, dict):
+        raise ConfigError(f'{where}: expected a mapping, got {entry!r}')
+    entry = {str(k).replace('-', '_'): v for k, v in entry.items()}
+    unknown = sorted(set(entry) - set(known))
+    if unknown:
+        raise ConfigError(f'{where}: unknown key(s) {", ".join(unknown)} (known: '
+                          f'{", ".join(known)})')
+    return entry
+
+
+def _motor(name, d, where):
+    for key in ('resistance', 'resistance_tolerance'):
+        v = d.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
+                              or not math.isfinite(v) or v <= 0):
+            raise ConfigError(f'{where}: {key} must be a number > 0, got {v!r}')
+    shift = d.get('shift')
+    if shift is not None and (isinstance(shift, bool) or not isinstance(shift, int)):
+        raise ConfigError(f'{where}: shift must be a whole number of samples, got {shift!r}')
+    for key in ('fix', 'bounds'):
+        if not isinstance(d.get(key) or {}, dict):
+            raise ConfigError(f'{where}: {key} must be a mapping NAME: VALUE')
+    if d.get('joint') is not None:
+        d['joint'] = str(d['joint'])
+    return MotorSpec(name=name, **{k: v for k, v in d.items() if v is not None})

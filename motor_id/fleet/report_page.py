@@ -1,0 +1,272 @@
+"""report.html: the fleet at a glance, per-motor histories with error bars and change points,
+and the failed tasks, in one self-contained file (inline SVG and CSS; nothing fetched)."""
+
+import datetime as dt
+import html
+import math
+import os
+
+from motor_id.fleet.history import histories, UNITS
+from motor_id.model import PARAM_NAMES
+
+_CSS = """
+body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1200px}
+h1{font-size:1.5em}h2{font-size:1.2em;margin-top:2em;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;margin:.5em 0}td,th{padding:3px 8px;border-bottom:1px solid
+#eee;text-align:left;vertical-align:top}th{cursor:pointer;background:#f4f4f4}
+.drift td{background:#fde8e8}.fail td{background:#fff6dc}.num{text-align:right;
+font-variant-numeric:tabular-nums}.badge{font-weight:600}.bad{color:#b00020}.ok{color:#1b5e20}
+.warn{color:#8a6d00}.plots{display:flex;flex-wrap:wrap;gap:8px}figure{margin:0}
+figcaption{font-size:12px;color:#444}svg{background:#fff;border:1px solid #ddd}
+.summary span{margin-right:1.5em}
+"""
+
+_JS = """
+document.querySelectorAll('table.sortable th').forEach(function(th, col){
+  th.addEventListener('click', function(){
+    var body = th.closest('table').tBodies[0];
+    var rows = Array.prototype.slice.call(body.rows);
+    var asc = th.dataset.dir !== 'asc'; th.dataset.dir = asc ? 'asc' : 'desc';
+    rows.sort(function(a, b){
+      var x = a.cells[col].dataset.v || a.cells[col].textContent;
+      var y = b.cells[col].dataset.v || b.cells[col].textContent;
+      var nx = parseFloat(x), ny = parseFloat(y);
+      var c = (!isNaN(nx) && !isNaN(ny)) ? nx - ny : x.localeCompare(y);
+      return asc ? c : -c; });
+    rows.forEach(function(r){ body.appendChild(r); }); }); });
+document.body.dataset.ready = '1';
+"""
+
+
+def _e(x):
+    return html.escape('' if x is None else str(x))
+
+
+def _pct(x):
+    return '-' if x is None else f'{x * 100:+.1f} %'
+
+
+def _g(x, spec='.4g'):
+    return '-' if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+def _epoch(iso):
+    return dt.datetime.fromisoformat(str(iso).replace('Z', '+00:00')).timestamp()
+
+
+def motor_status(drift_rows, failures):
+    """Per (robot, motor): the worst drift row (or None) and the failure count."""
+    out = {}
+    for d in drift_rows:
+        key = (d['robot'], d['motor'])
+        cur = out.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
+        if d['detected']:
+            cur['drifts'].append(d)
+            if cur['worst'] is None or abs(d['z'] or 0) > abs(cur['worst']['z'] or 0):
+                cur['worst'] = d
+    for f in failures:
+        out.setdefault((f['robot'], f['motor']),
+                       {'worst': None, 'failed': 0, 'drifts': []})['failed'] += 1
+    return out
+
+
+def render(rows, failures, drift_rows, rule=None, title='motor_id fleet report'):
+    """The report as one HTML text.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Result rows, sorted by robot, motor, time.
+    failures : list of dict
+    drift_rows : list of dict
+        :func:`motor_id.fleet.history.drift_table`.
+    rule : DriftRule, optional
+        Printed with the report.
+    """
+    status = motor_status(drift_rows, failures)
+    hist = histories(rows)
+    counts = {}
+    for r in rows:
+        counts.setdefault((r['robot'], r['motor']), []).append(r)
+    for key in counts:
+        status.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
+
+    def rank(key):
+        s = status[key]
+        w = s['worst']
+        return (0 if w else 1 if s['failed'] else 2, -abs(w['z'] or 0) if w else 0, key)
+    order = sorted(status, key=rank)
+    n_rec = len({r['recording'] for r in rows} | {f['recording'] for f in failures})
+    drifting = sum(1 for k in order if status[k]['worst'])
+    out = ['<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
+           f'<title>{_e(title)}</title><style>{_CSS}</style></head><body>',
+           f'<h1>{_e(title)}</h1>',
+           '<p class="summary">'
+           f'<span id="n-recordings">{n_rec} recordings</span>'
+           f'<span id="n-motors">{len(order)} motors</span>'
+           f'<span id="n-drifting" class="{"bad" if drifting else "ok"}">{drifting} drifting'
+           '</span>'
+           f'<span id="n-failed" class="{"warn" if failures else "ok"}">{len(failures)} '
+           'failed tasks</span></p>',
+           '<h2 id="glance">The fleet at a glance (worst first)</h2>',
+           _glance_table(order, status, counts),
+           '<h2 id="motors">Per motor: parameter histories</h2>',
+           '<p>Each point is one recording\'s estimate with its +-2 std error bar; the grey '
+           'line is the baseline level, the red line a detected change point and the level '
+           'after it. Inadequate fits and undetermined parameters are left out.</p>']
+    for key in order:
+        out.append(_motor_section(key, status[key], hist.get(key, {}), drift_rows))
+    out.append(_failures_table(failures))
+    if rule is not None:
+        out.append('<h2 id="rule">Drift rule</h2><p>Self-starting two-sided CUSUM on '
+                   'predictive normal scores (docs/fleet.md): '
+                   + ', '.join(f'{_e(k)} = {_e(v)}' for k, v in rule.to_dict().items())
+                   + '</p>')
+    out.append(f'<script>{_JS}</script></body></html>')
+    return '\n'.join(out)
+
+
+def _glance_table(order, status, counts):
+    head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', 'K_T', 'R_m',
+            'B', 'recordings', 'last recording', 'failed')
+    out = ['<table id="glance-table" class="sortable"><thead><tr>'
+           + ''.join(f'<th>{h}</th>' for h in head) + '</tr></thead><tbody>']
+    for key in order:
+        s = status[key]
+        w = s['worst']
+        rows = counts.get(key, [])
+        last = rows[-1] if rows else {}
+        cls = 'drift' if w else 'fail' if s['failed'] else ''
+        state = ('<span class="badge bad">DRIFT</span>' if w else
+                 '<span class="badge warn">failures</span>' if s['failed'] else
+                 '<span class="badge ok">ok</span>')
+        params = ', '.join(d['parameter'] for d in s['drifts'])
+        latest = ''.join(
+            f'<td class="num">{_g(last.get(p))}</td>' for p in ('K_T', 'R_m', 'B'))
+        anchor = _anchor(key)
+        out.append(
+            f'<tr class="{cls}" data-robot="{_e(key[0])}" data-motor="{_e(key[1])}">'
+            f'<td>{_e(key[0])}</td><td><a href="#{anchor}">{_e(key[1])}</a></td>'
+            f'<td>{state}</td><td>{_e(params)}</td>'
+            f'<td class="num" data-v="{w["change"] if w else 0}">{_pct(w["change"]) if w else ""}'
+            f'</td><td>{_e(w["since"]) if w else ""}</td>'
+            f'<td class="num">{_g(w["z"], ".1f") if w else ""}</td>{latest}'
+            f'<td class="num">{len(rows)}</td>'
+            f'<td>{_e((last.get("start_time") or "")[:10])}</td>'
+            f'<td class="num">{s["failed"]}</td></tr>')
+    out.append('</tbody></table>')
+    return ''.join(out)
+
+
+def _anchor(key):
+    return 'm-' + ''.join(c if c.isalnum() else '-' for c in f'{key[0]}-{key[1]}')
+
+
+def _motor_section(key, status, per, drift_rows):
+    rows = {d['parameter']: d for d in drift_rows
+            if (d['robot'], d['motor']) == key}
+    title = f'{key[0]} / {key[1]}'
+    open_attr = ' open' if status['worst'] else ''
+    out = [f'<section id="{_anchor(key)}" class="motor"><details{open_attr}><summary>'
+           f'<b>{_e(title)}</b> ']
+    if status['drifts']:
+        out.append('<span class="bad">' + _e('; '.join(
+            f'{d["parameter"]} {_pct(d["change"])} since {d["since"]}'
+            for d in status['drifts'])) + '</span>')
+    else:
+        out.append('<span class="ok">no drift</span>')
+    out.append('</summary><div class="plots">')
+    for p in PARAM_NAMES:
+        h = per.get(p) or []
+        if not h:
+            continue
+        d = rows.get(p)
+        out.append(_plot(p, h, d))
+    out.append('</div></details></section>')
+    return ''.join(out)
+
+
+def _plot(param, hist, d, width=360, height=150):
+    """One parameter's history as inline SVG: points with +-2 std bars, baseline, change."""
+    ml, mr, mt, mb = 62, 8, 8, 22
+    t = [_epoch(x[0]) for x in hist]
+    v = [x[1] for x in hist]
+    s = [x[2] or 0.0 for x in hist]
+    lo = min(a - 2 * b for a, b in zip(v, s))
+    hi = max(a + 2 * b for a, b in zip(v, s))
+    for extra in (d or {}).get('baseline'), (d or {}).get('latest'):
+        if extra is not None:
+            lo, hi = min(lo, extra), max(hi, extra)
+    pad = (hi - lo) * 0.08 or abs(hi) * 0.01 or 1.0
+    lo, hi = lo - pad, hi + pad
+    t0, t1 = min(t), max(t)
+    span = (t1 - t0) or 1.0
+
+    def X(x):
+        return ml + (x - t0) / span * (width - ml - mr)
+
+    def Y(y):
+        return mt + (hi - y) / (hi - lo) * (height - mt - mb)
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+             f'viewBox="0 0 {width} {height}" role="img" data-parameter="{_e(param)}" '
+             f'data-points="{len(v)}">']
+    parts.append(f'<line x1="{ml}" y1="{height - mb}" x2="{width - mr}" y2="{height - mb}" '
+                 'stroke="#999"/>')
+    for y in (lo + pad, (lo + hi) / 2, hi - pad):
+        parts.append(f'<text x="{ml - 4}" y="{Y(y) + 4:.1f}" font-size="10" '
+                     f'text-anchor="end">{_g(y, ".4g")}</text>')
+    parts.append(f'<text x="{ml}" y="{height - 6}" font-size="10">'
+                 f'{_e(str(hist[0][0])[:10])}</text>')
+    parts.append(f'<text x="{width - mr}" y="{height - 6}" font-size="10" '
+                 f'text-anchor="end">{_e(str(hist[-1][0])[:10])}</text>')
+    cps = (d or {}).get('change_points') or []
+    if d and d.get('baseline') is not None:
+        x_end = X(_epoch(cps[-1]['since'])) if cps else width - mr
+        parts.append(f'<line x1="{ml}" y1="{Y(d["baseline"]):.1f}" x2="{x_end:.1f}" '
+                     f'y2="{Y(d["baseline"]):.1f}" stroke="#888" stroke-dasharray="4 3"/>')
+    for cp in cps:
+        xc = X(_epoch(cp['since']))
+        parts.append(f'<line class="change-point" x1="{xc:.1f}" y1="{mt}" x2="{xc:.1f}" '
+                     f'y2="{height - mb}" stroke="#c62828" stroke-width="1.5"/>')
+        parts.append(f'<line x1="{xc:.1f}" y1="{Y(cp["after"]):.1f}" x2="{width - mr}" '
+                     f'y2="{Y(cp["after"]):.1f}" stroke="#c62828" stroke-dasharray="4 3"/>')
+    for a, b, x in zip(v, s, t):
+        xx = X(x)
+        if b:
+            parts.append(f'<line x1="{xx:.1f}" y1="{Y(a - 2 * b):.1f}" x2="{xx:.1f}" '
+                         f'y2="{Y(a + 2 * b):.1f}" stroke="#1565c0"/>')
+        parts.append(f'<circle cx="{xx:.1f}" cy="{Y(a):.1f}" r="2.5" fill="#1565c0"/>')
+    parts.append('</svg>')
+    unit = UNITS.get(param, '')
+    cap = f'{param} [{unit}]'
+    if d and d['detected']:
+        cap += (f': <span class="bad">{_pct(d["change"])} since {_e(d["since"])} '
+                f'(z {_g(d["z"], ".1f")})</span>')
+    elif d and d.get('reason'):
+        cap += f': {_e(d["reason"])}'
+    return f'<figure>{"".join(parts)}<figcaption>{cap}</figcaption></figure>'
+
+
+def _failures_table(failures):
+    out = [f'<h2 id="failed">Failed tasks ({len(failures)})</h2>']
+    if not failures:
+        out.append('<p>None.</p>')
+        return ''.join(out)
+    out.append('<table id="failed-table" class="sortable"><thead><tr><th>robot</th>'
+               '<th>motor</th><th>recording</th><th>stage</th><th>reason</th></tr>'
+               '</thead><tbody>')
+    for f in sorted(failures, key=lambda f: (f['robot'], f['motor'], f['recording'])):
+        out.append(f'<tr><td>{_e(f["robot"])}</td><td>{_e(f["motor"])}</td>'
+                   f'<td>{_e(f["recording"])}</td><td>{_e(f.get("stage"))}</td>'
+                   f'<td>{_e(f.get("reason"))}</td></tr>')
+    out.append('</tbody></table>')
+    return ''.join(out)
+
+
+def write_report(path, rows, failures, drift_rows, rule=None):
+    """Write :func:`render`'s page to ``path``."""
+    text = render(rows, failures, drift_rows, rule)
+    tmp = f'{path}.tmp'
+    with open(tmp, 'w', encoding='utf-8') as fh:
+        fh.write(text)
+    os.replace(tmp, path)

@@ -1,0 +1,117 @@
+"""A fleet run from recordings to estimates, drift.json and report.html: the one path."""
+
+from dataclasses import dataclass, field
+import json
+import time
+
+from motor_id.fleet.discover import find_recordings
+from motor_id.fleet.engine import DaskEngine
+from motor_id.fleet.history import drift_table
+from motor_id.fleet.store import ResultStore
+from motor_id.fleet.task import run_task, Task
+
+
+@dataclass
+class FleetRun:
+    """What a run did: counts, the time it took, the drift rows, the files written."""
+
+    tasks: int = 0
+    skipped: int = 0
+    done: int = 0
+    failed: int = 0
+    seconds: float = 0.0
+    drift: list = field(default_factory=list)
+    files: dict = field(default_factory=dict)
+
+    def drifting(self):
+        """The drift rows that flagged a change."""
+        return [d for d in self.drift if d['detected']]
+
+
+def plan(recordings, profile, analyze=False):
+    """One :class:`Task` per recording and motor of the profile."""
+    return [Task(path=r.path, robot=r.robot, size=r.size, mtime_ns=r.mtime_ns, motor=m,
+                 fit=profile.fit, analyze=analyze, settings=profile.settings_hash(m, analyze))
+            for r in recordings for m in profile.motors]
+
+
+def run_fleet(paths, profile, out_dir, workers=None, scheduler=None, analyze=False,
+              robot_from='parent', retry_failed=False, progress=None, engine=None,
+              report=True):
+    """Fit every motor of every new recording on the engine; write the results.
+
+    Parameters
+    ----------
+    paths : sequence of str
+        Files, folders, globs (:func:`motor_id.fleet.discover.find_recordings`); empty:
+        only recompute drift and the report from ``out_dir``.
+    profile : motor_id.fleet.profile.FleetProfile
+    out_dir : str
+    workers, scheduler : see :class:`motor_id.fleet.engine.DaskEngine`
+    analyze : bool
+        Also run the discrepancy analysis per task (its verdict goes in the row).
+    robot_from : str
+    retry_failed : bool
+        Try again the tasks that failed on their data or fit before.
+    progress : callable, optional
+        ``progress(done, failed, left, result)`` after each task (result None at start).
+    engine : DaskEngine, optional
+        An engine already entered (benchmarks); default: one made and closed here.
+    report : bool
+        Write report.html.
+
+    Returns
+    -------
+    FleetRun
+    """
+    started = time.perf_counter()
+    store = ResultStore(out_dir)
+    run = FleetRun()
+    if paths:
+        tasks = plan(find_recordings(paths, robot_from), profile, analyze)
+        todo = [t for t in tasks if not store.is_done(t, retry_failed)]
+        run.tasks, run.skipped = len(tasks), len(tasks) - len(todo)
+        if todo:
+            _execute(todo, store, run, workers, scheduler, progress, engine)
+    store.flush(force=True)
+    run.drift = drift_table(store.rows.values(), profile.drift)
+    with open(store.out / 'drift.json', 'w', encoding='utf-8') as fh:
+        json.dump(run.drift, fh, indent=1)
+    run.files = {'estimates': str(store.parquet_path), 'csv': str(store.csv_path),
+                 'failed': str(store.failed_path), 'drift': str(store.out / 'drift.json')}
+    if report:
+        from motor_id.fleet.report_page import write_report
+        path = store.out / 'report.html'
+        write_report(path, store.sorted_rows(), list(store.failures.values()), run.drift,
+                     profile.drift)
+        run.files['report'] = str(path)
+    run.seconds = time.perf_counter() - started
+    return run
+
+
+def _execute(todo, store, run, workers, scheduler, progress, engine):
+    if progress:
+        progress(0, 0, len(todo), None)
+    own = engine is None
+    if own:
+        engine = DaskEngine(workers=workers, scheduler=scheduler).__enter__()
+    try:
+        left = len(todo)
+        for task, result, error in engine.map(run_task, todo):
+            if error is not None:
+                result = {'robot': task.robot, 'motor': task.motor.name,
+                          'recording': task.path, 'size': task.size,
+                          'mtime_ns': task.mtime_ns, 'settings': task.settings,
+                          'status': 'failed', 'stage': 'engine', 'reason': error}
+            store.add(result)
+            left -= 1
+            if result.get('status') == 'ok':
+                run.done += 1
+            else:
+                run.failed += 1
+            if progress:
+                progress(run.done, run.failed, left, result)
+    finally:
+        store.flush(force=True)
+        if own:
+            engine.__exit__(None, None, None)

@@ -1,0 +1,153 @@
+"""One task of a fleet run: read one motor of one recording on the worker, fit, keep numbers.
+
+:func:`run_task` is what the engine ships to a worker: it gets a path (never the bag's
+bytes), reads the recording there, fits it (and with ``analyze`` runs the discrepancy
+analysis), and returns one flat row of numbers; the samples are dropped with the task.
+It never raises: a failure comes back as a row with ``status: failed``, the stage
+(``read``, ``fit``, ``analyze``) and the reason.
+"""
+
+from dataclasses import dataclass
+import datetime as dt
+import os
+import socket
+import time
+import traceback
+
+from motor_id.errors import MotorIdError
+from motor_id.fleet.profile import FitSettings, MotorSpec
+from motor_id.model import PARAM_NAMES
+
+
+@dataclass(frozen=True)
+class Task:
+    """What a worker needs for one (recording, motor)."""
+
+    path: str
+    robot: str
+    size: int
+    mtime_ns: int
+    motor: MotorSpec
+    fit: FitSettings
+    analyze: bool
+    settings: str
+
+    @property
+    def ident(self):
+        """``(recording, motor)``: the row this task fills."""
+        return (self.path, self.motor.name)
+
+
+def run_task(task):
+    """Read, fit and (optionally) analyse one motor of one recording.
+
+    Parameters
+    ----------
+    task : Task
+
+    Returns
+    -------
+    dict
+        A result row (:data:`motor_id.fleet.store.COLUMNS`) with ``status: ok``, or a
+        failure ``{..., 'status': 'failed', 'stage', 'reason'}``.
+    """
+    started = time.perf_counter()
+    row = {'robot': task.robot, 'motor': task.motor.name, 'recording': task.path,
+           'size': task.size, 'mtime_ns': task.mtime_ns, 'settings': task.settings,
+           'worker': f'{socket.gethostname()}:{os.getpid()}'}
+    stage = 'read'
+    try:
+        rec = read_motor(task)
+        stage = 'fit'
+        row.update(fit_row(rec, task))
+        if task.analyze:
+            stage = 'analyze'
+            row.update(analysis_row(rec, task))
+    except MotorIdError as exc:
+        return _failed(row, stage, str(exc), started)
+    except Exception as exc:   # noqa: BLE001  a task's failure is data: kept with its reason
+        where = traceback.extract_tb(exc.__traceback__)[-1:]
+        at = f' at {os.path.basename(where[0].filename)}:{where[0].lineno}' if where else ''
+        return _failed(row, stage, f'{type(exc).__name__}: {exc}{at}', started)
+    row['status'] = 'ok'
+    row['seconds'] = time.perf_counter() - started
+    return row
+
+
+def _failed(row, stage, reason, started):
+    row.update(status='failed', stage=stage, reason=reason,
+               seconds=time.perf_counter() - started)
+    return row
+
+
+def read_motor(task):
+    """The motor's recording, read by the bag mapping, shifted and validated."""
+    from motor_id.data.load import load_recording
+    from motor_id.data.shift import shift_input
+    m = task.motor
+    rec = load_recording(task.path, mapping=m.mapping())
+    if m.shift:
+        rec = shift_input(rec, m.shift)
+    rec.validate()
+    return rec
+
+
+def _start_time(rec, task):
+    ns = rec.meta.get('time_origin_ns')
+    if ns is None:
+        ns = task.mtime_ns
+    return dt.datetime.fromtimestamp(ns / 1e9, dt.timezone.utc).isoformat(
+        timespec='milliseconds').replace('+00:00', 'Z')
+
+
+def identifier(task, input_kind):
+    """The :class:`~motor_id.identify.Identifier` of a task's settings."""
+    from motor_id.errors import ConfigError
+    from motor_id.identify import Identifier, parse_bounds, parse_fixed
+    m, f = task.motor, task.fit
+    fixed = parse_fixed([f'{k}={v}' for k, v in m.fix.items()], 'fix') or None
+    bounds = parse_bounds([f'{k}={lo}:{hi}' for k, (lo, hi) in m.bounds.items()],
+                          'bounds') or None
+    r_m = (fixed or {}).get('R_m', m.resistance)
+    if input_kind == 'voltage' and r_m is None:
+        raise ConfigError(f'motor {m.name}: a voltage plant needs "resistance" (R_m in Ohm, '
+                          'as measured) in the profile')
+    return Identifier(method=f.method, R_m=r_m, R_m_tolerance=m.resistance_tolerance / 100.0,
+                      tie=f.tie, population=f.population, generations=f.generations,
+                      random_state=f.seed, fixed=fixed, bounds=bounds)
+
+
+def fit_row(rec, task):
+    """The numbers a fit leaves: every parameter's value, std and determined flag, fit %,
+    adequacy and warnings (read defensively: older reports have no ``adequate``)."""
+    est = identifier(task, rec.input_kind).fit(rec)
+    report = est.result_.to_dict()
+    row = {'start_time': _start_time(rec, task), 'samples': len(rec),
+           'duration_s': float(rec.time[-1] - rec.time[0])}
+    params = report.get('parameters', {})
+    for name in PARAM_NAMES:
+        p = params.get(name) or {}
+        row[name] = _num(p.get('value'))
+        row[f'{name}_std'] = _num(p.get('std'))
+        row[f'{name}_determined'] = bool(p.get('determined', p.get('value') is not None))
+    channels = (report.get('fit') or {}).get('channels', {})
+    for ch in ('speed', 'current'):
+        row[f'fit_{ch}'] = _num((channels.get(ch) or {}).get('fit_percent'))
+    row['adequate'] = bool(report.get('adequate', True))
+    warnings = [str(w) for w in report.get('warnings', []) or []]
+    row['warnings'] = '; '.join(warnings)
+    return row
+
+
+def analysis_row(rec, task):
+    """The discrepancy analysis's verdict for the row."""
+    from motor_id.analysis import DiscrepancyAnalysis
+    m = task.motor
+    ana = DiscrepancyAnalysis(R_m=m.resistance, random_state=task.fit.seed,
+                              R_m_tolerance=m.resistance_tolerance / 100.0)
+    rep = ana.fit(rec).report_.to_dict()
+    return {'verdict': str(rep.get('verdict')), 'unexplained': bool(rep.get('unexplained'))}
+
+
+def _num(v):
+    return None if v is None else float(v)
