@@ -6,12 +6,14 @@ calls it).
 """
 
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 import math
+from typing import Any
 
 import numpy as np
 
-from motor_id.card.protocol import HEADER
+from motor_id.card.protocol import HEADER, Sample
 from motor_id.errors import ConfigError
 
 
@@ -77,20 +79,20 @@ class FaultConfig:
             raise ConfigError('current_spike needs EVERY >= 0 seconds and a finite current')
 
     @property
-    def any(self):
+    def any(self) -> bool:
         """True when some fault is switched on."""
         return any((self.garbage, self.drop, self.bad_crc, self.duplicate, self.reorder,
                     self.disconnect_every, self.spike_every))
 
     @classmethod
-    def parse(cls, items):
+    def parse(cls, items: Iterable[str]) -> 'FaultConfig':
         """Build from CLI items.
 
         ``garbage=P[:MAX]``, ``drop=P``, ``bad_crc=P``, ``duplicate=P``, ``reorder=P``
         (probabilities per frame), ``disconnect=EVERY[:DOWN]`` (wall-clock seconds) and
         ``current_spike=EVERY[:AMPS]`` (card seconds, amperes).
         """
-        values = {}
+        values: dict[str, Any] = {}
         for item in items or ():
             name, _, value = item.partition('=')
             first, _, second = value.partition(':')
@@ -136,14 +138,15 @@ class FaultInjector:
         ``garbage_bytes``, ``garbage_bursts``, ``spikes``.
     """
 
-    def __init__(self, config=None, random_state=None):
+    def __init__(self, config: FaultConfig | None = None,
+                 random_state: int | np.random.Generator | None = None) -> None:
         self.config = config or FaultConfig()
         self._rng = np.random.default_rng(random_state)
-        self._held = None
+        self._held: bytes | None = None
         self._next_spike = self.config.spike_every
-        self.stats = Counter()
+        self.stats: Counter[str] = Counter()
 
-    def sample(self, sample):
+    def sample(self, sample: Sample) -> Sample:
         """Apply the measurement faults (current spikes) to one sample; return it."""
         every = self.config.spike_every
         if not every or not sample.has_current or sample.t_card < self._next_spike:
@@ -152,11 +155,11 @@ class FaultInjector:
         self.stats['spikes'] += 1
         return replace(sample, current=float(np.float32(self.config.spike_current)))
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget a held-back frame (the link went down)."""
         self._held = None
 
-    def apply(self, frame):
+    def apply(self, frame: bytes) -> bytes:
         """Return the bytes to send for one encoded frame (may be empty or hold two)."""
         c, r = self.config, self._rng
         self.stats['frames'] += 1

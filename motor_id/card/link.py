@@ -8,10 +8,22 @@ each kind of fault once per outage, and counts everything for diagnostics.
 """
 
 from collections import Counter
+from collections.abc import Callable
 import threading
 import time
+from typing import Any
 
-from motor_id.card.protocol import encode_command, FLAG_STARTUP, MAX_FRAME, OVERHEAD
+import serial
+
+from motor_id.card.protocol import (
+    Command,
+    encode_command,
+    FLAG_STARTUP,
+    MAX_FRAME,
+    OVERHEAD,
+    Reply,
+    Sample,
+)
 from motor_id.card.sequence import SequenceTracker
 from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
@@ -29,7 +41,7 @@ SAMPLE_FRAME_BYTES = {False: OVERHEAD + 22, True: OVERHEAD + 26}
 """Bytes of a sample frame without and with current (30 and 34)."""
 
 
-def max_frame_rate(baudrate, frame_bytes):
+def max_frame_rate(baudrate: int, frame_bytes: int) -> float:
     """Most frames per second a line of ``baudrate`` bit/s carries (8N1).
 
     Parameters
@@ -46,7 +58,11 @@ def max_frame_rate(baudrate, frame_bytes):
     return baudrate / (BITS_PER_BYTE * frame_bytes)
 
 
-def _quiet(level, text):
+LogFn = Callable[[str, str], None]
+"""``log(level, text)`` with level ``'info'``, ``'warning'`` or ``'error'``."""
+
+
+def _quiet(level: str, text: str) -> None:
     """The default log: nothing."""
 
 
@@ -102,9 +118,13 @@ class CardLink:
         (logged once, and listed by :meth:`values` as ``line_overload``).
     """
 
-    def __init__(self, url, baudrate=115200, read_timeout=0.05, backoff_max=5.0,
-                 stall_timeout=1.0, batch_size=10, batch_age=0.1, sample_period=None,
-                 log=None, on_open=None, on_sample=None, on_reply=None, stop=None):
+    def __init__(self, url: str, baudrate: int = 115200, read_timeout: float = 0.05,
+                 backoff_max: float = 5.0, stall_timeout: float = 1.0, batch_size: int = 10,
+                 batch_age: float = 0.1, sample_period: float | None = None,
+                 log: LogFn | None = None, on_open: Callable[[], None] | None = None,
+                 on_sample: Callable[[Sample], Sample] | None = None,
+                 on_reply: Callable[[Reply], None] | None = None,
+                 stop: threading.Event | None = None) -> None:
         if not isinstance(url, str) or not url:
             raise ConfigError(f'the card URL must be a non-empty string, got {url!r}')
         if int(batch_size) < 1:
@@ -124,20 +144,20 @@ class CardLink:
         self._stop = stop or threading.Event()
         self.parser = FrameParser()
         self.tracker = SequenceTracker()
-        self.counts = Counter()
+        self.counts: Counter[str] = Counter()
         self.state = 'connecting'
         self.capacity_warning = ''
-        self._logged = set()
-        self._port = None
+        self._logged: set[str] = set()
+        self._port: serial.SerialBase | None = None
         self._lock = threading.Lock()
         self._backoff = 0.05
-        self._last_frame = None
+        self._last_frame: float | None = None
         self._bytes_since_frame = 0
-        self._batch = []
+        self._batch: list[Sample] = []
         self._flush_at = time.monotonic()
 
     # ------------------------------------------------------------ faults and logging
-    def fault(self, kind, text, level='warning'):
+    def fault(self, kind: str, text: str, level: str = 'warning') -> None:
         """Count a fault; log it the first time its kind occurs (per outage)."""
         self.counts[kind] += 1
         if kind in self._logged:
@@ -148,12 +168,12 @@ class CardLink:
 
     # ------------------------------------------------------------ the port
     @property
-    def is_open(self):
+    def is_open(self) -> bool:
         """True while the device is open."""
         return self._port is not None
 
     @property
-    def port(self):
+    def port(self) -> serial.SerialBase | None:
         """The open ``serial`` port, or None (for tools and tests that write raw bytes)."""
         return self._port
 
@@ -196,7 +216,7 @@ class CardLink:
             except (OSError, ValueError):
                 pass
 
-    def send(self, command):
+    def send(self, command: Command) -> None:
         """Encode and write one command; :class:`TransportError` when the device is not open.
 
         Thread-safe. Encoding errors raise :class:`ConfigError`.
@@ -208,12 +228,12 @@ class CardLink:
             write_all(self._port, data)
         self.counts['commands_sent'] += 1
 
-    def close(self):
+    def close(self) -> None:
         """Close the device (a later :meth:`poll` opens it again)."""
         self._close_port()
 
     # ------------------------------------------------------------ reading
-    def poll(self):
+    def poll(self) -> list[list[Sample]]:
         """Open the device if needed, read once, and return the batches ready to publish.
 
         Blocks for at most the read timeout, or the back-off wait (ended early by
@@ -252,7 +272,7 @@ class CardLink:
             self.state = 'stalled'
         return out
 
-    def flush(self):
+    def flush(self) -> list[list[Sample]]:
         """Return the samples kept so far in batches of ``batch_size`` (and forget them)."""
         rows, self._batch = self._batch, []
         n = self.batch_size
@@ -297,7 +317,7 @@ class CardLink:
             if self._on_reply is not None:
                 self._on_reply(reply)
 
-    def line_capacity(self, with_current=True):
+    def line_capacity(self, with_current: bool = True) -> float:
         """Most sample frames per second the line carries at :attr:`baudrate`."""
         return max_frame_rate(self.baudrate, SAMPLE_FRAME_BYTES[bool(with_current)])
 
@@ -319,7 +339,7 @@ class CardLink:
         self.fault('line_overload', self.capacity_warning)
 
     # ------------------------------------------------------------ diagnostics
-    def values(self):
+    def values(self) -> dict[str, Any]:
         """Diagnostic key/values of the link (counters and state)."""
         tr = self.tracker
         bad = {k: v for k, v in sorted(self.counts.items()) if k.startswith('frame_')}
@@ -352,12 +372,12 @@ class SampleClock:
         across gaps too) [rad]; restarts at 0 when the card restarts.
     """
 
-    def __init__(self):
-        self._offset_ns = None
-        self._last = None
+    def __init__(self) -> None:
+        self._offset_ns: int | None = None
+        self._last: tuple[float, float] | None = None
         self.position = 0.0
 
-    def update(self, sample, host_now_ns):
+    def update(self, sample: Sample, host_now_ns: int) -> int:
         """Account for one sample; return its host time [ns].
 
         Parameters

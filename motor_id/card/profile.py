@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+from numpy.typing import NDArray
 
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
@@ -11,7 +12,7 @@ MAX_PROFILE_SAMPLES = 10_000_000
 """Longest profile a card (or the host, streaming it) plays, in samples."""
 
 
-def profile_length(duration, period):
+def profile_length(duration: float, period: float) -> int:
     """Samples of a profile lasting ``duration`` seconds at ``period`` seconds per sample.
 
     Returns 0 for a non-finite or non-positive duration.
@@ -21,7 +22,8 @@ def profile_length(duration, period):
     return math.ceil(duration / period - 1e-9)
 
 
-def profile_samples(name, amplitude, seed, duration, period):
+def profile_samples(name: str, amplitude: float, seed: int, duration: float,
+                    period: float) -> NDArray[np.float64]:
     """The voltages of profile ``name``, one per sample, as float32 values.
 
     The one definition of what a profile sends: the simulated card plays it when it

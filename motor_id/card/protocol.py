@@ -30,6 +30,7 @@ logs, sleeps or touches a device: callers count and report.
 from dataclasses import dataclass
 import math
 import struct
+from typing import Any
 import zlib
 
 from motor_id.contracts import (  # noqa: F401  (re-exported: the wire format)
@@ -116,7 +117,7 @@ class Sample:
     flags: int = 0
 
     @property
-    def has_current(self):
+    def has_current(self) -> bool:
         """True when the sample carries a current value."""
         return not math.isnan(self.current)
 
@@ -205,13 +206,15 @@ class Ping:
 
 
 COMMANDS = (SetVoltage, StartProfile, Stop, SetPeriod, Ping)
+Command = SetVoltage | StartProfile | Stop | SetPeriod | Ping
+"""A host -> card message."""
 
 
 # ---------------------------------------------------------------------------------------
 # field helpers
 
 
-def crc(data):
+def crc(data: bytes) -> int:
     """CRC-32 (:func:`zlib.crc32`) of ``data`` as an unsigned int."""
     return zlib.crc32(data) & 0xFFFFFFFF
 
@@ -229,7 +232,7 @@ def _f32(name, value, finite=True):
     return v
 
 
-def check_uint(name, value, limit):
+def check_uint(name: str, value: Any, limit: int) -> int:
     """``value`` as an int in ``[0, limit)`` (for encoding); ConfigError otherwise."""
     if isinstance(value, bool) or not isinstance(value, int):
         try:
@@ -412,7 +415,7 @@ def _encode(message, allowed):
     return _frame(kind, kind.encode(message))
 
 
-def encode_sample(sample):
+def encode_sample(sample: Sample) -> bytes:
     """Encode a :class:`Sample` as one frame.
 
     Parameters
@@ -437,14 +440,14 @@ def encode_sample(sample):
     return _encode(sample, CARD_TYPES)
 
 
-def encode_reply(reply):
+def encode_reply(reply: Reply) -> bytes:
     """Encode a :class:`Reply` (card -> host) as one frame."""
     if not isinstance(reply, Reply):
         raise ConfigError(f'encode_reply takes a Reply, got {type(reply).__name__}')
     return _encode(reply, CARD_TYPES)
 
 
-def encode_command(command):
+def encode_command(command: Command) -> bytes:
     """Encode a host -> card command (:data:`COMMANDS`) as one frame.
 
     Real numbers are sent as float32; ``SetPeriod.period`` as whole microseconds
@@ -485,7 +488,7 @@ def _decode(ftype, payload, table):
     return kind.decode(payload)
 
 
-def parse_frame(frame):
+def parse_frame(frame: bytes) -> Sample | Reply:
     """Decode one complete card -> host frame.
 
     Parameters
@@ -504,9 +507,11 @@ def parse_frame(frame):
         ``short``/``bad_length`` (size vs header), ``bad_crc``, ``bad_type``,
         ``bad_length`` (payload size vs type), ``bad_value``.
     """
-    return _decode(*_split(frame), CARD_TYPES)
+    ftype, payload = _split(frame)
+    return _decode(ftype, payload, CARD_TYPES)
 
 
-def parse_command(frame):
+def parse_command(frame: bytes) -> Command:
     """Decode one complete host -> card frame into a command; errors as :func:`parse_frame`."""
-    return _decode(*_split(frame), HOST_TYPES)
+    ftype, payload = _split(frame)
+    return _decode(ftype, payload, HOST_TYPES)

@@ -54,7 +54,8 @@ class SequenceTracker:
         Counters. ``lost`` is net: a late frame that arrives after all is taken off.
     """
 
-    def __init__(self, window=256, max_gap=2 ** 24, modulus=SEQ_MODULUS):
+    def __init__(self, window: int = 256, max_gap: int = 2 ** 24,
+                 modulus: int = SEQ_MODULUS) -> None:
         if window < 1 or max_gap < 1 or modulus < 2 * (window + 1):
             raise ConfigError('SequenceTracker needs window >= 1, max_gap >= 1 and '
                               'modulus > 2 * window')
@@ -64,8 +65,8 @@ class SequenceTracker:
         self.received = self.lost = self.duplicates = self.late = self.resets = 0
         self.last = None
         self._first = None
-        self._seen = deque()
-        self._seen_set = set()
+        self._seen: deque[int] = deque()
+        self._seen_set: set[int] = set()
 
     def _signed(self, d):
         return seq_step(0, d, self.modulus)
@@ -82,7 +83,7 @@ class SequenceTracker:
         self._seen_set.clear()
         self._remember(seq)
 
-    def update(self, seq, restart=False):
+    def update(self, seq: int, restart: bool = False) -> SeqEvent:
         """Account for one received sequence number.
 
         Parameters

@@ -8,10 +8,12 @@ to the card through a :class:`~motor_id.card.link.CardLink` (``send``, ``fault``
 """
 
 from dataclasses import replace
+from typing import Any
 
+from motor_id.card.link import CardLink, LogFn
 from motor_id.card.profile import profile_samples
-from motor_id.card.protocol import SetPeriod, SetVoltage, StartProfile, Stop
-from motor_id.card.supervisor import Supervisor
+from motor_id.card.protocol import Reply, Sample, SetPeriod, SetVoltage, StartProfile, Stop
+from motor_id.card.supervisor import Limits, Supervisor
 from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import MotorIdError
 
@@ -42,16 +44,17 @@ class HostProfile:
     so the lag costs nothing but a slightly different input from the card's own.
     """
 
-    def __init__(self, name, amplitude, seed, duration, period):
+    def __init__(self, name: str, amplitude: float, seed: int, duration: float,
+                 period: float) -> None:
         self.values = profile_samples(name, amplitude, seed, duration, period)
         self.name = name
         self.period = float(period)
-        self._t0 = None
-        self._last_sent = None
+        self._t0: float | None = None
+        self._last_sent: float | None = None
         self.done = False
         self.sent = 0
 
-    def on_sample(self, sample):
+    def on_sample(self, sample: Sample) -> tuple[Sample, float | None]:
         """Flag ``sample`` and return ``(sample, voltage to send or None)``."""
         if self.done:
             return sample, None
@@ -104,8 +107,9 @@ class Session:
         The profile the host is playing now.
     """
 
-    def __init__(self, link, limits, excitation, amplitude=9.0, seed=0, duration=40.0,
-                 period=0.01, autostart=False, log=None):
+    def __init__(self, link: CardLink, limits: Limits, excitation: str, amplitude: float = 9.0,
+                 seed: int = 0, duration: float = 40.0, period: float = 0.01,
+                 autostart: bool = False, log: LogFn | None = None) -> None:
         self.link = link
         self.external = excitation == EXTERNAL
         if not self.external:
@@ -118,12 +122,12 @@ class Session:
         self.autostart = bool(autostart)
         self._log = log or (lambda level, text: None)
         self.card_profiles = True
-        self.host_profile = None
-        self._pending = None
+        self.host_profile: HostProfile | None = None
+        self._pending: StartProfile | None = None
         self._started = False
 
     # ------------------------------------------------------------ the polling thread
-    def on_open(self):
+    def on_open(self) -> None:
         """After each (re)open: the sample period; 0 V again while a limit holds it (the
         card may have missed the stop); the first time, an autostart."""
         self.link.send(SetPeriod(self.period))
@@ -132,7 +136,7 @@ class Session:
         elif self.autostart and not self._started and not self.external:
             self.start()
 
-    def on_sample(self, sample):
+    def on_sample(self, sample: Sample) -> Sample:
         """Schedule the host profile, check the limits, flag; return the sample."""
         host = self.host_profile
         value = None
@@ -150,7 +154,7 @@ class Session:
             self._log('info', f'host-played {host.name} profile done')
         return sample
 
-    def on_reply(self, reply):
+    def on_reply(self, reply: Reply) -> None:
         """A card reply: ``unsupported`` to our profile switches to playing it here."""
         pending = self._pending
         if reply.command != 'start_profile' or pending is None:
@@ -162,14 +166,14 @@ class Session:
                       f'{pending.name} as set-voltage commands every {self.period:g} s')
             self._play_on_host(pending)
 
-    def check_watchdog(self):
+    def check_watchdog(self) -> None:
         """Hold 0 V when external commands stopped (logged once)."""
         if self.external and self.supervisor.check_watchdog():
             self.link.fault('watchdog', f'no voltage_command for '
                             f'{self.supervisor.limits.command_timeout:g} s: holding 0 V')
 
     # ------------------------------------------------------------ user requests
-    def start(self):
+    def start(self) -> str:
         """Re-arm the limits and start the profile (external: only re-arm).
 
         Returns
@@ -183,9 +187,9 @@ class Session:
             The command could not be sent (device absent).
         """
         self.supervisor.reset()
-        if self.external:
-            return 'limits re-armed; excitation is external: publish on voltage_command'
         cmd = self.profile
+        if self.external or cmd is None:
+            return 'limits re-armed; excitation is external: publish on voltage_command'
         self._started = True
         if not self.card_profiles:
             self._play_on_host(cmd)
@@ -196,13 +200,13 @@ class Session:
         self.link.send(cmd)
         return f'started {cmd.name}'
 
-    def stop(self):
+    def stop(self) -> None:
         """Stop any profile; the card holds 0 V (MotorIdError if it cannot be sent)."""
         self.host_profile = None
         self._pending = None
         self.link.send(Stop())
 
-    def reset(self):
+    def reset(self) -> str:
         """Re-arm the limits and hold 0 V; return what was cleared, for people."""
         trip = self.supervisor.trip
         self.supervisor.reset()
@@ -210,7 +214,7 @@ class Session:
         return 'limits re-armed' + (f' (was: {trip.describe()})' if trip else '') + \
             '; card holds 0 V'
 
-    def command(self, voltage):
+    def command(self, voltage: float) -> None:
         """Forward one external voltage command [V] through the limits."""
         value = self.supervisor.command(voltage)
         if value is None:
@@ -235,7 +239,7 @@ class Session:
         except MotorIdError as exc:
             self.link.fault('command_failed', f'{type(command).__name__} not sent: {exc}')
 
-    def values(self):
+    def values(self) -> dict[str, Any]:
         """Diagnostic key/values (the supervisor's and where profiles are played)."""
         values = self.supervisor.values()
         values['profile_source'] = 'card' if self.card_profiles else 'driver'

@@ -15,6 +15,7 @@ import select
 import threading
 import time
 import tty
+from typing import Any
 
 import numpy as np
 
@@ -23,6 +24,7 @@ from motor_id.card.protocol import encode_reply, encode_sample
 from motor_id.card.stream import CommandParser
 from motor_id.card.virtual_card import VirtualCard
 from motor_id.errors import ConfigError, ProtocolError
+from motor_id.model import Plant
 
 __all__ = ['CardSimulator', 'FaultConfig', 'FaultInjector', 'VirtualCard']
 
@@ -69,9 +71,12 @@ class CardSimulator:
     PENDING_MAX = 1 << 20
     ASAP_LOW_WATER = 1 << 12
 
-    def __init__(self, plant=None, period=0.01, speedup=1.0, with_current=True,
-                 speed_noise=0.0, current_noise=0.0, method='zoh', faults=None, link=None,
-                 random_state=None, profiles=True):
+    def __init__(self, plant: Plant | None = None, period: float = 0.01, speedup: float = 1.0,
+                 with_current: bool = True, speed_noise: float = 0.0,
+                 current_noise: float = 0.0, method: str = 'zoh',
+                 faults: FaultConfig | None = None, link: str | None = None,
+                 random_state: int | np.random.Generator | None = None,
+                 profiles: bool = True) -> None:
         if not speedup >= 0:
             raise ConfigError(f'speedup must be >= 0 (0: as fast as possible), got {speedup}')
         card_rng, fault_rng = np.random.default_rng(random_state).spawn(2)
@@ -83,43 +88,44 @@ class CardSimulator:
         self.link = os.path.abspath(link) if link else None
         self._injector = FaultInjector(self.faults, fault_rng)
         self._commands = CommandParser()
-        self._stats = Counter()
-        self.error = None
-        self._master = self._slave = None
-        self._device = None
+        self._stats: Counter[str] = Counter()
+        self.error: BaseException | None = None
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._device: str | None = None
         self._pending = bytearray()
         self._stop = threading.Event()
-        self._thread = None
+        self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
 
     # -- pty ----------------------------------------------------------------------------
 
     @property
-    def device(self):
+    def device(self) -> str | None:
         """The current pty slave path (changes after a disconnect)."""
         return self._device
 
     @property
-    def path(self):
+    def path(self) -> str | None:
         """The path a host should open: the link if there is one, else the pty."""
         return self.link or self._device
 
     @property
-    def stats(self):
+    def stats(self) -> Counter[str]:
         """Counters of the card and of the injected faults (a snapshot)."""
         return self._stats.copy() + self._injector.stats.copy()
 
     @property
-    def connected(self):
+    def connected(self) -> bool:
         """True while the pty exists."""
         return self._master is not None
 
     @property
-    def running(self):
+    def running(self) -> bool:
         """True while the serving thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
-    def truth(self):
+    def truth(self) -> dict[str, Any]:
         """The card's true plant and settings plus the fault configuration (JSON-ready)."""
         return {**self.card.truth(), 'speedup': self.speedup,
                 'faults': asdict(self.faults), 'device': self.path}
@@ -151,7 +157,7 @@ class CardSimulator:
 
     # -- life cycle -----------------------------------------------------------------------
 
-    def start(self):
+    def start(self) -> 'CardSimulator':
         """Open the pty (and link) and start serving; returns self."""
         if self._thread is not None:
             raise ConfigError('the card simulator is already started')
@@ -166,7 +172,7 @@ class CardSimulator:
         self._thread.start()
         return self
 
-    def stop(self, timeout=5.0):
+    def stop(self, timeout: float = 5.0) -> None:
         """Stop serving, close the pty and remove the link."""
         self._stop.set()
         if self._thread is not None:

@@ -8,7 +8,18 @@ nothing and never touch a device.
 
 from collections import Counter, deque
 
-from motor_id.card.protocol import CARD_TYPES, CRC, crc, HEADER, HOST_TYPES, OVERHEAD, Reply, SYNC
+from motor_id.card.protocol import (
+    CARD_TYPES,
+    Command,
+    CRC,
+    crc,
+    HEADER,
+    HOST_TYPES,
+    OVERHEAD,
+    Reply,
+    Sample,
+    SYNC,
+)
 from motor_id.errors import ProtocolError
 
 
@@ -117,9 +128,9 @@ class FrameParser(_StreamSplitter):
     first byte (its length byte may be wrong) and scanning resumes.
     """
 
-    def __init__(self, max_replies=64):
+    def __init__(self, max_replies: int = 64) -> None:
         super().__init__(CARD_TYPES)
-        self.replies = deque(maxlen=max_replies)
+        self.replies: deque[Reply] = deque(maxlen=max_replies)
 
     def _route(self, items):
         out = []
@@ -130,7 +141,7 @@ class FrameParser(_StreamSplitter):
                 out.append(item)
         return out
 
-    def feed(self, data):
+    def feed(self, data: bytes) -> list[Sample | ProtocolError]:
         """Add received bytes; return the new items in stream order.
 
         Parameters
@@ -144,7 +155,7 @@ class FrameParser(_StreamSplitter):
         """
         return self._route(self._items(bytes(data)))
 
-    def flush(self):
+    def flush(self) -> list[Sample | ProtocolError]:
         """End of stream: report what is still buffered (``bad_crc`` or ``short``)."""
         return self._route(self._items(b'', final=True))
 
@@ -152,13 +163,13 @@ class FrameParser(_StreamSplitter):
 class CommandParser(_StreamSplitter):
     """Split the host -> card byte stream into commands and errors (the card's side)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         super().__init__(HOST_TYPES)
 
-    def feed(self, data):
+    def feed(self, data: bytes) -> list[Command | ProtocolError]:
         """Add received bytes; return a list of commands and ProtocolError items."""
         return self._items(bytes(data))
 
-    def flush(self):
+    def flush(self) -> list[Command | ProtocolError]:
         """End of stream: report what is still buffered."""
         return self._items(b'', final=True)

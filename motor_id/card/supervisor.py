@@ -15,13 +15,15 @@ driver passes :meth:`motor_id.card.link.CardLink.send`).
 :class:`motor_id.card.session.Session` puts it to work with the profiles.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 import math
 import time
+from typing import Any
 
 import numpy as np
 
-from motor_id.card.protocol import SetVoltage, Stop
+from motor_id.card.protocol import Command, Sample, SetVoltage, Stop
 from motor_id.contracts import FLAG_LIMIT
 from motor_id.errors import ConfigError, MotorIdError
 
@@ -61,18 +63,18 @@ class Limits:
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f'{name} must be finite and >= 0 (0: off), got {value}')
 
-    def clamp(self, voltage):
+    def clamp(self, voltage: float) -> float:
         """``voltage`` [V] limited to +-:attr:`max_voltage`."""
         return min(max(float(voltage), -self.max_voltage), self.max_voltage)
 
-    def check_profile(self, name, amplitude):
+    def check_profile(self, name: str, amplitude: float) -> None:
         """Raise :class:`ConfigError` when a profile's amplitude exceeds :attr:`max_voltage`."""
         if abs(amplitude) > self.max_voltage:
             raise ConfigError(f'profile {name} with amplitude {amplitude:g} V exceeds '
                               f'max_voltage {self.max_voltage:g} V; lower the amplitude or '
                               'raise max_voltage')
 
-    def exceeded(self, sample):
+    def exceeded(self, sample: Sample) -> tuple[str, float, float] | None:
         """The first limit ``sample`` exceeds, as ``(name, value, limit)``, or None.
 
         ``name`` is ``'voltage'``, ``'speed'`` or ``'current'``. The voltage check
@@ -107,7 +109,7 @@ class Trip:
     threshold: float
     seq: int
 
-    def describe(self):
+    def describe(self) -> str:
         """One line for people."""
         unit = {'voltage': 'V', 'speed': 'rad/s', 'current': 'A'}[self.limit]
         return (f'{self.limit} limit: |{self.value:.4g}| {unit} > {self.threshold:g} {unit} '
@@ -142,19 +144,20 @@ class Supervisor:
     send_failures : int
     """
 
-    def __init__(self, limits, send, clock=time.monotonic):
+    def __init__(self, limits: Limits, send: Callable[[Command], None],
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.limits = limits
         self._send = send
         self._clock = clock
-        self.trip = None
+        self.trip: Trip | None = None
         self.trips = 0
         self.watchdog_holding = False
         self.watchdog_trips = 0
         self.clamped = self.refused = self.send_failures = 0
-        self._last_command = None
+        self._last_command: float | None = None
 
     @property
-    def holding_zero(self):
+    def holding_zero(self) -> bool:
         """True while a limit or the watchdog forces the output to 0 V."""
         return self.trip is not None or self.watchdog_holding
 
@@ -166,7 +169,7 @@ class Supervisor:
             return False
         return True
 
-    def on_sample(self, sample):
+    def on_sample(self, sample: Sample) -> tuple[Sample, Trip | None]:
         """Check one sample; trip on a limit; return it, flagged while 0 V is forced.
 
         Returns
@@ -186,7 +189,7 @@ class Supervisor:
             sample = replace(sample, flags=sample.flags | FLAG_LIMIT)
         return sample, new
 
-    def command(self, voltage):
+    def command(self, voltage: float) -> float | None:
         """Pass an external voltage command through the limits.
 
         Returns
@@ -205,7 +208,7 @@ class Supervisor:
         self.clamped += out != voltage
         return out
 
-    def check_watchdog(self):
+    def check_watchdog(self) -> bool:
         """Hold 0 V if external commands stopped; return True when it fires now."""
         timeout = self.limits.command_timeout
         if not timeout or self._last_command is None or self.watchdog_holding:
@@ -217,13 +220,13 @@ class Supervisor:
         self._try_send(SetVoltage(0.0))
         return True
 
-    def reset(self):
+    def reset(self) -> None:
         """Clear a latched trip and the watchdog (the user restarts on purpose)."""
         self.trip = None
         self.watchdog_holding = False
         self._last_command = None
 
-    def values(self):
+    def values(self) -> dict[str, Any]:
         """Diagnostic key/values."""
         trip = self.trip
         return {'limit_state': 'tripped' if trip else ('watchdog' if self.watchdog_holding

@@ -9,7 +9,8 @@ class TransportError(MotorIdError):
     """The card's device cannot be opened, read or written (absent, vanished, busy)."""
 
 
-def open_transport(url, baudrate=115200, timeout=0.1):
+def open_transport(url: str, baudrate: int = 115200,
+                   timeout: float | None = 0.1) -> serial.SerialBase:
     """Open a card connection with :func:`serial.serial_for_url`.
 
     Parameters
@@ -47,7 +48,7 @@ def open_transport(url, baudrate=115200, timeout=0.1):
         raise TransportError(f'cannot open {url}: {exc}') from exc
 
 
-def read_available(port, max_bytes=4096):
+def read_available(port: serial.SerialBase, max_bytes: int = 4096) -> bytes:
     """Read what the port has (waiting at most its timeout for the first byte).
 
     Parameters
@@ -72,7 +73,7 @@ def read_available(port, max_bytes=4096):
         raise TransportError(f'read from {port.name or port.port} failed: {exc}') from exc
 
 
-def write_all(port, data):
+def write_all(port: serial.SerialBase, data: bytes) -> None:
     """Write ``data`` and wait until it is sent; :class:`TransportError` on failure."""
     try:
         port.write(data)

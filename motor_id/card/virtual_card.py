@@ -24,11 +24,13 @@ load speed) restart there too (documented approximation; 200000 samples by defau
 """
 
 import math
+from typing import Any
 
 import numpy as np
 
 from motor_id.card.profile import MAX_PROFILE_SAMPLES, profile_length, profile_samples
 from motor_id.card.protocol import (
+    Command,
     FLAG_PROFILE,
     FLAG_PROFILE_END,
     FLAG_STARTUP,
@@ -94,9 +96,11 @@ class VirtualCard:
     sample's sequence number. The card starts at rest holding 0 V.
     """
 
-    def __init__(self, plant=None, period=0.01, with_current=True, speed_noise=0.0,
-                 current_noise=0.0, method='zoh', max_input=100.0, horizon=1024,
-                 max_history=200_000, profiles=True, random_state=None):
+    def __init__(self, plant: Plant | None = None, period: float = 0.01,
+                 with_current: bool = True, speed_noise: float = 0.0,
+                 current_noise: float = 0.0, method: str = 'zoh', max_input: float = 100.0,
+                 horizon: int = 1024, max_history: int = 200_000, profiles: bool = True,
+                 random_state: int | np.random.Generator | None = None) -> None:
         self.plant = Plant() if plant is None else plant
         if not isinstance(self.plant, Plant):
             raise ConfigError(f'plant must be a motor_id.model.Plant, got {plant!r}')
@@ -136,16 +140,16 @@ class VirtualCard:
         self._replan()
 
     @property
-    def period(self):
+    def period(self) -> float:
         """Current sample period [s]."""
         return self.period_us / 1e6
 
     @property
-    def profile_running(self):
+    def profile_running(self) -> bool:
         """True while the next sample belongs to an excitation profile."""
         return self._profile is not None and self.seq < self._profile[1] + self._profile[0].size
 
-    def truth(self):
+    def truth(self) -> dict[str, Any]:
         """JSON-ready description of the simulated card: plant, noise, settings."""
         return {**self.plant.to_dict(), 'method': self.method,
                 'period': self.period, 'with_current': self.with_current,
@@ -192,7 +196,7 @@ class VirtualCard:
 
     # -- stream ---------------------------------------------------------------------------
 
-    def step(self):
+    def step(self) -> Sample:
         """Produce the next sample and advance the card by one period.
 
         Returns
@@ -219,11 +223,11 @@ class VirtualCard:
         self.t_us = int(self._plan_t[k]) + self.period_us
         return sample
 
-    def samples(self, n):
+    def samples(self, n: int) -> list[Sample]:
         """The next ``n`` samples as a list."""
         return [self.step() for _ in range(int(n))]
 
-    def handle(self, command):
+    def handle(self, command: Command) -> Reply:
         """Execute one command from the next sample on.
 
         Parameters
