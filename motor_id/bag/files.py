@@ -1,6 +1,8 @@
 """Finding a bag's .mcap file and checking that it is one, with one-line errors."""
 
+import os
 from pathlib import Path
+from typing import BinaryIO
 
 from motor_id.errors import BagError
 
@@ -8,7 +10,7 @@ MAGIC = b'\x89MCAP0\r\n'
 """The 8 bytes an MCAP file starts (and, when complete, ends) with (MCAP specification)."""
 
 
-def resolve(path):
+def resolve(path: str | os.PathLike[str]) -> Path:
     """The ``.mcap`` file of ``path``: the file itself, or the one file of a rosbag2 folder.
 
     Raises
@@ -26,7 +28,7 @@ def resolve(path):
     return p
 
 
-def is_single_mcap(path):
+def is_single_mcap(path: str | os.PathLike[str]) -> bool:
     """True for one MCAP file, or a folder holding exactly one (this project's bags)."""
     p = Path(path)
     if p.is_file():
@@ -34,7 +36,7 @@ def is_single_mcap(path):
     return p.is_dir() and len(list(p.glob('*.mcap'))) == 1 and not list(p.glob('*.db3'))
 
 
-def open_mcap(path):
+def open_mcap(path: str | os.PathLike[str]) -> tuple[BinaryIO, int]:
     """Open an MCAP file for reading, positioned at its start.
 
     Parameters

@@ -1,10 +1,13 @@
 """What is in an MCAP file: topics, types, counts, time span, integrity (damaged files too)."""
 
+import os
+from typing import Any
+
 from motor_id.bag.profile import METADATA_RECORD, read_ros_distro
 from motor_id.bag.scan import scan_file
 
 
-def bag_info(path):
+def bag_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Summary of an MCAP file: topics, types, counts, time span, integrity.
 
     Built on the tolerant scan, so it works on truncated or damaged files too (then

@@ -6,6 +6,9 @@ metadata record ``rosbag2`` whose ``serialized_metadata`` is the bag's ``metadat
 (version 9). The QoS depths are the ones the nodes offer (:mod:`motor_id.contracts`).
 """
 
+from collections.abc import Iterable, Mapping
+from typing import Any
+
 import yaml
 
 from motor_id.bag.schemas import MESSAGE_ENCODING, topic_name, type_hash
@@ -24,7 +27,8 @@ ROSBAG2_METADATA_VERSION = 9
 METADATA_RECORD = 'rosbag2'
 
 
-def qos_profile(reliability='reliable', durability='volatile', depth=10):
+def qos_profile(reliability: str = 'reliable', durability: str = 'volatile',
+                depth: int = 10) -> dict[str, Any]:
     """An offered QoS profile in the form rosbag2 (metadata version 9) stores.
 
     Parameters
@@ -51,7 +55,7 @@ def qos_profile(reliability='reliable', durability='volatile', depth=10):
             'avoid_ros_namespace_conventions': False}
 
 
-def default_qos(topic):
+def default_qos(topic: str) -> dict[str, Any]:
     """The QoS the nodes offer a topic of the motor_id layout with (depths from contracts).
 
     ``/samples``: reliable, volatile, :data:`~motor_id.contracts.SAMPLES_DEPTH`;
@@ -67,7 +71,8 @@ def default_qos(topic):
     return qos_profile('reliable', 'volatile', CHANNEL_DEPTH)
 
 
-def rosbag2_metadata(file_name, topics, start_ns, end_ns):
+def rosbag2_metadata(file_name: str, topics: Iterable[Any], start_ns: int | None,
+                     end_ns: int | None) -> str:
     """The ``metadata.yaml`` text of a one-file Jazzy bag (version 9), as rosbag2 writes it.
 
     Parameters
@@ -114,12 +119,12 @@ def _yaml(value):
     return yaml.safe_dump(value, default_flow_style=False, sort_keys=False)
 
 
-def channel_metadata(msgtype, qos):
+def channel_metadata(msgtype: str, qos: dict[str, Any]) -> dict[str, str]:
     """MCAP channel metadata of a topic as rosbag2 writes it (QoS YAML, type hash)."""
     return {'offered_qos_profiles': _yaml([qos]), 'topic_type_hash': type_hash(msgtype)}
 
 
-def offered_qos(metadata):
+def offered_qos(metadata: Mapping[str, str]) -> list[dict[str, Any]]:
     """The QoS profiles (list of dicts) of an MCAP channel's metadata ([] if none/unreadable)."""
     try:
         profiles = yaml.safe_load(metadata.get('offered_qos_profiles') or '[]')
@@ -128,7 +133,7 @@ def offered_qos(metadata):
     return profiles if isinstance(profiles, list) else []
 
 
-def read_ros_distro(serialized_metadata):
+def read_ros_distro(serialized_metadata: str) -> str:
     """``ros_distro`` of a ``serialized_metadata`` text ('' when absent or unreadable)."""
     try:
         info = yaml.safe_load(serialized_metadata or '')

@@ -11,10 +11,13 @@ and :func:`samples_recording`.
 
 from dataclasses import dataclass, field
 import json
+import os
+from typing import Any
 
 from mcap.records import Channel, DataEnd, Message, Schema
 from mcap.stream_reader import StreamReader
 import numpy as np
+from numpy.typing import NDArray
 
 from motor_id.bag.anyreader import open_reader, reading, topic_table
 from motor_id.bag.files import is_single_mcap, open_mcap
@@ -146,7 +149,7 @@ def _samples(contents, topic=BAG_SAMPLES_TOPIC):
     return sorted_samples(np.concatenate(blocks), np.concatenate(log_times))
 
 
-def sorted_samples(rows, log_ns):
+def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict[str, Any]:
     """Sample rows in sequence order, repeats dropped, gaps listed (never filled).
 
     The one rule for every storage the rows come from (this reader's MCAP, or any rosbag2
@@ -195,7 +198,7 @@ def _meta(contents):
     return meta
 
 
-def read_samples(path, topic=BAG_SAMPLES_TOPIC):
+def read_samples(path: str | os.PathLike[str], topic: str = BAG_SAMPLES_TOPIC) -> dict[str, Any]:
     """All rows of the ``/samples`` topic, sorted by sequence number.
 
     Parameters
@@ -221,12 +224,12 @@ def read_samples(path, topic=BAG_SAMPLES_TOPIC):
     return _samples(_read(path), topic)
 
 
-def read_meta(path):
+def read_meta(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The merged JSON objects of ``/motor_id/meta`` ({} when the bag has none)."""
     return _meta(_read(path))
 
 
-def read_recording(path):
+def read_recording(path: str | os.PathLike[str]) -> Recording:
     """Rebuild a :class:`~motor_id.recording.Recording` from a bag's ``/samples`` topic.
 
     Rows are sorted by ``seq``; gaps in ``seq`` are kept as they are (time simply jumps)
@@ -244,7 +247,8 @@ def read_recording(path):
                              contents.note)
 
 
-def samples_recording(samples, meta, path, note=None):
+def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str | os.PathLike[str],
+                      note: str | None = None) -> Recording:
     """A :class:`Recording` from :func:`sorted_samples` output and ``/motor_id/meta``.
 
     ``input_kind`` comes from the metadata; gaps, repeated and flagged rows are noted in
@@ -266,10 +270,12 @@ def samples_recording(samples, meta, path, note=None):
         meta['flagged_rows'] = nonzero
     if note:
         meta['bag_note'] = note
-    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)
+    # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
+    return Recording(samples['t'], samples['voltage'], samples['speed'],
+                     current, kind, meta)  # type: ignore[arg-type]
 
 
-def read_any_recording(path):
+def read_any_recording(path: str | os.PathLike[str]) -> Recording:
     """The ``/samples`` recording of any rosbag2 storage.
 
     One MCAP file (or a folder holding one): :func:`read_recording`; a ``.db3`` file or a

@@ -1,6 +1,8 @@
 """Salvaging a truncated or damaged MCAP file (e.g. its writer was killed) into a clean one."""
 
+import os
 from pathlib import Path
+from typing import Any
 
 from motor_id.bag.files import resolve
 from motor_id.bag.scan import scan_file
@@ -8,7 +10,8 @@ from motor_id.bag.writer import BagWriter, DEFAULT_CHUNK_SIZE
 from motor_id.errors import BagError
 
 
-def recover(path, out_path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd'):
+def recover(path: str | os.PathLike[str], out_path: str | os.PathLike[str],
+            chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = 'zstd') -> dict[str, Any]:
     """Copy every message that survives in a damaged MCAP file to a clean file.
 
     The tolerant scan (:func:`motor_id.bag.scan.scan_file`; no summary or footer
@@ -46,7 +49,7 @@ def recover(path, out_path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd'):
     scan = scan_file(path)
     if not scan.messages:
         raise BagError(f'{scan.path}: nothing to recover ({scan.problem() or "no messages"})')
-    counts = {}
+    counts: dict[str, int] = {}
     orphans = 0
     with BagWriter(out_path, chunk_size=chunk_size, compression=compression,
                    flush_interval=None) as bag:

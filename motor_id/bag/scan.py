@@ -9,6 +9,7 @@ a damaged record and to resume after a damaged one.
 """
 
 from dataclasses import dataclass, field
+import os
 import struct
 
 from mcap.exceptions import McapError
@@ -59,16 +60,16 @@ class Scan:
     stop_reason: str = ''
 
     @property
-    def data_complete(self):
+    def data_complete(self) -> bool:
         """True when every message the writer wrote is here."""
         return self.data_end and not self.bad_chunks and not self.bad_records
 
     @property
-    def complete(self):
+    def complete(self) -> bool:
         """True when the file is whole: all data, summary, footer and closing magic."""
         return self.data_complete and self.footer and self.end_magic
 
-    def problem(self):
+    def problem(self) -> str:
         """One line on what is wrong, or '' when the file is whole."""
         parts = []
         if not self.data_end:
@@ -87,16 +88,16 @@ class Scan:
             parts.append('closing magic missing')
         return '; '.join(parts)
 
-    def topic_counts(self):
+    def topic_counts(self) -> dict[str, int]:
         """Messages per topic (``<channel N>`` for a message whose channel was lost)."""
-        counts = {}
+        counts: dict[str, int] = {}
         for msg in self.messages:
             ch = self.channels.get(msg.channel_id)
             name = ch.topic if ch else f'<channel {msg.channel_id}>'
             counts[name] = counts.get(name, 0) + 1
         return counts
 
-    def recover_hint(self):
+    def recover_hint(self) -> str:
         """How much :func:`motor_id.bag.recover` would salvage, and the command."""
         counts = self.topic_counts()
         return (f'{sum(counts.values())} message(s) ({counts.get(BAG_SAMPLES_TOPIC, 0)} on '
@@ -104,7 +105,7 @@ class Scan:
                 'OUT.mcap')
 
 
-def scan_file(path):
+def scan_file(path: str | os.PathLike[str]) -> Scan:
     """Read every complete record of an MCAP file, tolerating a cut end and bad chunks.
 
     Parameters

@@ -2,6 +2,7 @@
 
 import functools
 import struct
+from typing import Any
 
 import numpy as np
 from rosbags.interfaces import Nodetype
@@ -28,7 +29,7 @@ _DTYPES = {'bool': np.bool_, 'byte': np.uint8, 'char': np.uint8, 'int8': np.int8
 
 
 @functools.cache
-def typestore():
+def typestore() -> Any:
     """The rosbags type store of ROS 2 Jazzy (built once, on first use)."""
     return get_typestore(Stores.ROS2_JAZZY)
 
@@ -40,7 +41,7 @@ def _known(msgtype):
     return msgtype
 
 
-def message_definition(msgtype):
+def message_definition(msgtype: str) -> str:
     """The complete ``ros2msg`` definition of a message type, as a bag's schema stores it.
 
     The type's own fields come first; every type it uses follows after a line of 80
@@ -60,12 +61,12 @@ def message_definition(msgtype):
     return text
 
 
-def type_hash(msgtype):
+def type_hash(msgtype: str) -> str:
     """The ROS 2 type description hash (``RIHS01_...``) of a Jazzy message type."""
     return typestore().hash_rihs01(_known(msgtype))
 
 
-def build(msgtype, fields):
+def build(msgtype: str, fields: Any) -> Any:
     """A message object of the type store from a dict shaped like the ROS message.
 
     Parameters
@@ -108,7 +109,7 @@ def _field_value(desc, value):
     return list(items)
 
 
-def serialize(msgtype, fields):
+def serialize(msgtype: str, fields: Any) -> bytes:
     """CDR bytes (little endian) of a message given as a dict or a message object.
 
     Raises
@@ -124,7 +125,7 @@ def serialize(msgtype, fields):
         raise BagError(f'cannot serialise a {msgtype}: {exc}') from exc
 
 
-def deserialize(data, msgtype):
+def deserialize(data: bytes, msgtype: str) -> Any:
     """The message object of CDR bytes (raises SerdeError, ValueError on bad bytes)."""
     return typestore().deserialize_cdr(data, _known(msgtype))
 
@@ -134,7 +135,7 @@ DECODE_ERRORS = (SerdeError, ValueError, TypeError, AttributeError, IndexError,
 """What decoding damaged CDR bytes with :func:`deserialize` raises."""
 
 
-def topic_name(topic):
+def topic_name(topic: str) -> str:
     """An absolute topic name (a relative one gets a leading ``/``)."""
     topic = str(topic)
     if not topic or topic == '/':

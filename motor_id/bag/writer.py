@@ -9,16 +9,19 @@ and no footer; :func:`motor_id.bag.recover` salvages every complete chunk into a
 file. (A power cut can lose more: the writer does not fsync.)
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 import json
 import os
 import threading
 import time
+from typing import Any, cast, IO
 
 from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id import __version__
 from motor_id.bag.profile import channel_metadata, default_qos, METADATA_RECORD, rosbag2_metadata
@@ -43,6 +46,7 @@ from motor_id.contracts import (
     SAMPLES_LABEL,
 )
 from motor_id.errors import BagError, ConfigError
+from motor_id.recording import Recording
 from motor_id.report import to_jsonable
 
 DEFAULT_CHUNK_SIZE = 64 * 1024
@@ -118,8 +122,9 @@ class BagWriter:
     The methods are thread-safe (one lock); writing after :meth:`close` raises BagError.
     """
 
-    def __init__(self, path, chunk_size=DEFAULT_CHUNK_SIZE, compression='zstd',
-                 flush_interval=DEFAULT_FLUSH_INTERVAL, clock=time.monotonic):
+    def __init__(self, path: str | os.PathLike[str], chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 compression: str = 'zstd', flush_interval: float | None = DEFAULT_FLUSH_INTERVAL,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         if compression not in COMPRESSIONS:
             raise ConfigError(f'compression must be one of {tuple(COMPRESSIONS)}, '
                               f'got {compression!r}')
@@ -136,29 +141,30 @@ class BagWriter:
             self._file = _DirectFile(self.path)
         except OSError as exc:
             raise BagError(f'{self.path}: cannot create ({exc.strerror})') from exc
-        self._writer = McapWriter(self._file, chunk_size=self.chunk_size,
+        self._writer = McapWriter(cast(IO[Any], self._file), chunk_size=self.chunk_size,
                                   compression=COMPRESSIONS[compression])
         self._writer.start(profile='ros2', library=library_string())
-        self._schemas = {}
-        self._topics = {}
+        self._schemas: dict[tuple[str, str, bytes], int] = {}
+        self._topics: dict[str, _Topic] = {}
         self._start_ns = None
         self._end_ns = None
         self._last_flush = clock()
         self._closed = False
         self._lock = threading.RLock()
 
-    def __enter__(self):
+    def __enter__(self) -> 'BagWriter':
         return self
 
-    def __exit__(self, exc_type, exc, tb):
+    def __exit__(self, *exc_info: object) -> None:
         self.close()
 
     @property
-    def message_count(self):
+    def message_count(self) -> int:
         """Messages written so far."""
         return sum(t.count for t in self._topics.values())
 
-    def add_topic(self, topic, msgtype, qos=None):
+    def add_topic(self, topic: str, msgtype: str,
+                  qos: dict[str, Any] | None = None) -> '_Topic':
         """Declare a topic (done implicitly by the first write with the default QoS).
 
         Parameters
@@ -194,7 +200,8 @@ class BagWriter:
             self._schemas[key] = self._writer.register_schema(name, encoding, data)
         return self._schemas[key]
 
-    def write(self, topic, msgtype, msg, log_time_ns, publish_time_ns=None, sequence=0):
+    def write(self, topic: str, msgtype: str, msg: Any, log_time_ns: int,
+              publish_time_ns: int | None = None, sequence: int = 0) -> None:
         """Serialise one message to CDR and write it.
 
         Parameters
@@ -231,15 +238,16 @@ class BagWriter:
             if self._clock() - self._last_flush >= self.flush_interval:
                 self.flush()
 
-    def flush(self):
+    def flush(self) -> None:
         """Write the chunk in progress now (a SIGKILL after this loses nothing so far)."""
         with self._lock:
             self._check_open()
             self._writer.flush()
             self._last_flush = self._clock()
 
-    def write_samples(self, rows, log_time_ns, publish_time_ns=None, sequence=0,
-                      topic=BAG_SAMPLES_TOPIC):
+    def write_samples(self, rows: ArrayLike, log_time_ns: int,
+                      publish_time_ns: int | None = None, sequence: int = 0,
+                      topic: str = BAG_SAMPLES_TOPIC) -> None:
         """Write a batch of sample rows on ``/samples`` (layout: :mod:`motor_id.contracts`).
 
         Parameters
@@ -264,7 +272,7 @@ class BagWriter:
                'data': arr.ravel()}
         self.write(topic, FLOAT64_MULTI_ARRAY, msg, log_time_ns, publish_time_ns, sequence)
 
-    def write_meta(self, meta, log_time_ns=0):
+    def write_meta(self, meta: dict[str, Any], log_time_ns: int = 0) -> None:
         """Write the recording's metadata as JSON on ``/motor_id/meta`` (latched).
 
         Parameters
@@ -279,8 +287,9 @@ class BagWriter:
             raise ConfigError(f'bag metadata is not JSON-serialisable: {exc}') from exc
         self.write(BAG_META_TOPIC, STRING, {'data': text}, log_time_ns)
 
-    def write_estimate(self, values, log_time_ns, name='motor_id identifier', message='',
-                       level=0, hardware_id='', topic=BAG_ESTIMATE_TOPIC):
+    def write_estimate(self, values: dict[str, Any], log_time_ns: int,
+                       name: str = 'motor_id identifier', message: str = '', level: int = 0,
+                       hardware_id: str = '', topic: str = BAG_ESTIMATE_TOPIC) -> None:
         """Write a DiagnosticArray with one status holding ``values`` as key/value strings.
 
         Parameters
@@ -302,15 +311,16 @@ class BagWriter:
                            'hardware_id': hardware_id, 'values': kv}]}
         self.write(topic, DIAGNOSTIC_ARRAY, msg, log_time_ns)
 
-    def write_channel(self, name, value, log_time_ns):
+    def write_channel(self, name: str, value: float, log_time_ns: int) -> None:
         """Write one value on a per-channel ``std_msgs/Float64`` topic (voltage, speed,
         current)."""
         if name not in CHANNEL_TOPICS:
             raise ConfigError(f'channel must be one of {CHANNEL_TOPICS}, got {name!r}')
         self.write('/' + name, FLOAT64, {'data': float(value)}, log_time_ns)
 
-    def write_raw(self, topic, schema, message_encoding, data, log_time_ns,
-                  publish_time_ns=None, sequence=0, channel_metadata=None):
+    def write_raw(self, topic: str, schema: Any, message_encoding: str, data: bytes,
+                  log_time_ns: int, publish_time_ns: int | None = None, sequence: int = 0,
+                  channel_metadata: dict[str, str] | None = None) -> None:
         """Copy an already serialised message (used by :func:`motor_id.bag.recover`).
 
         Parameters
@@ -340,7 +350,7 @@ class BagWriter:
         if self._closed:
             raise BagError(f'{self.path}: bag writer is closed')
 
-    def close(self):
+    def close(self) -> None:
         """Write the rosbag2 metadata record, the summary (statistics, indexes), the footer."""
         with self._lock:
             if self._closed:
@@ -363,7 +373,7 @@ def _kv_text(value):
     return str(value)
 
 
-def library_string():
+def library_string() -> str:
     """The MCAP header's library field: who wrote the file."""
     return (f'motor_id {__version__}; mcap-python {_version("mcap")}; '
             f'rosbags {_version("rosbags")}')
@@ -376,13 +386,15 @@ def _version(dist):
         return 'unknown'
 
 
-def default_units(input_kind):
+def default_units(input_kind: str) -> dict[str, str]:
     """Units of the sample columns for a plant kind (rotary motor)."""
     return {'t': 's', 'voltage': 'V' if input_kind == 'voltage' else 'N m',
             'speed': 'rad/s', 'current': 'A', 'flags': '1'}
 
 
-def write_recording(rec, path, meta=None, batch=50, start_ns=0, channels=False, **writer_kw):
+def write_recording(rec: Recording, path: str | os.PathLike[str],
+                    meta: dict[str, Any] | None = None, batch: int = 50, start_ns: int = 0,
+                    channels: bool = False, **writer_kw: Any) -> dict[str, Any]:
     """Write a :class:`~motor_id.recording.Recording` to an MCAP bag.
 
     Parameters
