@@ -3,6 +3,7 @@
 import collections
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from motor_id.contracts import SAMPLE_COLUMNS
 from motor_id.errors import ConfigError
@@ -19,7 +20,8 @@ def _check_rule(align):
         raise ConfigError(f'align must be one of {", ".join(ALIGN_RULES)}, got {align!r}')
 
 
-def held_command_index(t_meas, t_cmd, align='hold'):
+def held_command_index(t_meas: ArrayLike, t_cmd: ArrayLike,
+                       align: str = 'hold') -> NDArray[np.intp]:
     """Index of the command each measurement takes (-1: no command yet).
 
     Parameters
@@ -62,24 +64,25 @@ class StreamAligner:
         Longest expected delay of a command message [s].
     """
 
-    def __init__(self, align='hold', max_delay_s=0.2):
+    def __init__(self, align: str = 'hold', max_delay_s: float = 0.2) -> None:
         _check_rule(align)
         self.align = align
         self.max_delay_s = float(max_delay_s)
-        self._cmd = collections.deque()      # (time, value), time non-decreasing
-        self._meas = collections.deque()     # (time, speed, current)
+        # (time, value), time non-decreasing; (time, speed, current)
+        self._cmd: collections.deque[tuple[float, float]] = collections.deque()
+        self._meas: collections.deque[tuple[float, float, float]] = collections.deque()
         self.seq = 0
         self.dropped_no_command = 0
         self.dropped_out_of_order = 0
         self._last_meas_t = -np.inf
 
-    def add_command(self, t, value):
+    def add_command(self, t: float, value: float) -> None:
         """A command ``value`` that took effect at time ``t`` [s]."""
         if self._cmd and t < self._cmd[-1][0]:
             t = self._cmd[-1][0]   # keep the held value well defined
         self._cmd.append((float(t), float(value)))
 
-    def add_measurement(self, t, speed, current=np.nan):
+    def add_measurement(self, t: float, speed: float, current: float = np.nan) -> None:
         """A measurement at time ``t`` [s]: speed [rad/s], current [A] or the torque."""
         if t <= self._last_meas_t:
             self.dropped_out_of_order += 1
@@ -104,7 +107,7 @@ class StreamAligner:
                 break
         return value
 
-    def ready_rows(self, now):
+    def ready_rows(self, now: float) -> NDArray[np.float64]:
         """Release the rows that can be aligned at time ``now`` [s].
 
         Returns

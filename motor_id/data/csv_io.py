@@ -2,6 +2,8 @@
 
 import csv
 import itertools
+import os
+from typing import Any
 
 import numpy as np
 
@@ -15,7 +17,7 @@ INPUT_NAMES = {'voltage': 'voltage', 'torque': 'torque', 'force': 'torque'}
 INPUT_KINDS = ('voltage', 'torque')
 
 
-def parse_columns(text):
+def parse_columns(text: str | dict[str, str] | None) -> dict[str, str]:
     """Parse a column mapping ``time=t,input=u_cmd,speed=omega,current=i_a``.
 
     Parameters
@@ -50,7 +52,9 @@ def parse_columns(text):
     return out
 
 
-def read_csv(path, min_samples=MIN_SAMPLES, columns=None, input_kind=None):
+def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
+             columns: str | dict[str, str] | None = None,
+             input_kind: str | None = None) -> Recording:
     """Read a recording from CSV with a header naming its columns.
 
     Columns ``time`` [s], the input and ``speed`` [rad/s] are required, ``current`` [A]
@@ -246,7 +250,8 @@ def _parse_body(path, linenos, lines, names, cols):
     return data
 
 
-def write_csv(rec, path, comments=None):
+def write_csv(rec: Recording, path: str | os.PathLike[str],
+              comments: dict[str, Any] | None = None) -> None:
     """Write a recording as CSV (``time,voltage|torque,speed[,current]``) with comments.
 
     Parameters

@@ -1,10 +1,19 @@
 """Load a recording from any file the tools accept, chosen by what the path is."""
 
+import os
+from typing import TYPE_CHECKING
+
 from motor_id.data.csv_io import read_csv
 from motor_id.errors import ConfigError
+from motor_id.recording import Recording
+
+if TYPE_CHECKING:  # the bag modules load only when a bag is read
+    from motor_id.data.mapping import Mapping
 
 
-def load_recording(path, columns=None, input_kind=None, mapping=None):
+def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] | None = None,
+                   input_kind: str | None = None,
+                   mapping: 'Mapping | None' = None) -> Recording:
     """Read a recording from a CSV file or a rosbag2 recording.
 
     Parameters

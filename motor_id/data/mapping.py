@@ -25,8 +25,11 @@ a bag's topics and builds the function that reads one channel from a message; th
 reading itself is :mod:`motor_id.data.rosbag`.
 """
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+import os
 import re
+from typing import Any
 
 import numpy as np
 
@@ -73,11 +76,11 @@ class Mapping:
     input_kind: str | None = None
 
     @property
-    def is_empty(self):
+    def is_empty(self) -> bool:
         """True when no channel is mapped (the bag's /samples topic is used)."""
         return not (self.input or self.speed or self.current or self.effort_is)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The settings that are set, for reports."""
         return {k: v for k, v in asdict(self).items() if v is not None}
 
@@ -91,12 +94,12 @@ class FieldSpec:
     text: str
 
     @property
-    def first(self):
+    def first(self) -> str | None:
         """Name of the first attribute of the path (None without a path)."""
         return self.path[0][0] if self.path else None
 
 
-def parse_field_spec(text, option='--input'):
+def parse_field_spec(text: str, option: str = '--input') -> FieldSpec:
     """Parse ``/topic``, ``/topic:field``, ``/topic:data[2]`` or ``/topic:a.b[0].c``.
 
     Raises
@@ -122,7 +125,7 @@ def parse_field_spec(text, option='--input'):
     return FieldSpec(topic, tuple(path), text)
 
 
-def load_profile(path):
+def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a YAML mapping profile (keys :data:`PROFILE_KEYS`).
 
     Returns
@@ -156,7 +159,8 @@ def load_profile(path):
     return data
 
 
-def resolve(mapping, topics, path=''):
+def resolve(mapping: Mapping, topics: dict[str, Any],
+            path: str | os.PathLike[str] = '') -> tuple[dict[str, FieldSpec], str, str | None]:
     """Field specs per role and the plant kind, by the rule of the module docstring.
 
     Parameters
@@ -266,7 +270,7 @@ def _plant_kind(m, specs, topics, input_effort, current_effort):
     return m.input_kind or 'voltage', 'current' if current_effort else effort_is
 
 
-def kind_note(kind, effort_is):
+def kind_note(kind: str, effort_is: str | None) -> str:
     """How the plant kind was decided, in words (for the recording's meta)."""
     if kind == 'torque' and effort_is == 'torque':
         return 'torque plant: the joint effort is the input torque'
@@ -284,7 +288,8 @@ def _typename(obj):
     return getattr(type(obj), '__msgtype__', type(obj).__name__)
 
 
-def field_getter(topic, msgtype, spec, role, joint, msg, path):
+def field_getter(topic: str, msgtype: str, spec: FieldSpec, role: str, joint: str | None,
+                 msg: Any, path: str | os.PathLike[str]) -> Callable[[Any], float]:
     """A function message -> float for one role, checked on the first message ``msg``.
 
     Raises

@@ -11,6 +11,7 @@ Times: the header stamp where the message has a (non-zero) header, else the rece
 interpolated linearly. Samples outside a stream's span are dropped at the ends.
 """
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -38,13 +39,13 @@ __all__ = ['is_rosbag', 'load_profile', 'Mapping', 'parse_field_spec', 'PROFILE_
            'read_bag']
 
 
-def is_rosbag(path):
+def is_rosbag(path: str | os.PathLike[str]) -> bool:
     """True for a path this module reads: a directory, an ``.mcap`` or a ``.db3`` file."""
     p = Path(path)
     return p.is_dir() or p.suffix in ('.mcap', '.db3')
 
 
-def read_bag(path, mapping=None):
+def read_bag(path: str | os.PathLike[str], mapping: Mapping | None = None) -> Recording:
     """Read a rosbag2 recording as a :class:`Recording` (not validated).
 
     Parameters

@@ -1,6 +1,7 @@
 """A time shift between input and output: detect it with quick ARX fits, apply a fix."""
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -8,7 +9,7 @@ from motor_id.errors import ConfigError, DataError
 from motor_id.recording import Recording
 
 
-def shift_input(rec, samples):
+def shift_input(rec: Recording, samples: int) -> Recording:
     """A recording whose input is advanced by ``samples`` (delayed when negative).
 
     ``out.input[k] = rec.input[k + samples]``; the samples without a partner are dropped.
@@ -59,7 +60,7 @@ class ShiftCheck:
     channel: str
     relative_rss: dict = field(default_factory=dict)
 
-    def message(self):
+    def message(self) -> str:
         """One line for people: what is shifted and how to fix it ('' when nothing)."""
         s = self.samples
         if s == 0:
@@ -73,14 +74,15 @@ class ShiftCheck:
         return (f'the {self.channel} responds {n} later than the model expects (a dead time '
                 f'or an input stamped early): re-run with --shift {s}')
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain values for JSON."""
         return {'samples': self.samples, 'seconds': self.seconds, 'channel': self.channel,
                 'relative_rss': {str(k): v for k, v in self.relative_rss.items()},
                 'message': self.message()}
 
 
-def detect_shift(rec, max_shift=3, min_gain=0.5, max_samples=200_000):
+def detect_shift(rec: Recording, max_shift: int = 3, min_gain: float = 0.5,
+                 max_samples: int = 200_000) -> ShiftCheck:
     """Find a time shift between the input and the output with quick linear ARX fits.
 
     For each shift ``s`` in ``-max_shift..max_shift`` a least-squares ARX model of the
@@ -127,7 +129,7 @@ def detect_shift(rec, max_shift=3, min_gain=0.5, max_samples=200_000):
     ones = np.ones(k.size)
     rss = {}
     for s in range(-max_shift, max_shift + 1):
-        if use_current:
+        if i is not None:
             X = np.column_stack([i[k], w[k], u[k + s], ones])
             y = i[k + 1]
         else:
@@ -137,7 +139,7 @@ def detect_shift(rec, max_shift=3, min_gain=0.5, max_samples=200_000):
         rss[s] = float(np.sum((y - X @ coef) ** 2))
     base = rss[0] if rss[0] > 0 else np.finfo(float).tiny
     rel = {s: r / base for s, r in rss.items()}
-    best = min(rel, key=rel.get)
+    best = min(rel, key=rel.__getitem__)
     if best != 0 and rel[best] >= 1.0 - min_gain:
         best = 0
     period = rec.sample_period
