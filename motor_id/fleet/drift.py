@@ -234,14 +234,14 @@ class DriftFinding:
 
     detected: bool
     n: int = 0
-    change: float = None
-    since: str = None
-    z: float = None
-    baseline: float = None
-    latest: float = None
+    change: float | None = None
+    since: str | None = None
+    z: float | None = None
+    baseline: float | None = None
+    latest: float | None = None
     change_points: list = field(default_factory=list)
     scores: list = field(default_factory=list)
-    reason: str = None
+    reason: str | None = None
 
     def to_dict(self):
         """JSON-ready (``scores`` left out)."""

@@ -14,7 +14,6 @@ import os
 
 from motor_id.errors import ConfigError
 
-
 WORKER_CONFIG = {'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None}
 """Dask's workers start with MALLOC_TRIM_THRESHOLD_=65536 by default, which also fixes
 glibc's mmap threshold: every large numpy array is then mapped and unmapped anew, and a

@@ -22,7 +22,7 @@ import hashlib
 import json
 import math
 
-from motor_id.data.rosbag import Mapping, PROFILE_KEYS
+from motor_id.data.mapping import Mapping, PROFILE_KEYS
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 
@@ -37,15 +37,15 @@ class MotorSpec:
     """One motor of the profile: where its channels are and what is known of it."""
 
     name: str
-    input: str = None
-    speed: str = None
-    current: str = None
-    joint: str = None
-    effort_is: str = None
+    input: str | None = None
+    speed: str | None = None
+    current: str | None = None
+    joint: str | None = None
+    effort_is: str | None = None
     align: str = 'hold'
-    input_kind: str = None
-    shift: int = None
-    resistance: float = None
+    input_kind: str | None = None
+    shift: int | None = None
+    resistance: float | None = None
     resistance_tolerance: float = 10.0
     fix: dict = field(default_factory=dict)
     bounds: dict = field(default_factory=dict)
@@ -65,7 +65,7 @@ class FitSettings:
     seed: int = 0
     population: int = 20
     generations: int = 160
-    tie: bool = None
+    tie: bool | None = None
 
 
 @dataclass(frozen=True)

@@ -111,7 +111,7 @@ def render(rows, failures, drift_rows, rule=None, title='motor_id fleet report')
            '<h2 id="glance">The fleet at a glance (worst first)</h2>',
            _glance_table(order, status, counts),
            '<h2 id="motors">Per motor: parameter histories</h2>',
-           '<p>Each point is one recording\'s estimate with its +-2 std error bar; the grey '
+           "<p>Each point is one recording's estimate with its +-2 std error bar; the grey "
            'line is the baseline level, the red line a detected change point and the level '
            'after it. Inadequate fits and undetermined parameters are left out.</p>']
     for key in order:
@@ -192,8 +192,8 @@ def _plot(param, hist, d, width=360, height=150):
     t = [_epoch(x[0]) for x in hist]
     v = [x[1] for x in hist]
     s = [x[2] or 0.0 for x in hist]
-    lo = min(a - 2 * b for a, b in zip(v, s))
-    hi = max(a + 2 * b for a, b in zip(v, s))
+    lo = min(a - 2 * b for a, b in zip(v, s, strict=True))
+    hi = max(a + 2 * b for a, b in zip(v, s, strict=True))
     for extra in (d or {}).get('baseline'), (d or {}).get('latest'):
         if extra is not None:
             lo, hi = min(lo, extra), max(hi, extra)
@@ -202,18 +202,18 @@ def _plot(param, hist, d, width=360, height=150):
     t0, t1 = min(t), max(t)
     span = (t1 - t0) or 1.0
 
-    def X(x):
+    def x_px(x):
         return ml + (x - t0) / span * (width - ml - mr)
 
-    def Y(y):
+    def y_px(y):
         return mt + (hi - y) / (hi - lo) * (height - mt - mb)
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+    parts = [f'<svg width="{width}" height="{height}" '
              f'viewBox="0 0 {width} {height}" role="img" data-parameter="{_e(param)}" '
              f'data-points="{len(v)}">']
     parts.append(f'<line x1="{ml}" y1="{height - mb}" x2="{width - mr}" y2="{height - mb}" '
                  'stroke="#999"/>')
     for y in (lo + pad, (lo + hi) / 2, hi - pad):
-        parts.append(f'<text x="{ml - 4}" y="{Y(y) + 4:.1f}" font-size="10" '
+        parts.append(f'<text x="{ml - 4}" y="{y_px(y) + 4:.1f}" font-size="10" '
                      f'text-anchor="end">{_g(y, ".4g")}</text>')
     parts.append(f'<text x="{ml}" y="{height - 6}" font-size="10">'
                  f'{_e(str(hist[0][0])[:10])}</text>')
@@ -221,21 +221,21 @@ def _plot(param, hist, d, width=360, height=150):
                  f'text-anchor="end">{_e(str(hist[-1][0])[:10])}</text>')
     cps = (d or {}).get('change_points') or []
     if d and d.get('baseline') is not None:
-        x_end = X(_epoch(cps[-1]['since'])) if cps else width - mr
-        parts.append(f'<line x1="{ml}" y1="{Y(d["baseline"]):.1f}" x2="{x_end:.1f}" '
-                     f'y2="{Y(d["baseline"]):.1f}" stroke="#888" stroke-dasharray="4 3"/>')
+        x_end = x_px(_epoch(cps[-1]['since'])) if cps else width - mr
+        parts.append(f'<line x1="{ml}" y1="{y_px(d["baseline"]):.1f}" x2="{x_end:.1f}" '
+                     f'y2="{y_px(d["baseline"]):.1f}" stroke="#888" stroke-dasharray="4 3"/>')
     for cp in cps:
-        xc = X(_epoch(cp['since']))
+        xc = x_px(_epoch(cp['since']))
         parts.append(f'<line class="change-point" x1="{xc:.1f}" y1="{mt}" x2="{xc:.1f}" '
                      f'y2="{height - mb}" stroke="#c62828" stroke-width="1.5"/>')
-        parts.append(f'<line x1="{xc:.1f}" y1="{Y(cp["after"]):.1f}" x2="{width - mr}" '
-                     f'y2="{Y(cp["after"]):.1f}" stroke="#c62828" stroke-dasharray="4 3"/>')
-    for a, b, x in zip(v, s, t):
-        xx = X(x)
+        parts.append(f'<line x1="{xc:.1f}" y1="{y_px(cp["after"]):.1f}" x2="{width - mr}" '
+                     f'y2="{y_px(cp["after"]):.1f}" stroke="#c62828" stroke-dasharray="4 3"/>')
+    for a, b, x in zip(v, s, t, strict=True):
+        xx = x_px(x)
         if b:
-            parts.append(f'<line x1="{xx:.1f}" y1="{Y(a - 2 * b):.1f}" x2="{xx:.1f}" '
-                         f'y2="{Y(a + 2 * b):.1f}" stroke="#1565c0"/>')
-        parts.append(f'<circle cx="{xx:.1f}" cy="{Y(a):.1f}" r="2.5" fill="#1565c0"/>')
+            parts.append(f'<line x1="{xx:.1f}" y1="{y_px(a - 2 * b):.1f}" x2="{xx:.1f}" '
+                         f'y2="{y_px(a + 2 * b):.1f}" stroke="#1565c0"/>')
+        parts.append(f'<circle cx="{xx:.1f}" cy="{y_px(a):.1f}" r="2.5" fill="#1565c0"/>')
     parts.append('</svg>')
     unit = UNITS.get(param, '')
     cap = f'{param} [{unit}]'

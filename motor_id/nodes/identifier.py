@@ -1,5 +1,6 @@
 """The identifier node: buffers `samples`, fits on request, publishes latched estimates."""
 
+import datetime as dt
 import sys
 import threading
 import time
@@ -17,11 +18,18 @@ from std_srvs.srv import Trigger
 from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
+from motor_id.fleet.live import drift_message, EstimateHistory
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
-from motor_id.nodes.common import (declare_parameters, InFlight, ParamSpec, run_node,
-                                   StopSignal, TopicWatch)
+from motor_id.nodes.common import (
+    declare_parameters,
+    InFlight,
+    ParamSpec,
+    run_node,
+    StopSignal,
+    TopicWatch,
+)
 from motor_id.nodes.topic_input import TopicInput
 
 FITTED = tuple(n for n in PARAM_NAMES if n != 'R_m')
@@ -84,8 +92,8 @@ PARAMETERS = (
               "the driver's device (empty: the node's namespace)"),
     ParamSpec('warm_up', True, 'run a tiny fit at start-up, before serving, so that the '
               'first ~/identify does not load the compiled kernels'),
-    ParamSpec('input', 'samples', 'where samples come from: samples (the driver\'s batch '
-              'topic) or topics (the robot\'s joint_states and input_topic)',
+    ParamSpec('input', 'samples', "where samples come from: samples (the driver's batch "
+              "topic) or topics (the robot's joint_states and input_topic)",
               choices=('samples', 'topics')),
     ParamSpec('joint_name', '', 'input topics: the JointState joint (empty: the only one)'),
     ParamSpec('input_topic', 'voltage_command', 'input topics: the plant input command '
@@ -100,6 +108,9 @@ PARAMETERS = (
     ParamSpec('align', 'hold', 'input topics: a sample takes the command in force at its '
               'time (hold) or the last one before the next sample (next)',
               choices=ALIGN_RULES),
+    ParamSpec('history_file', '', 'append every estimate to this JSON-lines file and test '
+              'the history for drift with the fleet rule after each fit; a drift turns '
+              '/diagnostics to WARN (empty: off)'),
 )
 
 OUTPUT_PREFIXES = ('estimate.', 'controller.')
@@ -170,6 +181,11 @@ class IdentifierNode(Node):
                                                 messages.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
+        self._history = None
+        self._drift = []
+        if self.settings['history_file']:
+            self._history = EstimateHistory(self.settings['history_file'],
+                                            robot=self.hardware_id, motor=self.get_name())
         self.create_timer(1.0, self._publish_diagnostics)
         self.add_on_set_parameters_callback(self._on_set)
         self.fit_node = Node(f'_{self.get_name()}_fit', namespace=self.get_namespace(),
@@ -254,7 +270,14 @@ class IdentifierNode(Node):
         if self.topic_input is not None:
             values.update(self.topic_input.counts())
         level = messages.OK if snap_rows else messages.WARN
-        st = messages.status('motor_id: identifier', level, self._last, values,
+        text = self._last
+        drifting = [d for d in self._drift if d['detected']]
+        if drifting:
+            level, text = messages.WARN, drift_message(drifting) + '; ' + text
+            for d in drifting:
+                values[f'drift.{d["parameter"]}.change'] = f'{d["change"]:.4f}'
+                values[f'drift.{d["parameter"]}.since'] = d['since']
+        st = messages.status('motor_id: identifier', level, text, values,
                              self.hardware_id)
         self._publish(self.diag_pub,
                       messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
@@ -322,6 +345,7 @@ class IdentifierNode(Node):
         head = (f'identified from {len(rec)} samples in '
                 f'{time.perf_counter() - started:.2f} s')
         self._last = head
+        self._track_drift(report)
         self.get_logger().info(head + '\n' + summary)
         return True, head + '\n' + summary
 
@@ -362,6 +386,23 @@ class IdentifierNode(Node):
                     self.set_parameters([Parameter(name, Parameter.Type.DOUBLE, value)])
         finally:
             self._setting_outputs.active = False
+
+    def _track_drift(self, report):
+        """Append the estimate to ``history_file`` and test the history for drift."""
+        if self._history is None:
+            return
+        now = dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds')
+        try:
+            self._history.append(report, now.replace('+00:00', 'Z'))
+            rows = self._history.check()
+        except MotorIdError as exc:
+            self.get_logger().warning(f'drift check: {exc}')
+            return
+        was = {d['parameter'] for d in self._drift if d['detected']}
+        self._drift = rows
+        new = [d for d in rows if d['detected'] and d['parameter'] not in was]
+        if new:
+            self.get_logger().warning(drift_message(new))
 
     def _failed(self, reason):
         self._fits['failed'] += 1

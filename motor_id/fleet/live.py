@@ -1,0 +1,102 @@
+"""A live motor's history of estimates in a JSON-lines file, checked by the fleet's drift rule.
+
+The identifier node appends one line per fit (``{"time", "parameters": {NAME: {"value",
+"std", "determined"}}, "adequate"}``) and asks :meth:`EstimateHistory.check` which
+parameters drift: the same histories and rule as ``motor-id fleet``
+(:func:`motor_id.fleet.history.drift_table`), so a live WARN and a fleet report agree.
+"""
+
+import json
+import os
+
+from motor_id.errors import ConfigError
+from motor_id.fleet.drift import DriftRule
+from motor_id.fleet.history import drift_table
+from motor_id.model import PARAM_NAMES
+
+
+class EstimateHistory:
+    """One motor's estimates on disk, and the drift they show.
+
+    Parameters
+    ----------
+    path : str
+        JSON-lines file; created on the first :meth:`append`, lines that cannot be read
+        are skipped (and counted in ``skipped_``).
+    rule : DriftRule, optional
+    robot, motor : str
+        Names for the drift rows.
+    """
+
+    def __init__(self, path, rule=None, robot='', motor=''):
+        self.path = str(path)
+        self.rule = rule or DriftRule()
+        self.robot = robot
+        self.motor = motor
+        self.skipped_ = 0
+
+    def append(self, report, time_iso):
+        """Add a fit report's parameters as one line.
+
+        Parameters
+        ----------
+        report : dict
+            A fit report (``IdentificationResult.to_dict()`` shape).
+        time_iso : str
+            When the data were taken (ISO 8601, UTC).
+        """
+        params = {}
+        for name in PARAM_NAMES:
+            p = (report.get('parameters') or {}).get(name) or {}
+            params[name] = {'value': p.get('value'), 'std': p.get('std'),
+                            'determined': bool(p.get('determined', False))}
+        line = {'time': time_iso, 'parameters': params,
+                'adequate': bool(report.get('adequate', True))}
+        try:
+            folder = os.path.dirname(self.path)
+            if folder:
+                os.makedirs(folder, exist_ok=True)
+            with open(self.path, 'a', encoding='utf-8') as fh:
+                fh.write(json.dumps(line) + '\n')
+        except OSError as exc:
+            raise ConfigError(f'history_file {self.path}: cannot write ({exc.strerror})') \
+                from None
+
+    def rows(self):
+        """The history as result rows (the shape :mod:`motor_id.fleet.history` reads)."""
+        out = []
+        self.skipped_ = 0
+        try:
+            fh = open(self.path, encoding='utf-8')
+        except FileNotFoundError:
+            return out
+        except OSError as exc:
+            raise ConfigError(f'history_file {self.path}: cannot read ({exc.strerror})') \
+                from None
+        with fh:
+            for k, text in enumerate(fh):
+                try:
+                    line = json.loads(text)
+                    row = {'robot': self.robot, 'motor': self.motor,
+                           'recording': f'{self.path}:{k + 1}', 'start_time': line['time'],
+                           'adequate': line.get('adequate', True)}
+                    for name, p in line['parameters'].items():
+                        row[name] = p.get('value')
+                        row[f'{name}_std'] = p.get('std')
+                        row[f'{name}_determined'] = p.get('determined', True)
+                except (ValueError, KeyError, TypeError, AttributeError):
+                    self.skipped_ += 1
+                    continue
+                out.append(row)
+        return out
+
+    def check(self):
+        """Drift rows (:func:`motor_id.fleet.history.drift_table`) of this history."""
+        return drift_table(self.rows(), self.rule)
+
+
+def drift_message(rows):
+    """One line naming every drifting parameter and its change ('' when none)."""
+    parts = [f'{d["parameter"]} {d["change"] * 100:+.1f} % since {d["since"]} '
+             f'(z {d["z"]:.1f})' for d in rows if d['detected']]
+    return ('drift: ' + '; '.join(parts)) if parts else ''

@@ -1,0 +1,325 @@
+"""Fleet: drift rule, profile, discovery, generator physics, and motor-id fleet end to end."""
+
+import json
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from motor_id.errors import ConfigError
+from motor_id.fleet.discover import find_recordings, robot_rule
+from motor_id.fleet.drift import DriftRule
+from motor_id.fleet.live import drift_message, EstimateHistory
+from motor_id.fleet.profile import parse_fleet_profile
+from motor_id.testing.fleet_gen import Drift, FleetSpec, generate_fleet, MotorTruth, simulate_motor
+
+CHROMIUM = '/usr/bin/chromium'
+
+
+def _series(rng, n, spread, size=0.0, onset=None, kind='step', fit_std=3e-4):
+    """Estimates with uniform day-to-day scatter +-spread and an optional drift."""
+    x = np.exp(rng.uniform(-spread, spread, n))
+    for d in range(n):
+        if onset is not None and d >= onset:
+            x[d] *= 1 + size * (1 if kind == 'step' else min(1, (d - onset + 1) / 5))
+    x *= 1 + rng.normal(0, fit_std, n)
+    return x, x * fit_std
+
+
+def _days(n):
+    return [f'2026-01-{d + 1:02d}T10:00:00Z' for d in range(n)]
+
+
+# ------------------------------------------------------------------------- drift rule
+def test_drift_rule_flags_steps_within_three_recordings_and_dates_them():
+    rng = np.random.default_rng(1)
+    rule = DriftRule()
+    for size, spread in ((0.10, 0.02), (-0.08, 0.006), (0.5, 0.05)):
+        for _ in range(20):
+            onset = int(rng.integers(8, 16))
+            x, s = _series(rng, 24, spread, size, onset)
+            f = rule.scan(_days(24), x, s)
+            assert f.detected, (size, onset)
+            cp = f.change_points[0]
+            assert cp['flagged_index'] - onset + 1 <= 3
+            assert cp['since'] == _days(24)[onset]
+            assert f.change == pytest.approx(size, abs=0.3 * abs(size))
+
+
+def test_drift_rule_no_alarm_on_normal_scatter():
+    rng = np.random.default_rng(2)
+    rule = DriftRule()
+    alarms = sum(rule.scan(_days(30), *_series(rng, 30, spread)).detected
+                 for spread in (0.02, 0.006, 0.05) for _ in range(100))
+    assert alarms == 0
+
+
+def test_drift_rule_one_bad_estimate_is_not_a_drift():
+    rng = np.random.default_rng(3)
+    x, s = _series(rng, 20, 0.02)
+    x[12] *= 1.5          # one bad recording, far off
+    f = DriftRule().scan(_days(20), x, s)
+    assert not f.detected
+    assert f.scores[12] == DriftRule().cap
+
+
+def test_drift_rule_says_why_a_short_or_fixed_history_is_not_tested():
+    f = DriftRule().scan(_days(4), [1.0, 1.01, 0.99, 1.0], [0.01] * 4)
+    assert not f.detected and 'needs 8' in f.reason
+    f = DriftRule().scan(_days(12), [2.3] * 12, [0.0] * 12)
+    assert not f.detected and 'not estimated' in f.reason
+
+
+def test_drift_rule_settings_are_checked():
+    with pytest.raises(ConfigError, match='min_base'):
+        DriftRule(min_base=1)
+    with pytest.raises(ConfigError, match='unknown key'):
+        DriftRule.from_dict({'threshold': 3})
+
+
+# ------------------------------------------------------------------------- profile
+def test_profile_parses_defaults_and_refuses_unknown_keys():
+    prof = parse_fleet_profile({
+        'motors': {'left': {'input': '/l', 'joint': 'left', 'resistance': 1.2}},
+        'defaults': {'speed': '/joint_states:velocity', 'effort_is': 'current'},
+        'fit': {'seed': 3}, 'drift': {'h': 8.0}})
+    m = prof.motors[0]
+    assert (m.name, m.speed, m.effort_is, m.resistance) == (
+        'left', '/joint_states:velocity', 'current', 1.2)
+    assert prof.fit.seed == 3 and prof.drift.h == 8.0
+    assert prof.settings_hash(m, False) != prof.settings_hash(m, True)
+    with pytest.raises(ConfigError, match='motor left: unknown key.*resistence'):
+        parse_fleet_profile({'motors': {'left': {'resistence': 1.2}}})
+    with pytest.raises(ConfigError, match='"motors:"'):
+        parse_fleet_profile({'wheel_left': {}})
+    with pytest.raises(ConfigError, match='resistance must be a number > 0'):
+        parse_fleet_profile({'motors': {'left': {'resistance': -1}}})
+
+
+# ------------------------------------------------------------------------- generator
+def test_generator_physics_matches_an_ode_solver():
+    from scipy.integrate import solve_ivp
+    p = MotorTruth()
+    period = 0.01
+    rng = np.random.default_rng(0)
+    u = np.repeat(rng.uniform(-12, 12, 20), 15)
+    w, i = simulate_motor(p, u, period)
+
+    def f(t, x):
+        v = u[min(int(t / period), len(u) - 1)]
+        return [(p.K_T * x[1] - p.B * x[0]) / p.J, (v - p.R_m * x[1] - p.K_T * x[0]) / p.L_m]
+    t = np.arange(len(u)) * period
+    ref = solve_ivp(f, (0, t[-1]), [0.0, 0.0], t_eval=t, max_step=period / 20, rtol=1e-9,
+                    atol=1e-12)
+    np.testing.assert_allclose(w, ref.y[0], atol=1e-4 * np.ptp(w))
+    np.testing.assert_allclose(i, ref.y[1], atol=1e-4 * np.ptp(i))
+    # Coulomb friction slows the motor and holds it still under a small voltage
+    wc, _ = simulate_motor(MotorTruth(T_c=0.05), u, period)
+    assert np.mean(np.abs(wc)) < np.mean(np.abs(w))
+    still, _ = simulate_motor(MotorTruth(T_c=0.05), np.full(50, 0.1), period)
+    assert np.all(still == 0.0)
+
+
+def test_generated_bags_read_back_through_the_profile(tmp_path):
+    from motor_id.fleet.task import read_motor, Task
+    spec = FleetSpec(robots=1, days=1, duration_s=2.0)
+    truth = generate_fleet(spec, tmp_path)
+    prof = parse_fleet_profile(truth.profile)
+    rec_path = truth.recordings[0]['path']
+    assert os.path.isfile(os.path.join(rec_path, 'metadata.yaml'))
+    task = Task(rec_path, 'robot_00', 0, 0, prof.motors[1], prof.fit, False, 'x')
+    rec = read_motor(task)
+    assert len(rec) == 200 and rec.input_kind == 'voltage'
+    assert np.all(np.abs(rec.input) <= spec.max_voltage)
+    assert rec.meta['time_origin_ns'] == truth.recordings[0]['start_ns']
+
+
+# ------------------------------------------------------------------------- discovery
+def test_recordings_found_in_folders_files_and_globs(tmp_path):
+    spec = FleetSpec(robots=2, days=2, duration_s=0.5, motors=('m',))
+    generate_fleet(spec, tmp_path / 'logs')
+    loose = tmp_path / 'loose' / 'robot_09'
+    loose.mkdir(parents=True)
+    generate_fleet(FleetSpec(robots=1, days=1, duration_s=0.5, motors=('m',),
+                             layout='file'), tmp_path / 'x')
+    shutil.copy(next((tmp_path / 'x' / 'robot_00').glob('*.mcap')), loose / 'day.mcap')
+    recs = find_recordings([str(tmp_path / 'logs'), str(loose / '*.mcap')])
+    assert [r.robot for r in recs] == ['robot_00', 'robot_00', 'robot_01', 'robot_01',
+                                       'robot_09']
+    # a file inside a bag folder stands for the folder; duplicates are one recording
+    inner = next((tmp_path / 'logs' / 'robot_00').glob('*/*.mcap'))
+    assert find_recordings([str(inner), str(inner.parent)])[0].path == str(inner.parent)
+    assert robot_rule(r'regex:(?P<robot>robot_\d+)_')('/a/robot_07_2026-01-01') == 'robot_07'
+    assert robot_rule('parent:2')('/logs/site_a/robot_01/bag') == 'site_a'
+    with pytest.raises(ConfigError, match='no such file'):
+        find_recordings([str(tmp_path / 'nothing')])
+    with pytest.raises(ConfigError, match='--robot-from'):
+        robot_rule('grandma')
+
+
+# ------------------------------------------------------------------------- live history
+def test_estimate_history_appends_and_finds_a_drift(tmp_path):
+    hist = EstimateHistory(str(tmp_path / 'h' / 'history.jsonl'), robot='r', motor='m')
+    rng = np.random.default_rng(4)
+    for d, v in enumerate(np.r_[0.3 * (1 + rng.uniform(-0.005, 0.005, 9)), [0.27] * 3]):
+        hist.append({'parameters': {'K_T': {'value': v, 'std': 1e-5, 'determined': True},
+                                    'J': {'value': None, 'std': None, 'determined': False}}},
+                    _days(12)[d])
+    with open(hist.path, 'a') as fh:
+        fh.write('not json\n')
+    rows = {d['parameter']: d for d in hist.check()}
+    assert hist.skipped_ == 1
+    assert rows['K_T']['detected'] and rows['K_T']['since'] == '2026-01-10'
+    assert rows['K_T']['change'] == pytest.approx(-0.1, abs=0.01)
+    assert not rows['J']['detected']
+    assert drift_message(hist.check()).startswith('drift: K_T -10.')
+
+
+# ------------------------------------------------------------------------- end to end
+@pytest.fixture(scope='module')
+def small_fleet(tmp_path_factory):
+    """2 robots x 1 motor x 11 days; robot_01's R_m +25 % from day 7; one truncated bag
+    and one without the command topic."""
+    spec = FleetSpec(robots=2, days=11, motors=('wheel_left',), duration_s=6.0,
+                     drifts=(Drift('robot_01', 'wheel_left', 'R_m', 0.25, 7),),
+                     broken=(('robot_00', 2, 'truncated'), ('robot_00', 4, 'no_command')),
+                     seed=11)
+    root = tmp_path_factory.mktemp('fleet')
+    truth = generate_fleet(spec, root / 'logs')
+    return root, truth
+
+
+@pytest.fixture(scope='module')
+def fleet_run(small_fleet):
+    """`motor-id fleet` on the small fleet with one embedded worker, and its output."""
+    from motor_id.cli import main
+    root, truth = small_fleet
+    out = root / 'out'
+    code = main(['fleet', str(root / 'logs'), '--profile', str(root / 'logs' / 'fleet.yaml'),
+                 '--out', str(out), '--workers', '1', '-q'])
+    return out, code
+
+
+def test_fleet_fits_every_motor_and_records_failures(fleet_run, small_fleet):
+    import pyarrow.parquet as pq
+
+    from motor_id.fleet.store import COLUMNS
+    out, code = fleet_run
+    assert code == 0
+    rows = pq.read_table(out / 'estimates.parquet').to_pylist()
+    assert len(rows) == 20 and list(rows[0]) == list(COLUMNS)
+    truth = small_fleet[1]
+    for r in rows:
+        day = int(r['recording'][-2:]) - 5      # robot_NN_2026-01-DD, day 0 is the 5th
+        true = truth.truth[(r['robot'], 'wheel_left')][day]
+        assert r['R_m'] == pytest.approx(true.R_m, rel=0.01)
+        assert r['K_T'] == pytest.approx(true.K_T, rel=0.01)
+        assert r['R_m_determined'] and r['adequate'] and r['R_m_std'] > 0
+        assert r['start_time'].date().isoformat() == r['recording'][-10:]
+    failed = json.loads((out / 'failed.json').read_text())
+    assert {(f['stage'], f['recording'][-10:]) for f in failed} == {
+        ('read', '2026-01-07'), ('read', '2026-01-09')}
+    assert any('/wheel_left_cmd' in f['reason'] for f in failed)
+    with open(out / 'estimates.csv') as fh:
+        assert len(fh.read().splitlines()) == 21
+
+
+def test_fleet_names_the_drifting_motor_parameter_and_date(fleet_run):
+    out, _ = fleet_run
+    drift = json.loads((out / 'drift.json').read_text())
+    keys = {'robot', 'motor', 'parameter', 'detected', 'change', 'since', 'z', 'baseline',
+            'latest'}
+    assert all(keys <= set(d) for d in drift)
+    found = [(d['robot'], d['parameter'], d['since']) for d in drift if d['detected']]
+    assert found == [('robot_01', 'R_m', '2026-01-12')]
+    assert drift[0]['change'] == pytest.approx(0.25, abs=0.04)
+    assert len(drift) == 2 * 6
+
+
+def test_fleet_rerun_fits_only_new_recordings(fleet_run, small_fleet):
+    from motor_id.fleet.engine import DaskEngine
+    from motor_id.fleet.profile import load_fleet_profile
+    from motor_id.fleet.run import run_fleet
+    root, truth = small_fleet
+    out, _ = fleet_run
+    work = root / 'rerun'
+    shutil.copytree(out, work)
+    logs = root / 'logs'
+    prof = load_fleet_profile(str(logs / 'fleet.yaml'))
+    extra = root / 'more'
+    generate_fleet(FleetSpec(robots=1, days=1, motors=('wheel_left',), duration_s=6.0,
+                             start='2026-01-20', seed=5), extra)
+    with DaskEngine(workers=1) as engine:
+        res = run_fleet([str(logs), str(extra / 'robot_00')], prof, str(work), engine=engine)
+        assert (res.tasks, res.skipped, res.done, res.failed) == (23, 22, 1, 0)
+        # a changed profile fits everything again
+        prof2 = parse_fleet_profile({**truth.profile, 'fit': {'seed': 1}})
+        res = run_fleet([str(extra)], prof2, str(work), engine=engine, report=False)
+        assert (res.tasks, res.skipped, res.done) == (1, 0, 1)
+
+
+def test_fleet_runs_on_an_existing_scheduler(small_fleet, tmp_path):
+    import dask
+    import distributed
+
+    from motor_id.cli import main
+    from motor_id.fleet.engine import WORKER_CONFIG
+    root, _ = small_fleet
+    with dask.config.set(WORKER_CONFIG), distributed.LocalCluster(
+            n_workers=1, threads_per_worker=1, host='127.0.0.1',
+            dashboard_address='127.0.0.1:0') as cluster:
+        code = main(['fleet', str(root / 'logs' / 'robot_01' / '*2026-01-1[45]'),
+                     '--profile', str(root / 'logs' / 'fleet.yaml'), '--out',
+                     str(tmp_path), '--scheduler', cluster.scheduler_address, '-q'])
+    assert code == 0
+    assert len((tmp_path / 'estimates.csv').read_text().splitlines()) == 3
+
+
+def test_fleet_cli_errors_are_one_line(tmp_path, capsys):
+    from motor_id.cli import main
+    prof = tmp_path / 'p.yaml'
+    prof.write_text('motors: {m: {input: /c}}\n')
+    assert main(['fleet', str(tmp_path / 'none'), '--profile', str(prof), '--out',
+                 str(tmp_path / 'o')]) == 2
+    assert 'no such file or directory' in capsys.readouterr().err
+
+
+def _chromium(*args, timeout=60):
+    profile = f'/tmp/motor-id-chromium-{os.getpid()}-{np.random.default_rng().integers(1e9)}'
+    cmd = [CHROMIUM, '--headless', '--no-sandbox', '--disable-gpu',
+           '--disable-background-networking', '--disable-component-update', '--disable-sync',
+           '--no-first-run', f'--user-data-dir={profile}', *args]
+    try:
+        return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    finally:
+        shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.mark.skipif(not os.path.exists(CHROMIUM),
+                    reason='needs Debian chromium at /usr/bin/chromium (apt-get install -y '
+                           'chromium; .ci/run installs it)')
+def test_report_opens_in_a_headless_browser(fleet_run, tmp_path):
+    import re
+    out, _ = fleet_run
+    page = out / 'report.html'
+    text = page.read_text()
+    assert not re.search(r'(src|href)\s*=\s*["\']?(https?:|//)|url\(|@import', text)
+    assert 'http' not in text            # nothing to fetch, not even a namespace URL
+    dom = _chromium('--dump-dom', page.as_uri()).stdout
+    assert 'data-ready="1"' in dom      # the page's script ran
+    assert '2 motors' in dom and '1 drifting' in dom and '2 failed tasks' in dom
+    first = re.search(r'<tbody><tr class="(\w*)" data-robot="(\w+)" data-motor="(\w+)"',
+                      dom)
+    assert first.groups() == ('drift', 'robot_01', 'wheel_left')   # worst first
+    assert dom.count('<svg') >= 2 * 5 and 'class="change-point"' in dom
+    assert 'File end magic is invalid' in dom or 'not a readable' in dom
+    shot = tmp_path / 'report.png'
+    _chromium(f'--screenshot={shot}', '--window-size=1200,900', page.as_uri())
+    from PIL import Image
+    img = np.asarray(Image.open(shot).convert('RGB'), dtype=float)
+    assert img.shape[:2] == (900, 1200)
+    red = (img[..., 0] > 200) & (img[..., 1] < 240) & (img[..., 2] < 240) & \
+        (img[..., 0] - img[..., 2] > 8)
+    assert red.mean() > 0.001          # the drifting motor's row is shaded
