@@ -13,10 +13,13 @@ form, so the free net is trained in that form (2n numbers; the other n^2 weights
 exactly the basis freedom the data cannot see) and exported as full weight matrices.
 """
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 import time
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds, GeneticAlgorithm
@@ -30,7 +33,7 @@ class ElmanWeights:
     W_xu: np.ndarray
     W_yx: np.ndarray
 
-    def forward(self, u, x0=None):
+    def forward(self, u: ArrayLike, x0: ArrayLike | None = None) -> NDArray[np.float64]:
         """Run the net on an input sequence; returns the output sequence Y."""
         u = np.asarray(u, dtype=float)
         n = self.W_xc.shape[0]
@@ -41,13 +44,13 @@ class ElmanWeights:
             x = self.W_xc @ x + self.W_xu * u[k]
         return y
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {'W_xc': self.W_xc.tolist(), 'W_xu': self.W_xu.tolist(),
                 'W_yx': self.W_yx.tolist()}
 
 
-def canonical_weights(a, b):
+def canonical_weights(a: Sequence[float] | NDArray[np.float64], b: ArrayLike) -> ElmanWeights:
     """Observable canonical weights for ``y(k) = sum a_i y(k-i) + sum b_i u(k-i)``."""
     n = len(a)
     W_xc = np.zeros((n, n))
@@ -93,7 +96,7 @@ class OrderEvidence:
     bic: float
     weights: dict = field(default_factory=dict)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {'order': self.order, 'n_params': self.n_params,
                 'train_rmse': self.train_rmse, 'validation_rmse': self.validation_rmse,
@@ -120,8 +123,9 @@ class FreeElmanOrderSelection:
         GA settings.
     """
 
-    def __init__(self, max_order=4, validation=0.3, tolerance=0.05, population=20,
-                 generations=160, random_state=None):
+    def __init__(self, max_order: int = 4, validation: float = 0.3, tolerance: float = 0.05,
+                 population: int = 20, generations: int = 160,
+                 random_state: int | np.random.Generator | None = None) -> None:
         if not 1 <= max_order <= 8:
             raise ConfigError(f'max_order must be in 1..8, got {max_order}')
         if not 0.05 <= validation <= 0.8:
@@ -133,7 +137,7 @@ class FreeElmanOrderSelection:
         self.generations = generations
         self.random_state = random_state
 
-    def fit(self, u, y):
+    def fit(self, u: ArrayLike, y: ArrayLike) -> 'FreeElmanOrderSelection':
         """Train every order on (u, y) and choose one; returns self.
 
         Sets ``order_`` (int), ``evidence_`` (list of OrderEvidence), ``weights_``
@@ -203,7 +207,7 @@ class FreeElmanOrderSelection:
         self.seconds_ = time.perf_counter() - t0
         return self
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary of the selection."""
         return {'order': self.order_, 'evidence': [e.to_dict() for e in self.evidence_],
                 'rule': 'smallest order with training BIC within 10 of the lowest and '

@@ -1,6 +1,7 @@
 """Input signals: the paper's Eq. 14 steps, bipolar steps, PRBS and multisine."""
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from motor_id.errors import ConfigError
 
@@ -10,7 +11,7 @@ PAPER_STEPS = ((0.0, 0.0), (3.0, 3.8), (16.0, 7.0), (28.0, 9.0))
 PROFILES = ('paper_steps', 'bipolar_steps', 'prbs', 'multisine')
 
 
-def paper_steps(t, amplitude=9.0):
+def paper_steps(t: ArrayLike, amplitude: float = 9.0) -> NDArray[np.float64]:
     """The paper's input: 0, 3.8, 7, 9 V from 0, 3, 16, 28 s (scaled to ``amplitude``)."""
     t = np.asarray(t, dtype=float)
     u = np.zeros_like(t)
@@ -19,7 +20,8 @@ def paper_steps(t, amplitude=9.0):
     return u
 
 
-def bipolar_steps(t, amplitude=9.0, period=4.0):
+def bipolar_steps(t: ArrayLike, amplitude: float = 9.0,
+                  period: float = 4.0) -> NDArray[np.float64]:
     """Steps through +-amplitude levels so the motor reverses and stops."""
     t = np.asarray(t, dtype=float)
     levels = np.array([0.0, 0.5, 1.0, 0.0, -0.5, -1.0, 0.25, -0.25]) * amplitude
@@ -27,7 +29,9 @@ def bipolar_steps(t, amplitude=9.0, period=4.0):
     return levels[k]
 
 
-def prbs(t, amplitude=9.0, dwell=0.3, random_state=0, offset=0.0):
+def prbs(t: ArrayLike, amplitude: float = 9.0, dwell: float = 0.3,
+         random_state: int | np.random.Generator | None = 0,
+         offset: float = 0.0) -> NDArray[np.float64]:
     """Pseudo-random binary sequence between ``offset +- amplitude`` with a minimum dwell."""
     t = np.asarray(t, dtype=float)
     rng = np.random.default_rng(random_state)
@@ -37,7 +41,9 @@ def prbs(t, amplitude=9.0, dwell=0.3, random_state=0, offset=0.0):
     return offset + amplitude * bits[k]
 
 
-def multisine(t, amplitude=9.0, f_min=0.05, f_max=5.0, n_tones=12, random_state=0):
+def multisine(t: ArrayLike, amplitude: float = 9.0, f_min: float = 0.05, f_max: float = 5.0,
+              n_tones: int = 12,
+              random_state: int | np.random.Generator | None = 0) -> NDArray[np.float64]:
     """Sum of log-spaced sines with Schroeder-like random phases, peak-scaled."""
     t = np.asarray(t, dtype=float)
     rng = np.random.default_rng(random_state)
@@ -48,7 +54,8 @@ def multisine(t, amplitude=9.0, f_min=0.05, f_max=5.0, n_tones=12, random_state=
     return amplitude * u / (peak if peak > 0 else 1.0)
 
 
-def make_excitation(name, t, amplitude=9.0, random_state=0):
+def make_excitation(name: str, t: ArrayLike, amplitude: float = 9.0,
+                    random_state: int | np.random.Generator | None = 0) -> NDArray[np.float64]:
     """Evaluate a named profile at times ``t``."""
     if name == 'paper_steps':
         return paper_steps(t, amplitude)

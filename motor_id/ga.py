@@ -13,9 +13,12 @@ or a log scale (log where a parameter spans decades). One generation is
 Defaults are the paper's: population 20, crossover 0.75, mutation 0.04, 160 generations.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from motor_id.errors import ConfigError
 
@@ -52,7 +55,7 @@ class Bounds:
                                   f'got {lo}')
 
     @property
-    def dim(self):
+    def dim(self) -> int:
         """Number of parameters."""
         return len(self.names)
 
@@ -64,13 +67,13 @@ class Bounds:
         hi = np.where(lg, np.log(np.where(lg, hi, 1.0)), hi)
         return lo, hi, lg
 
-    def decode(self, genes):
+    def decode(self, genes: ArrayLike) -> NDArray[np.float64]:
         """Unit-cube genes (..., d) -> parameter values (..., d)."""
         lo, hi, lg = self._edges()
         z = lo + np.asarray(genes, dtype=float) * (hi - lo)
         return np.where(lg, np.exp(z), z)
 
-    def encode(self, values):
+    def encode(self, values: ArrayLike) -> NDArray[np.float64]:
         """Parameter values (..., d) -> unit-cube genes (..., d), clipped to [0, 1]."""
         lo, hi, lg = self._edges()
         v = np.asarray(values, dtype=float)
@@ -87,7 +90,7 @@ class GenerationRecord:
     mean_cost: float
     best: dict = field(default_factory=dict)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {'generation': self.generation, 'best_cost': self.best_cost,
                 'mean_cost': self.mean_cost, 'best': self.best}
@@ -123,9 +126,11 @@ class GeneticAlgorithm:
     parameter values; costs that are NaN or inf count as worst.
     """
 
-    def __init__(self, bounds, population=20, generations=160, crossover=0.75,
-                 mutation=0.04, mutation_scale=0.1, blend_alpha=0.3, elite=1,
-                 selection='ranking', x0=None, random_state=None):
+    def __init__(self, bounds: Bounds, population: int = 20, generations: int = 160,
+                 crossover: float = 0.75, mutation: float = 0.04, mutation_scale: float = 0.1,
+                 blend_alpha: float = 0.3, elite: int = 1, selection: str = 'ranking',
+                 x0: ArrayLike | None = None,
+                 random_state: int | np.random.Generator | None = None) -> None:
         if population < 2:
             raise ConfigError(f'population must be >= 2, got {population}')
         if generations < 1:
@@ -156,24 +161,24 @@ class GeneticAlgorithm:
             self.genes_[0] = bounds.encode(np.asarray(x0, dtype=float))
         self.generation_ = 0
         self.evaluations_ = 0
-        self.costs_ = None
-        self.best_genes_ = None
+        self.costs_: NDArray[np.float64] | None = None
+        self.best_genes_: NDArray[np.float64] | None = None
         self.best_cost_ = np.inf
-        self.history_ = []
+        self.history_: list[GenerationRecord] = []
         self._cancelled = False
         self._asked = False
 
     @property
-    def best_(self):
+    def best_(self) -> NDArray[np.float64] | None:
         """Best parameter vector found so far (decoded)."""
         return None if self.best_genes_ is None else self.bounds.decode(self.best_genes_)
 
-    def ask(self):
+    def ask(self) -> NDArray[np.float64]:
         """Return the current population as parameter values, shape (population, d)."""
         self._asked = True
         return self.bounds.decode(self.genes_)
 
-    def tell(self, costs):
+    def tell(self, costs: ArrayLike) -> None:
         """Take the costs of the population from :meth:`ask` and breed the next one."""
         if not self._asked:
             raise ConfigError('tell() called without a preceding ask()')
@@ -228,11 +233,11 @@ class GeneticAlgorithm:
         children[self.elite:] = np.clip(offspring, 0.0, 1.0)
         return children
 
-    def cancel(self):
+    def cancel(self) -> None:
         """Ask the loop to stop after the current generation."""
         self._cancelled = True
 
-    def stop(self):
+    def stop(self) -> dict[str, Any]:
         """Return a dict of stop reasons (empty while the run should go on)."""
         reasons = {}
         if self.generation_ >= self.generations:
@@ -241,7 +246,8 @@ class GeneticAlgorithm:
             reasons['cancelled'] = True
         return reasons
 
-    def run(self, cost, callback=None):
+    def run(self, cost: Callable[[NDArray[np.float64]], ArrayLike],
+            callback: Callable[['GeneticAlgorithm'], object] | None = None) -> 'GeneticAlgorithm':
         """Run to the end: ``cost(X) -> (population,)``; ``callback(ga)`` True cancels."""
         while not self.stop():
             self.tell(cost(self.ask()))

@@ -6,8 +6,10 @@ gains for a current and a speed loop; each loop is then checked on the full mode
 (:mod:`motor_id.controller.loops`).
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 import math
+from typing import Any
 
 import numpy as np
 
@@ -53,12 +55,12 @@ class ControllerDesign:
     pi: dict
     notes: list = field(default_factory=list)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: keys ``feedforward, time_constants, pi, notes`` (the contract)."""
         return {'feedforward': self.feedforward, 'time_constants': self.time_constants,
                 'pi': self.pi, 'notes': list(self.notes)}
 
-    def summary(self):
+    def summary(self) -> str:
         """Return a plain-text table for people (one string, lines separated by newlines)."""
         ff, tc = self.feedforward, self.time_constants
         lines = [f'controller design ({self.input_kind} plant; {ff["convention"]})',
@@ -99,7 +101,7 @@ def _entry(value, std=None):
     return {'value': float(value), 'std': None if std is None else float(std)}
 
 
-def check_input_kind(input_kind):
+def check_input_kind(input_kind: str) -> tuple[str, ...]:
     """The parameter names of an ``input_kind`` plant; ConfigError for an unknown kind."""
     if input_kind not in INPUT_KINDS:
         raise ConfigError(f'input_kind must be one of {INPUT_KINDS}, got {input_kind!r}')
@@ -196,7 +198,8 @@ def _check_positive(x, name, allow_none=True):
     return float(x)
 
 
-def time_constants(values, input_kind='voltage'):
+def time_constants(values: Mapping[str, Any],
+                   input_kind: str = 'voltage') -> tuple[Any, Any]:
     """Electrical and mechanical time constants [s] (works element-wise on arrays).
 
     Parameters
@@ -221,7 +224,9 @@ def time_constants(values, input_kind='voltage'):
             np.divide(v['J'] * v['R_m'], v['K_T'] * v['K_b'] + v['R_m'] * v['B']))
 
 
-def controller_constants(values, input_kind, current_bandwidth_hz, speed_bandwidth_hz):
+def controller_constants(values: Mapping[str, Any], input_kind: str,
+                         current_bandwidth_hz: float,
+                         speed_bandwidth_hz: float) -> dict[str, Any]:
     """Feedforward constants, time constants and PI gains (element-wise on arrays).
 
     Parameters
@@ -350,9 +355,13 @@ def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
     return out
 
 
-def design_controller(values, covariance=None, input_kind='voltage', kS=None,
-                      current_bandwidth_hz=None, speed_bandwidth_hz=None,
-                      phase_margin_min_deg=45.0, sample_period=None):
+def design_controller(values: Mapping[str, float | None],
+                      covariance: Mapping[str, Any] | None = None,
+                      input_kind: str = 'voltage', kS: Mapping[str, Any] | None = None,
+                      current_bandwidth_hz: float | None = None,
+                      speed_bandwidth_hz: float | None = None,
+                      phase_margin_min_deg: float = 45.0,
+                      sample_period: float | None = None) -> ControllerDesign:
     """Feedforward constants and cascaded PI gains from identified motor parameters.
 
     Parameters
@@ -433,7 +442,7 @@ def design_controller(values, covariance=None, input_kind='voltage', kS=None,
         raise ConfigError(f'phase_margin_min_deg must be below 90 deg, got {pm_min}')
     if input_kind == 'torque' and current_hz is not None:
         raise ConfigError('a torque plant has no current loop: drop current_bandwidth_hz')
-    notes = []
+    notes: list[str] = []
     current_hz, speed_hz = _choose_bandwidths(vals, input_kind, current_hz, speed_hz,
                                               sample_period, notes)
     bandwidths = (current_hz, speed_hz)

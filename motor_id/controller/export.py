@@ -1,6 +1,8 @@
 """Controller results out: a design from the fit JSON, and as ROS parameters."""
 
+from collections.abc import Mapping
 import math
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +68,7 @@ def _covariance_from_fit(result_dict, params, values, notes):
             'matrix': np.diag([params[n]['std'] ** 2 for n in with_std]).tolist()}
 
 
-def from_identification(result_dict, **kw):
+def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> ControllerDesign:
     """Design a controller from the fit JSON of ``motor-id fit --json``.
 
     Parameters
@@ -105,7 +107,7 @@ def from_identification(result_dict, **kw):
         raise ConfigError("each fit parameter must be {'value', 'std', 'determined'}")
     values = {n: params[n].get('value') for n in names}
     undetermined = [n for n in names if values[n] is None]
-    notes = []
+    notes: list[str] = []
     covariance = _covariance_from_fit(result_dict, params, values, notes)
     if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
         vals = {n: math.nan if values[n] is None else values[n] for n in names}
@@ -121,7 +123,8 @@ def from_identification(result_dict, **kw):
     return design
 
 
-def to_ros_parameters(design, node_name='/**'):
+def to_ros_parameters(design: ControllerDesign | Mapping[str, Any],
+                      node_name: str = '/**') -> dict[str, Any]:
     """Return the design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (params file).
 
     Parameters

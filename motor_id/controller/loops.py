@@ -6,9 +6,12 @@ margins, crossovers and closed-loop bandwidth are found on a log frequency grid 
 by brentq. numpy polynomials only; the tests hold the results to python-control.
 """
 
+from collections.abc import Mapping
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 # With a sample period T a loop sees about 1.5 T of delay: half a sample of ZOH plus one
 # sample of computation.
@@ -30,7 +33,8 @@ def _trim(p):
     return p[nz[0]:] if nz.size else p[-1:]
 
 
-def pade_delay(delay, order=PADE_ORDER):
+def pade_delay(delay: float,
+               order: int = PADE_ORDER) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Pade approximant of a pure delay ``exp(-s delay)`` as a numerator/denominator pair.
 
     Parameters
@@ -70,7 +74,10 @@ def _state_transfer_functions(F, g):
     return [_trim(adj[:, row]) for row in range(n)], den
 
 
-def loop_transfer_functions(values, input_kind, gains, sample_period=None):
+def loop_transfer_functions(
+        values: Mapping[str, float], input_kind: str, gains: Mapping[str, float],
+        sample_period: float | None = None,
+) -> dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]]:
     """Loop transfer functions of the cascade on the full identified model.
 
     Parameters
@@ -168,7 +175,7 @@ def _response(num, den, w):
         return np.polyval(num, s) / np.polyval(den, s)
 
 
-def margins(num, den):
+def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> dict[str, Any]:
     """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts of a loop.
 
     ``num / den`` is the loop gain L(s). The crossover is where ``|L(jw)| = 1`` (of
@@ -190,7 +197,8 @@ def margins(num, den):
     with np.errstate(divide='ignore'):
         gm = 1.0 / np.abs(loop(w180))
     gm = gm[np.isfinite(gm)]  # |L| = 0 on the negative real axis: no finite gain margin
-    out = {'phase_margin_deg': None, 'crossover_hz': None, 'gain_margin_db': None}
+    out: dict[str, Any] = {'phase_margin_deg': None, 'crossover_hz': None,
+                           'gain_margin_db': None}
     if wc.size:
         j = np.argmin(np.abs(pm))
         out['phase_margin_deg'] = float(pm[j])
