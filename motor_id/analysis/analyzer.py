@@ -60,7 +60,8 @@ class DiscrepancyAnalysis:
     max_delay : int, optional
         Largest input delay tried [samples]; default min(40, N / 25).
     generations : int
-        GA generations of the base fit.
+        GA generations of the base fit (100: its best cost settles by generation 40-60
+        on the records tried, and the refinement from its three best starts follows).
     pool_size : int
         Second effects are tried from this many best single effects.
     starts : int
@@ -71,7 +72,7 @@ class DiscrepancyAnalysis:
 
     def __init__(self, R_m=None, candidates=None, random_state=0, min_gain=0.05,
                  ambiguity=0.03, max_effects=3, structure_ratio=1.5, n_blocks=10,
-                 max_delay=None, generations=160, pool_size=4, starts=2,
+                 max_delay=None, generations=100, pool_size=4, starts=2,
                  R_m_tolerance=0.10):
         self.R_m = R_m
         self.candidates = candidates
@@ -256,7 +257,10 @@ class DiscrepancyAnalysis:
         have = chosen.name.split('+')
         # an effect that alone cut the held-out error by less than a quarter of min_gain,
         # or that made the previous, smaller model worse, is not tried again
+        # (nor is one that sat on a search limit or was implausible alone: so it would
+        # on top of another)
         pool = [s for s in singles if s.gain >= self.min_gain / 4 and not s.failed
+                and not s.at_bound and not s.implausible
                 and s.name not in have and self._added.get(s.name, 1.0) > 0]
         if self._one_way:  # one sign of speed: friction and a constant load are one term
             pool = [s for s in pool if not set(selection.ONE_WAY) <= set(have + [s.name])]

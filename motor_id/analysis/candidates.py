@@ -150,7 +150,7 @@ class CandidateFitter:
         if effects:
             kw = {'effects': effects, 'free_effects': free}
         est = self.identifier(start=start, use_ga=False, settle=False, reweight=1,
-                              max_nfev=CANDIDATE_NFEV, **kw)
+                              max_nfev=CANDIDATE_NFEV, quick_jacobian=weight, **kw)
         bounds = {**self.physical_bounds, **{fe: self.bounds_for(fe) for fe in free}}
         if bounds:
             est.bounds = bounds

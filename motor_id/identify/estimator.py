@@ -25,7 +25,7 @@ bound, as on a hobby motor)."""
 _SETTINGS = ('method', 'R_m', 'tie', 'population', 'generations', 'crossover', 'mutation',
              'random_state', 'fixed', 'bounds', 'channels', 'effects', 'free_effects',
              'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen',
-             'error_blocks', 'settle', 'reweight', 'max_nfev')
+             'error_blocks', 'settle', 'reweight', 'max_nfev', 'quick_jacobian')
 
 
 class Identifier:
@@ -85,13 +85,17 @@ class Identifier:
         Largest number of refinements re-weighted by the estimated noise levels.
     max_nfev : int
         Largest number of residual evaluations of each least-squares refinement.
+    quick_jacobian : bool
+        One-sided differences in the refinement's Jacobian (the analysis ranks its
+        candidates with them); the covariance always uses central differences.
     """
 
     def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
                  crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
                  channels=None, effects=None, free_effects=None, start=None, use_ga=True,
                  bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True,
-                 error_blocks=10, settle=True, reweight=4, max_nfev=60):
+                 error_blocks=10, settle=True, reweight=4, max_nfev=60,
+                 quick_jacobian=False):
         self.method = method
         self.R_m = R_m
         self.tie = tie
@@ -115,6 +119,7 @@ class Identifier:
         self.settle = settle
         self.reweight = reweight
         self.max_nfev = max_nfev
+        self.quick_jacobian = quick_jacobian
 
     def fit(self, rec, progress=None, sample_weight=None):
         """Fit the model to a recording.
@@ -262,7 +267,9 @@ class Identifier:
         self.problem_ = problem
         rng = np.random.default_rng(self.random_state)   # a Generator comes back as is
         ga, best, ga_seconds = self._run_ga(problem, rng, progress)
+        problem.forward_differences = bool(self.quick_jacobian)
         z_best, refine_info = self._refine(problem, ga, best)
+        problem.forward_differences = False
         x_best = problem.from_z(z_best)
         with np.errstate(all='ignore'):
             pred = problem.simulate(x_best[None, :])[0]

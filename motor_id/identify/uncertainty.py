@@ -162,8 +162,9 @@ def robust_covariance(J, r, Vr, ids, n_blocks):
     Jr = J @ Vr
     n = ids.size
     g = Jr[:n] * r[:n, None]
-    S = np.zeros((n_blocks, Jr.shape[1]))
-    np.add.at(S, ids, g)
+    S = np.column_stack([np.bincount(ids, weights=g[:, j], minlength=n_blocks)
+                         for j in range(g.shape[1])]) if g.shape[1] else \
+        np.zeros((n_blocks, 0))
     S -= S.mean(axis=0)
     meat = S.T @ S * (n_blocks / max(n_blocks - 1, 1))
     if J.shape[0] > n:
