@@ -1,6 +1,6 @@
 """Shared node plumbing: parameters with ranges, the stop signal, topic checks, the main."""
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 import functools
 import os
@@ -20,10 +20,12 @@ from rcl_interfaces.msg import (
 import rclpy
 from rclpy.exceptions import ParameterException
 from rclpy.executors import (
+    Executor,
     ExternalShutdownException,
     MultiThreadedExecutor,
     SingleThreadedExecutor,
 )
+from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from motor_id.errors import ConfigError
@@ -66,7 +68,7 @@ class ParamSpec:
     syntax: str | None = None
     validator: Callable[[Any, str], None] | None = None
 
-    def allowed(self):
+    def allowed(self) -> str:
         """The allowed values, in words."""
         if self.syntax is not None:
             return self.syntax
@@ -77,19 +79,20 @@ class ParamSpec:
             return f'{self.low} .. {self.high}'
         return f'a {type(self.default).__name__}'
 
-    def descriptor(self):
+    def descriptor(self) -> ParameterDescriptor:
         """The ROS parameter descriptor with the range."""
         d = ParameterDescriptor(description=f'{self.description} ({self.allowed()})',
                                 read_only=self.read_only, dynamic_typing=self.dynamic)
-        if self.low is not None and isinstance(self.default, float):
+        low, high = self.low, self.high
+        if low is not None and high is not None and isinstance(self.default, float):
             d.floating_point_range = [FloatingPointRange(
-                from_value=float(self.low), to_value=float(self.high), step=0.0)]
-        elif self.low is not None and isinstance(self.default, int):
-            d.integer_range = [IntegerRange(from_value=int(self.low), to_value=int(self.high),
+                from_value=float(low), to_value=float(high), step=0.0)]
+        elif low is not None and high is not None and isinstance(self.default, int):
+            d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high),
                                             step=1)]
         return d
 
-    def check(self, value):
+    def check(self, value: Any) -> None:
         """Raise :class:`ConfigError` naming the parameter if ``value`` is not allowed."""
         if self.choices is not None and not any(
                 value == c and type(value) is type(c) for c in self.choices):
@@ -102,7 +105,7 @@ class ParamSpec:
                 raise ConfigError(f'parameter {exc}; allowed: {self.allowed()}') from None
 
 
-def declare_parameters(node, specs):
+def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]:
     """Declare ``specs`` on ``node`` and return ``{name: value}``.
 
     Raises
@@ -156,14 +159,14 @@ class InFlight:
     ``destroy_node``.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._count = 0
         self._cond = threading.Condition()
 
-    def wrap(self, callback):
+    def wrap(self, callback: Callable[..., Any]) -> Callable[..., Any]:
         """The callback, counted while it runs (same signature for rclpy's inspection)."""
         @functools.wraps(callback)
-        def counted(*args):
+        def counted(*args: Any) -> Any:
             with self._cond:
                 self._count += 1
             try:
@@ -174,7 +177,7 @@ class InFlight:
                     self._cond.notify_all()
         return counted
 
-    def wait_idle(self, timeout=5.0):
+    def wait_idle(self, timeout: float = 5.0) -> bool:
         """Wait until no wrapped callback runs; return False on timeout."""
         with self._cond:
             return self._cond.wait_for(lambda: self._count == 0, timeout)
@@ -192,12 +195,12 @@ class StopSignal:
     request made before spinning starts, even before the node exists, is not lost.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         self._event = threading.Event()
         self._lock = threading.Lock()
-        self._guards = []
+        self._guards: list[Any] = []
 
-    def attach(self, node):
+    def attach(self, node: Node) -> None:
         """Make :meth:`set` wake the executor that spins ``node``."""
         guard = node.create_guard_condition(_no_op)
         with self._lock:
@@ -205,12 +208,12 @@ class StopSignal:
             if self._event.is_set():
                 guard.trigger()
 
-    def detach(self):
+    def detach(self) -> None:
         """Forget the guard conditions (call before destroying the attached nodes)."""
         with self._lock:
             self._guards = []
 
-    def set(self):
+    def set(self) -> None:
         """Request the stop (idempotent; thread-safe)."""
         with self._lock:
             if self._event.is_set():
@@ -219,15 +222,15 @@ class StopSignal:
             for guard in self._guards:
                 guard.trigger()
 
-    def is_set(self):
+    def is_set(self) -> bool:
         """Whether the stop was requested."""
         return self._event.is_set()
 
-    def wait(self, timeout=None):
+    def wait(self, timeout: float | None = None) -> bool:
         """Block until the stop is requested; return whether it was."""
         return self._event.wait(timeout)
 
-    def spin(self, executor):
+    def spin(self, executor: Executor) -> None:
         """Spin ``executor`` until the stop is requested or its context shuts down."""
         while not self._event.is_set() and executor.context.ok():
             executor.spin_once()
@@ -259,16 +262,18 @@ class TopicWatch:
         How often to look [s].
     """
 
-    def __init__(self, node, topic, type_name, on_found=None, period_s=1.0):
+    def __init__(self, node: Node, topic: str, type_name: str,
+                 on_found: Callable[[list[Any]], None] | None = None,
+                 period_s: float = 1.0) -> None:
         self.node = node
         self.name = node.resolve_topic_name(topic)
         self.type_name = type_name
         self.on_found = on_found
         self.found = False
-        self.wrong_type = None
+        self.wrong_type: list[str] | None = None
         self._timer = node.create_timer(period_s, self.check)
 
-    def check(self):
+    def check(self) -> bool:
         """Look once; return whether a publisher of the right type was found."""
         if self.found:
             return True
@@ -311,12 +316,13 @@ class SignalWatcher:
 
     SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
-    def __init__(self):
-        self.received = None
+    def __init__(self) -> None:
+        self.received: int | None = None
         self.stop = StopSignal()
-        self._read = self._write = None
+        self._read: socket.socket | None = None
+        self._write: socket.socket | None = None
 
-    def install(self):
+    def install(self) -> None:
         """Route the signals to the watcher (call in the main thread before ``rclpy.init``).
 
         A handler is installed even where the disposition was "ignore" (as a
@@ -347,7 +353,8 @@ class SignalWatcher:
             os._exit(128 + again)
 
 
-def run_node(factory, name, num_threads=4, args=None):
+def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
+             args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it, and shut down quietly.
 
     Ctrl-C and SIGTERM end with exit code 0 and no traceback (see

@@ -97,7 +97,7 @@ class DriverNode(Node):
     ``~/reset`` services. Nothing but parameters, messages, services and logging here.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         super().__init__('driver')
         self.settings = s = declare_parameters(self, PARAMETERS)
         _check_settings(s)
@@ -314,7 +314,7 @@ class DriverNode(Node):
         return messages.OK, 'streaming'
 
     # ------------------------------------------------------------ shutdown
-    def stop(self):
+    def stop(self) -> None:
         """Stop the reader thread, hold the card at 0 V, close the port and the bag."""
         self._stop_event.set()
         self._thread.join(5.0)
@@ -331,7 +331,7 @@ class DriverNode(Node):
             self.writer = None
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     """Console script `driver`: spin the node until Ctrl-C / SIGTERM."""
     return run_node(DriverNode, 'driver', num_threads=1, args=args)
 

@@ -1,10 +1,13 @@
 """The only place that knows ROS message types: conversions and the QoS profiles."""
 
+from collections.abc import Iterable, Mapping
 import json
 import math
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension, String
@@ -49,7 +52,7 @@ ROBOT_DEPTH = 1000
 """Queue of the robot's own topics (JointState, command) for the live topics input."""
 
 
-def robot_qos(reliable):
+def robot_qos(reliable: bool) -> QoSProfile:
     """QoS for a robot topic: reliable only when every publisher found is reliable.
 
     A reliable subscription never matches a best-effort (sensor-data) publisher; a
@@ -62,7 +65,7 @@ def robot_qos(reliable):
                       durability=DurabilityPolicy.VOLATILE)
 
 
-def all_reliable(endpoints):
+def all_reliable(endpoints: Iterable[Any]) -> bool:
     """Whether every endpoint (``TopicEndpointInfo``) offers reliable delivery."""
     return bool(endpoints) and all(
         e.qos_profile.reliability == ReliabilityPolicy.RELIABLE for e in endpoints)
@@ -75,13 +78,13 @@ TYPE_NAMES = {Float64MultiArray: 'std_msgs/msg/Float64MultiArray',
 JOINT_FIELDS = ('position', 'velocity', 'effort')
 
 
-def joint_value(msg, index, field):
+def joint_value(msg: JointState, index: int, field: str) -> float:
     """``msg.<field>[index]`` of a JointState as float, NaN when the array is short."""
     values = getattr(msg, field)
     return float(values[index]) if index < len(values) else math.nan
 
 
-def stamp_seconds(stamp):
+def stamp_seconds(stamp: Any) -> float:
     """A ``builtin_interfaces/Time`` in seconds (0.0 for an unset stamp)."""
     return stamp.sec + 1e-9 * stamp.nanosec
 
@@ -94,7 +97,7 @@ OK, WARN, ERROR, STALE = (DiagnosticStatus.OK, DiagnosticStatus.WARN, Diagnostic
                           DiagnosticStatus.STALE)
 
 
-def rows_to_msg(rows):
+def rows_to_msg(rows: ArrayLike) -> Float64MultiArray:
     """A batch of sample rows -> ``std_msgs/Float64MultiArray`` (CONTRACTS.md layout).
 
     Parameters
@@ -114,7 +117,7 @@ def rows_to_msg(rows):
     return msg
 
 
-def msg_to_rows(msg):
+def msg_to_rows(msg: Float64MultiArray) -> NDArray[np.float64]:
     """``Float64MultiArray`` -> ndarray (n, 6); :class:`DataError` if the layout is wrong.
 
     The rule is :func:`motor_id.contracts.batch_rows`, the same the bag reader applies.
@@ -127,12 +130,12 @@ def msg_to_rows(msg):
         raise DataError(f'samples message: {exc}') from None
 
 
-def float_msg(value):
+def float_msg(value: float) -> Float64:
     """A ``std_msgs/Float64``."""
     return Float64(data=float(value))
 
 
-def string_msg(text):
+def string_msg(text: str) -> String:
     """A ``std_msgs/String``."""
     return String(data=str(text))
 
@@ -147,7 +150,8 @@ def _fmt(value):
     return str(value)
 
 
-def status(name, level, message, values=None, hardware_id=''):
+def status(name: str, level: int, message: str, values: Mapping[str, Any] | None = None,
+           hardware_id: str = '') -> DiagnosticStatus:
     """One ``diagnostic_msgs/DiagnosticStatus`` with string key/values."""
     st = DiagnosticStatus(level=level, name=name, message=str(message),
                           hardware_id=str(hardware_id))
@@ -155,7 +159,7 @@ def status(name, level, message, values=None, hardware_id=''):
     return st
 
 
-def diagnostic_array(stamp, statuses):
+def diagnostic_array(stamp: Any, statuses: Iterable[DiagnosticStatus]) -> DiagnosticArray:
     """``diagnostic_msgs/DiagnosticArray`` of the given statuses stamped ``stamp``."""
     msg = DiagnosticArray()
     msg.header.stamp = stamp
@@ -163,7 +167,7 @@ def diagnostic_array(stamp, statuses):
     return msg
 
 
-def units_of(input_kind='voltage'):
+def units_of(input_kind: str = 'voltage') -> dict[str, str]:
     """SI units by parameter name for a ``voltage`` or ``torque`` plant."""
     units = dict(UNITS)
     if input_kind == 'torque':
@@ -171,7 +175,7 @@ def units_of(input_kind='voltage'):
     return units
 
 
-def estimate_values(report):
+def estimate_values(report: Mapping[str, Any]) -> dict[str, Any]:
     """Flatten a fit report dict into ordered key/values.
 
     Keys are ``NAME``, ``NAME_std``, ``NAME_unit`` (SI, from
@@ -196,7 +200,8 @@ def estimate_values(report):
     return values
 
 
-def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate', hardware_id=''):
+def estimate_to_msg(stamp: Any, report: Mapping[str, Any], summary: str = '',
+                    name: str = 'motor_id: estimate', hardware_id: str = '') -> DiagnosticArray:
     """The latched estimate: a DiagnosticArray with one status holding the parameters."""
     values = estimate_values(report)
     undetermined = [k for k, p in report.get('parameters', {}).items()
@@ -209,13 +214,13 @@ def estimate_to_msg(stamp, report, summary='', name='motor_id: estimate', hardwa
     return diagnostic_array(stamp, [status(name, level, message, values, hardware_id)])
 
 
-def msg_to_estimate(msg):
+def msg_to_estimate(msg: DiagnosticArray) -> dict[str, str]:
     """Read an estimate DiagnosticArray back into ``{key: str}`` (first status)."""
     if not msg.status:
         return {}
     return {kv.key: kv.value for kv in msg.status[0].values}
 
 
-def report_msg(report):
+def report_msg(report: Mapping[str, Any]) -> String:
     """The full fit report as JSON in a ``std_msgs/String`` (NaN/inf become null)."""
     return String(data=json.dumps(to_jsonable(report)))

@@ -2,6 +2,8 @@
 
 import time
 
+import numpy as np
+from numpy.typing import NDArray
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -27,7 +29,8 @@ class Replayer(Node):
         (default: up to 5 s for one).
     """
 
-    def __init__(self, rows, rate=1.0, batch=10, subscribers=None):
+    def __init__(self, rows: NDArray[np.float64], rate: float = 1.0, batch: int = 10,
+                 subscribers: int | None = None) -> None:
         super().__init__('replayer')
         self.rows = rows
         self.rate = rate
@@ -61,12 +64,13 @@ class Replayer(Node):
             self.get_logger().info(f'replayed {len(self.rows)} samples')
             self.stop()
 
-    def stop(self):
+    def stop(self) -> None:
         """End the replay (at the end of the rows, or early on a signal)."""
         self.done.set()
 
 
-def replay(rows, rate, batch=10, subscribers=None):
+def replay(rows: NDArray[np.float64], rate: float, batch: int = 10,
+           subscribers: int | None = None) -> int:
     """Publish every row, paced, then return the number published.
 
     Ctrl-C or SIGTERM stops early and cleanly (see :class:`SignalWatcher`); call from

@@ -34,7 +34,7 @@ def _held(path):
         os.close(fd)
 
 
-def clean_stale_shm(shm_dir=SHM_DIR, min_age_s=5.0):
+def clean_stale_shm(shm_dir: str = SHM_DIR, min_age_s: float = 5.0) -> list[str]:
     """Remove Fast DDS shared-memory segments and ports whose owners are gone.
 
     Parameters

@@ -1,11 +1,15 @@
 """Live input from a robot's own topics: JointState plus a Float64 command, aligned."""
 
+from collections.abc import Mapping
 import math
+from typing import Any
 
+from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from motor_id.data.align import StreamAligner
+from motor_id.data.buffer import SampleBuffer
 from motor_id.nodes import messages
 from motor_id.nodes.common import TopicWatch
 
@@ -34,7 +38,7 @@ class TopicInput:
         ``effort_is``, ``align``.
     """
 
-    def __init__(self, node, buffer, settings):
+    def __init__(self, node: Node, buffer: SampleBuffer, settings: Mapping[str, Any]) -> None:
         self.node = node
         self.buffer = buffer
         self.joint = settings['joint_name']
@@ -42,10 +46,10 @@ class TopicInput:
         self.current_field = settings['current_field']
         self.torque = settings['effort_is'] == 'torque'
         self.aligner = StreamAligner(settings['align'])
-        self.origin = None
-        self.index = None
-        self._warned = set()
-        self.subscriptions = {}
+        self.origin: float | None = None
+        self.index: int | None = None
+        self._warned: set[str] = set()
+        self.subscriptions: dict[str, Any] = {}
         self.watches = [TopicWatch(node, messages.JOINT_STATES_TOPIC,
                                    messages.TYPE_NAMES[JointState],
                                    lambda eps: self._subscribe('joint', eps))]
@@ -121,7 +125,7 @@ class TopicInput:
         if len(rows):
             self.buffer.extend(rows)
 
-    def counts(self):
+    def counts(self) -> dict[str, Any]:
         """Counters for the diagnostics."""
         return {'dropped_no_command': self.aligner.dropped_no_command,
                 'dropped_out_of_order': self.aligner.dropped_out_of_order,
