@@ -1,13 +1,16 @@
 """`motor-id bag`: inspect an MCAP recording or recover a truncated one."""
 
+import argparse
+from collections.abc import Mapping
 import json
 import os
+from typing import Any
 
 from motor_id.bag import bag_info, DEFAULT_CHUNK_SIZE, recover
 from motor_id.errors import BagError
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Subcommands ``info BAG`` and ``recover BAG OUT``."""
     sub = parser.add_subparsers(dest='action', metavar='ACTION', required=True)
     info = sub.add_parser('info', help='topics, types, counts, duration, integrity')
@@ -23,7 +26,7 @@ def add_arguments(parser):
                      help='chunk size of the output (default %(default)s)')
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Run the chosen action; returns the exit code."""
     if args.action == 'info':
         info = bag_info(args.bag)
@@ -44,7 +47,7 @@ def run(args):
     return 0
 
 
-def format_info(info):
+def format_info(info: Mapping[str, Any]) -> str:
     """Human-readable text of :func:`motor_id.bag.bag_info`."""
     lines = [
         f'file:        {info["path"]} ({info["size_bytes"]} bytes)',

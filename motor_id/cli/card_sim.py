@@ -1,5 +1,6 @@
 """`motor-id card-sim`: run a simulated serial card on a pseudo-terminal."""
 
+import argparse
 import json
 import signal
 import threading
@@ -10,7 +11,7 @@ from motor_id.errors import ConfigError
 from motor_id.model import METHODS
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id card-sim`."""
     parser.add_argument('--params', metavar='FILE',
                         help='JSON motor parameters {J, K_T, K_b, B, L_m, R_m} and optional '
@@ -41,7 +42,7 @@ def add_arguments(parser):
                         help='write the true parameters and settings as JSON')
 
 
-def simulator_from_args(args):
+def simulator_from_args(args: argparse.Namespace) -> CardSimulator:
     """Build a (not yet started) :class:`CardSimulator` from parsed CLI arguments."""
     plant = plant_from_args(args.params, args.effect)
     parts = parse_noise(args.noise, 'std values')
@@ -55,7 +56,7 @@ def simulator_from_args(args):
                          profiles=not args.no_profiles)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Serve the simulated card until SIGINT or SIGTERM; print the device path first."""
     sim = simulator_from_args(args)
     done = threading.Event()

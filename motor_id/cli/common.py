@@ -1,10 +1,12 @@
 """Argument helpers shared by the subcommands that build a plant (simulate, card-sim)."""
 
+from collections.abc import Iterable
+
 from motor_id.errors import ConfigError
 from motor_id.model import parse_effect_args, Plant
 
 
-def plant_from_args(params_path, effect_items):
+def plant_from_args(params_path: str | None, effect_items: Iterable[str] | None) -> Plant:
     """The plant of ``--params FILE`` (default: the paper's motor) plus ``--effect`` items."""
     plant = Plant.from_json(params_path) if params_path else Plant()
     if effect_items:
@@ -13,7 +15,7 @@ def plant_from_args(params_path, effect_items):
     return plant
 
 
-def parse_noise(text, what):
+def parse_noise(text: str, what: str) -> list[float]:
     """``SPEED[,CURRENT]`` -> list of floats; ``what`` names the unit in the message."""
     try:
         return [float(x) for x in text.split(',')]

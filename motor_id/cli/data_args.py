@@ -1,18 +1,22 @@
 """Data-source options shared by every subcommand that reads a recording."""
 
+import argparse
+from collections.abc import Iterable
 import sys
+from typing import Any, TextIO
 
 from motor_id.data.csv_io import parse_columns
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import load_profile, Mapping
 from motor_id.data.shift import detect_shift, shift_input
 from motor_id.errors import ConfigError, DataError
+from motor_id.recording import Recording
 
 DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), or a rosbag2 recording: '
              'an .mcap or .db3 file or a bag folder')
 
 
-def add_data_arguments(parser, profile=True):
+def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) -> None:
     """Add the options that say how to read DATA (CSV columns, bag topics, alignment).
 
     Parameters
@@ -50,7 +54,7 @@ def add_data_arguments(parser, profile=True):
                             'effort_is, align, input_kind, shift, columns); flags override')
 
 
-def settings_from_args(args):
+def settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """The merged data settings: the profile's values overridden by the flags.
 
     Returns
@@ -80,7 +84,8 @@ def settings_from_args(args):
             'input_kind': merged.get('input_kind'), 'shift': shift, 'mapping': mapping}
 
 
-def load_from_args(args, path=None, validate=True, stream=None):
+def load_from_args(args: argparse.Namespace, path: str | None = None, validate: bool = True,
+                   stream: TextIO | None = None) -> Recording:
     """Read the recording the options describe, check it, report a time shift.
 
     Parameters
@@ -120,14 +125,14 @@ def load_from_args(args, path=None, validate=True, stream=None):
     return rec
 
 
-def load_runs(args, paths=None, stream=None):
+def load_runs(args: argparse.Namespace, paths: Iterable[str] | None = None,
+              stream: TextIO | None = None) -> Recording:
     """Read one or several recordings of one motor (separate runs) as one recording.
 
     Each path is read and checked as by :func:`load_from_args`; several are joined with
     :meth:`motor_id.recording.Recording.concatenate` (shared parameters, an initial
     state per run).
     """
-    from motor_id.recording import Recording
     paths = list(paths if paths is not None else args.data)
     recs = [load_from_args(args, path=p, stream=stream) for p in paths]
     if len(recs) == 1:

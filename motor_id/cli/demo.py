@@ -1,5 +1,6 @@
 """`motor-id demo`: simulated card, driver and identifier as processes; bag, report, plots."""
 
+import argparse
 import json
 import os
 import random
@@ -16,7 +17,7 @@ NOISE = '0.02,0.0015'
 """Card measurement noise: about 0.5 % of the speed and 1 % of the current spread."""
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id demo`."""
     parser.add_argument('--out', default='out', metavar='DIR',
                         help='where the bag, report.json and plots go (default: out)')
@@ -33,7 +34,7 @@ def _say(text):
     print(text, flush=True)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Run the demo end to end; exit 0 when the estimate came back."""
     t_start = time.monotonic()
     out = os.path.abspath(args.out)

@@ -1,5 +1,6 @@
 """`motor-id import`: convert measured data (emps, dunker, csv, any rosbag2) to MCAP."""
 
+import argparse
 import os
 
 from motor_id.bag import write_recording
@@ -8,7 +9,7 @@ from motor_id.data.importers import load, SOURCES
 from motor_id.errors import ConfigError
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """``motor-id import emps|dunker|csv|bag SRC OUT.mcap [--motor N] [data options]``."""
     parser.add_argument('source', choices=SOURCES, help='kind of the input data')
     parser.add_argument('src', metavar='SRC',
@@ -23,7 +24,7 @@ def add_arguments(parser):
     add_data_arguments(parser)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Convert, write the bag, print a one-line summary."""
     if not str(args.out).endswith('.mcap'):
         raise ConfigError(f'output must be an .mcap file, got {args.out!r}')

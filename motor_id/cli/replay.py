@@ -1,5 +1,7 @@
 """`motor-id replay`: identify from a bag offline, or republish it into the ROS graph."""
 
+import argparse
+
 import numpy as np
 
 from motor_id.cli.data_args import add_data_arguments, load_from_args
@@ -10,7 +12,7 @@ from motor_id.errors import ConfigError
 LAST_RUN = 'last-run'
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id replay`."""
     parser.add_argument('bag', metavar='BAG',
                         help='rosbag2 recording: .mcap or .db3 file, or a bag folder')
@@ -34,7 +36,7 @@ def add_arguments(parser):
     add_fit_arguments(parser)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Offline: the same report as `motor-id fit`; --rate: publish and exit."""
     args.data = args.bag   # identify_and_report names plots after args.data
     last_run = args.last_run or args.profile == LAST_RUN

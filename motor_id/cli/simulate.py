@@ -1,5 +1,6 @@
 """`motor-id simulate`: write simulated motor data to CSV so anyone can try the tool."""
 
+import argparse
 import json
 
 import numpy as np
@@ -11,7 +12,7 @@ from motor_id.excitation import make_excitation, PROFILES
 from motor_id.simulate import simulate_recording
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id simulate`."""
     parser.add_argument('--params', metavar='FILE',
                         help="JSON motor parameters (default: the paper's motor)")
@@ -29,7 +30,7 @@ def add_arguments(parser):
     parser.add_argument('--seed', type=int, default=0)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Simulate and write the CSV."""
     plant = plant_from_args(args.params, args.effect)
     parts = parse_noise(args.noise, 'fractions')
