@@ -1,6 +1,8 @@
 """A ROS client for scripts and tests: a node in its own context, spun in a thread."""
 
+from collections.abc import Callable
 import threading
+from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -24,7 +26,7 @@ class RosClient:
         Node name.
     """
 
-    def __init__(self, domain, name='motor_id_client'):
+    def __init__(self, domain: int, name: str = 'motor_id_client') -> None:
         use_ros_env(domain)
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
@@ -40,17 +42,19 @@ class RosClient:
         except ExternalShutdownException:
             pass
 
-    def subscribe(self, msg_type, topic, qos, callback):
+    def subscribe(self, msg_type: type, topic: str, qos: Any,
+                  callback: Callable[[Any], None]) -> Any:
         """Subscribe ``callback`` to ``topic``."""
         return self.node.create_subscription(msg_type, topic, callback, qos)
 
-    def collect(self, msg_type, topic, qos):
+    def collect(self, msg_type: type, topic: str, qos: Any) -> list[Any]:
         """Subscribe and return a list that fills with the received messages."""
-        box = []
+        box: list[Any] = []
         self.subscribe(msg_type, topic, qos, box.append)
         return box
 
-    def call_async(self, srv_type, name, request=None, wait_service=20.0):
+    def call_async(self, srv_type: Any, name: str, request: Any = None,
+                   wait_service: float = 20.0) -> Any:
         """Start a service call; return its future.
 
         Raises
@@ -64,7 +68,8 @@ class RosClient:
             raise MotorIdError(f'service {name} did not appear in {wait_service:g} s')
         return cli.call_async(request if request is not None else srv_type.Request())
 
-    def call(self, srv_type, name, request=None, timeout=60.0, wait_service=20.0):
+    def call(self, srv_type: Any, name: str, request: Any = None, timeout: float = 60.0,
+             wait_service: float = 20.0) -> Any:
         """Call a service and wait for the response.
 
         Raises
@@ -79,12 +84,13 @@ class RosClient:
             raise MotorIdError(f'service {name} did not answer in {timeout:g} s')
         return future.result()
 
-    def trigger(self, name, timeout=60.0, wait_service=20.0):
+    def trigger(self, name: str, timeout: float = 60.0,
+                wait_service: float = 20.0) -> tuple[bool, str]:
         """Call a ``std_srvs/Trigger`` service; return ``(success, message)``."""
         res = self.call(Trigger, name, timeout=timeout, wait_service=wait_service)
         return res.success, res.message
 
-    def close(self):
+    def close(self) -> None:
         """Stop spinning, destroy the node and shut its context down."""
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()

@@ -3,6 +3,7 @@
 import json
 import threading
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -23,12 +24,12 @@ class DemoClient(RosClient):
         ROS domain id of the demo graph.
     """
 
-    def __init__(self, domain):
+    def __init__(self, domain: int) -> None:
         super().__init__(domain, 'motor_id_demo')
         self.samples = 0
         self.profile_end = threading.Event()
-        self.reports = []
-        self.status = {}
+        self.reports: list[dict[str, Any]] = []
+        self.status: dict[str, dict[str, str]] = {}
         self.subscribe(Float64MultiArray, messages.SAMPLES_TOPIC, messages.SAMPLES_QOS,
                        self._on_samples)
         self.subscribe(String, '/identifier/' + messages.REPORT_TOPIC, messages.LATCHED_QOS,
@@ -52,11 +53,11 @@ class DemoClient(RosClient):
         except ValueError:
             return 0
 
-    def wait_identifier_receiving(self, timeout=30.0):
+    def wait_identifier_receiving(self, timeout: float = 30.0) -> bool:
         """Wait until the identifier reports received samples (it is subscribed)."""
         return wait_until(lambda: self._received() > 0, timeout, 0.1)
 
-    def identify(self, retry_for=10.0):
+    def identify(self, retry_for: float = 10.0) -> tuple[bool, str]:
         """Call /identifier/identify, retrying while the last rows are still arriving."""
         deadline = time.monotonic() + retry_for
         while True:
@@ -65,7 +66,7 @@ class DemoClient(RosClient):
                 return ok, text
             time.sleep(0.3)
 
-    def wait_report(self, count, timeout=10.0):
+    def wait_report(self, count: int, timeout: float = 10.0) -> dict[str, Any] | None:
         """Wait until at least ``count`` reports were received; return the last."""
         wait_until(lambda: len(self.reports) >= count, timeout)
         return self.reports[-1] if self.reports else None

@@ -22,14 +22,17 @@ magnitude (the analysis' value from the verdict's model, else from the effect's 
 candidate model) for named effects.
 """
 
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 import math
 import time
+from typing import Any
 
 import numpy as np
 
 from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.recording import Recording
 from motor_id.testing import independent_sim
 from motor_id.testing.hidden import make_case as make_hidden_case
 from motor_id.testing.hidden import VOLTAGE_EFFECTS
@@ -68,21 +71,22 @@ class CaseSpec:
     r_m_error: float = 0.0
 
 
-def generator_effects(generator):
+def generator_effects(generator: str) -> tuple[str, ...]:
     """Effects a generator can hide, in its own order."""
     if generator == 'hidden':
         return tuple(VOLTAGE_EFFECTS)
     return tuple(independent_sim.EFFECTS)
 
 
-def r_m_error(seed):
+def r_m_error(seed: int) -> float:
     """The seeded relative error of the told resistance: +-U(2 %, 5 %)."""
     rng = np.random.default_rng([int(seed), 0x5E5])
     return float(rng.choice([-1.0, 1.0]) * rng.uniform(*R_M_ERROR))
 
 
-def plan(generator, noise, n_cases, seed0=0, max_samples=None, exact_rm=False,
-         effects=None):
+def plan(generator: str, noise: float, n_cases: int, seed0: int = 0,
+         max_samples: int | None = None, exact_rm: bool = False,
+         effects: Sequence[str] | None = None) -> list[CaseSpec]:
     """The seeded case list of one generator at one noise level.
 
     Parameters
@@ -126,7 +130,7 @@ def plan(generator, noise, n_cases, seed0=0, max_samples=None, exact_rm=False,
     return specs
 
 
-def make_recording(spec):
+def make_recording(spec: CaseSpec) -> tuple[Recording, dict[str, Any], float]:
     """Generate a case: ``(recording, truth dict, R_m told to the analysis)``."""
     if spec.generator == 'hidden':
         rec, case = make_hidden_case(spec.seed, effect=spec.effect, n_samples=4000,
@@ -142,11 +146,11 @@ def make_recording(spec):
                  'motor_class': 'paper (perturbed)', 'excitation': d['excitation'],
                  'sample_period': d['sample_period'], 'n_samples': d['n_samples']}
     elif spec.generator == 'independent':
-        data, case = independent_sim.make_case(
+        data, truth_case = independent_sim.make_case(
             spec.seed, effect=spec.effect, motor_class=spec.motor_class,
             n_samples=spec.n_samples, noise=spec.noise, r_m_error=spec.r_m_error)
         rec = independent_sim.to_recording(data)
-        d = case.to_dict()
+        d = truth_case.to_dict()
         r_true = float(d['motor']['R'])
         r_known = float(data['known']['R_m'])
         truth = {'effect': d['effect'], 'effect_params': d['effect_params'],
@@ -181,7 +185,7 @@ def _lookup(params, effect, name):
     return None
 
 
-def found_parameter(rep, effect, found):
+def found_parameter(rep: Any, effect: str, found: Sequence[str]) -> float | None:
     """The analysis' value of the effect's magnitude (verdict model first), or None."""
     name = MAGNITUDE.get(effect)
     if name is None:
@@ -216,7 +220,8 @@ def _candidate(d):
             'parameters': _compact(d.get('parameters'))}
 
 
-def top_candidates(rep, k=3, effect=None):
+def top_candidates(rep: Any, k: int = 3, effect: str | None = None,
+                   ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
     """The k dynamic models with the largest held-out gain, and ``effect``'s own model.
 
     Returns
@@ -248,7 +253,7 @@ def _names(entries):
     return [a['name'] if isinstance(a, dict) else str(a) for a in entries or []]
 
 
-def analyse(spec, candidates=None):
+def analyse(spec: CaseSpec, candidates: Sequence[str] | None = None) -> dict[str, Any]:
     """Generate and analyse one case; returns a row (a plain dict)."""
     row = {**asdict(spec), 'truth': None, 'verdict': None, 'found': [], 'ambiguous': [],
            'named': False, 'exact': False, 'spurious': False, 'false_alarm': False,
@@ -306,7 +311,10 @@ def _analyse_job(job):
     return analyse(spec, candidates)
 
 
-def run_cases(specs, candidates=None, jobs=1, progress=None):
+def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None,
+              jobs: int = 1,
+              progress: Callable[[int, int, dict[str, Any]], None] | None = None,
+              ) -> list[dict[str, Any]]:
     """Analyse every case (in ``jobs`` worker processes); rows in the order of ``specs``."""
     work = [(s, candidates) for s in specs]
     rows = []
@@ -324,7 +332,7 @@ def run_cases(specs, candidates=None, jobs=1, progress=None):
     return rows
 
 
-def rates(rows):
+def rates(rows: Iterable[dict[str, Any]]) -> dict[str, Any]:
     """Counts and rates of a set of rows (generator failures excluded)."""
     rows = [r for r in rows if not r.get('generator_error')]
     eff = [r for r in rows if r['effect'] != 'none']
@@ -354,7 +362,7 @@ def rates(rows):
     return out
 
 
-def is_failure(row):
+def is_failure(row: Mapping[str, Any]) -> str:
     """Why a row is listed among the failures ('' when it is not)."""
     if row['error']:
         return 'error'
@@ -399,7 +407,7 @@ def _case_head(r, why):
     return head
 
 
-def failure_lines(rows):
+def failure_lines(rows: Iterable[dict[str, Any]]) -> list[str]:
     """Markdown lines: one bullet per failing case with truth, verdict and top candidates."""
     lines = []
     for r in rows:
@@ -426,8 +434,9 @@ def failure_lines(rows):
     return lines
 
 
-def build_plan(quick=False, cases=None, generators=GENERATORS, levels=NOISE_LEVELS,
-               exact_rm=False):
+def build_plan(quick: bool = False, cases: int | None = None,
+               generators: Sequence[str] = GENERATORS,
+               levels: Sequence[float] = NOISE_LEVELS, exact_rm: bool = False) -> list[CaseSpec]:
     """Every case of a run, seeded: the same arguments give the same cases."""
     specs = []
     for gi, g in enumerate(GENERATORS):

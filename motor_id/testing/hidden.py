@@ -43,6 +43,7 @@ there, too.
 """
 
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -78,7 +79,7 @@ class HiddenCase:
     noise: dict
     known: dict = field(default_factory=dict)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
 
@@ -87,7 +88,7 @@ def _loguniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def perturbed_motor(rng, spread=0.25):
+def perturbed_motor(rng: np.random.Generator, spread: float = 0.25) -> MotorParams:
     """The paper's motor with each parameter scaled by ``exp(U(-spread, spread))``.
 
     K_T and K_b are equal (one constant in SI units); B spreads twice as wide.
@@ -102,7 +103,8 @@ def perturbed_motor(rng, spread=0.25):
                        R_m=p.R_m * f(0.8 * spread))
 
 
-def effect_magnitude(name, rng, motor, amplitude, t, u):
+def effect_magnitude(name: str, rng: np.random.Generator, motor: MotorParams,
+                     amplitude: float, t: np.ndarray, u: np.ndarray) -> dict[str, float]:
     """Draw the parameters of effect ``name`` inside its detectable range.
 
     Parameters
@@ -159,8 +161,10 @@ def effect_magnitude(name, rng, motor, amplitude, t, u):
     raise ConfigError(f'the generator cannot hide {name!r}; choose from {VOLTAGE_EFFECTS}')
 
 
-def make_case(seed, effect=None, excitation=None, n_samples=4000, sample_period=0.01,
-              noise=(0.005, 0.01), r_m_error=None):
+def make_case(seed: int, effect: str | None = None, excitation: str | None = None,
+              n_samples: int = 4000, sample_period: float = 0.01,
+              noise: tuple[float, float] = (0.005, 0.01),
+              r_m_error: float | None = None) -> tuple[Recording, HiddenCase]:
     """Generate one case.
 
     Parameters

@@ -31,10 +31,13 @@ difference over the past period, i.e. the mean speed of that period on a grid of
 q = 2 pi / (cpr T).
 """
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 import math
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 try:  # numba is a dependency of the project; the plain-Python path is only a fallback
     import numba
@@ -77,34 +80,34 @@ class Motor:
     motor_class: str = 'custom'
 
     @property
-    def tau_e(self):
+    def tau_e(self) -> float:
         """Electrical time constant L / R [s]."""
         return self.L / self.R
 
     @property
-    def tau_m(self):
+    def tau_m(self) -> float:
         """Mechanical time constant J R / (R B + K^2) [s]."""
         return self.J * self.R / (self.R * self.B + self.K ** 2)
 
-    def no_load_speed(self, voltage):
+    def no_load_speed(self, voltage: float) -> float:
         """Steady no-load speed V K / (R B + K^2) [rad/s] at ``voltage``."""
         return voltage * self.K / (self.R * self.B + self.K ** 2)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with the analysis' symbols (J, K_T, K_b, B, L_m, R_m) too."""
         d = asdict(self)
         d.update(K_T=self.K, K_b=self.K, L_m=self.L, R_m=self.R)
         return d
 
     @classmethod
-    def from_dict(cls, d):
+    def from_dict(cls, d: Mapping[str, Any]) -> 'Motor':
         """Inverse of :meth:`to_dict` (the analysis' duplicate symbols are ignored)."""
         return cls(**{k: d[k] for k in ('J', 'K', 'R', 'L', 'B', 'V_supply', 'motor_class')})
 
 
 # ----------------------------------------------------------------------------- amplifier
 
-def amplifier(command, effects=None):
+def amplifier(command: ArrayLike, effects: Mapping[str, Any] | None = None) -> np.ndarray:
     """Terminal voltage from the command: delay d samples, clip at +-V_max, then dead zone.
 
     Parameters
@@ -370,7 +373,8 @@ def _param_vector(motor, effects):
     return p
 
 
-def default_n_sub(motor, sample_period, effects=None):
+def default_n_sub(motor: Motor, sample_period: float,
+                  effects: Mapping[str, Any] | None = None) -> int:
     """Sub-steps per sample: each RK4 step at most 0.7 x the fastest time scale."""
     effects = effects or {}
     # heating may raise R by up to ~1.5 x, shortening L/R
@@ -394,7 +398,9 @@ def _check_effects(effects):
         raise ValueError(f'unknown effect(s) {sorted(unknown)}; choose from {EFFECTS}')
 
 
-def integrate(motor, voltage, sample_period, effects=None, n_sub=None):
+def integrate(motor: Motor, voltage: ArrayLike, sample_period: float,
+              effects: Mapping[str, Any] | None = None,
+              n_sub: int | None = None) -> dict[str, np.ndarray]:
     """Integrate the motor over held (zero-order hold) terminal voltages with RK4 sub-steps.
 
     Parameters
@@ -440,7 +446,8 @@ def integrate(motor, voltage, sample_period, effects=None, n_sub=None):
 
 # ---------------------------------------------------------------------------- measurement
 
-def encoder_speed(angle, cpr, sample_period, jitter, rng):
+def encoder_speed(angle: np.ndarray, cpr: int, sample_period: float, jitter: float,
+                  rng: np.random.Generator) -> np.ndarray:
     """Speed from an incremental encoder: count differences per sample period.
 
     Parameters
@@ -467,7 +474,10 @@ def encoder_speed(angle, cpr, sample_period, jitter, rng):
     return np.diff(counts) * (2.0 * math.pi / (cpr * sample_period))
 
 
-def measure(states, sample_period, effects=None, noise=(0.005, 0.005), rng=None):
+def measure(states: Mapping[str, np.ndarray], sample_period: float,
+            effects: Mapping[str, Any] | None = None,
+            noise: tuple[float, float] = (0.005, 0.005),
+            rng: int | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Measured speed and current from the true states.
 
     Speed: the encoder (``speed_quantization``, ``{'cpr': int}``) with noise as angle
@@ -498,8 +508,11 @@ def measure(states, sample_period, effects=None, noise=(0.005, 0.005), rng=None)
     return speed, current
 
 
-def simulate(motor, command, sample_period, effects=None, noise=(0.005, 0.005), rng=None,
-             n_sub=None):
+def simulate(motor: Motor, command: ArrayLike, sample_period: float,
+             effects: Mapping[str, Any] | None = None,
+             noise: tuple[float, float] = (0.005, 0.005),
+             rng: int | np.random.Generator | None = None,
+             n_sub: int | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Command -> amplifier -> motor -> sensors.
 
     Returns

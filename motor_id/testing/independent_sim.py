@@ -35,8 +35,10 @@ zone look alike on it.
 """
 
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 import math
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -51,6 +53,9 @@ from motor_id.testing.independent_physics import (
     Motor,
     simulate,
 )
+
+if TYPE_CHECKING:  # the one motor_id import, inside to_recording
+    from motor_id.recording import Recording
 
 __all__ = ['ALPHA_COPPER', 'amplifier', 'CaseTruth', 'default_n_sub', 'draw_motor', 'EFFECTS',
            'encoder_speed', 'EXCITATIONS', 'integrate', 'make_case', 'make_excitation',
@@ -96,7 +101,7 @@ class CaseTruth:
     noise: dict
     known: dict = field(default_factory=dict)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
 
@@ -105,7 +110,7 @@ def _loguniform(rng, lo, hi):
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
-def draw_motor(rng, motor_class):
+def draw_motor(rng: np.random.Generator, motor_class: str) -> Motor:
     """Draw a datasheet-like motor of ``motor_class`` with a seeded random spread.
 
     Parameters
@@ -146,7 +151,8 @@ def _prbs_bits(n_bits, rng):
     return bits
 
 
-def make_excitation(kind, n_samples, sample_period, amplitude, tau_m, rng):
+def make_excitation(kind: str, n_samples: int, sample_period: float, amplitude: float,
+                    tau_m: float, rng: np.random.Generator) -> np.ndarray:
     """A command profile of this simulator's own.
 
     Parameters
@@ -278,8 +284,10 @@ def _draw_heating(rng, motor, command, T, n_sub):
     return sim, analysis
 
 
-def make_case(seed, effect=None, motor_class=None, sample_period=None, n_samples=None,
-              noise=0.005, r_m_error=0.0, excitation=None):
+def make_case(seed: int, effect: str | None = None, motor_class: str | None = None,
+              sample_period: float | None = None, n_samples: int | None = None,
+              noise: float | tuple[float, float] = 0.005, r_m_error: float = 0.0,
+              excitation: str | None = None) -> tuple[dict[str, Any], CaseTruth]:
     """Generate one seeded case: motor, excitation, at most one effect, noise.
 
     Parameters
@@ -344,8 +352,8 @@ def make_case(seed, effect=None, motor_class=None, sample_period=None, n_samples
                                                  sample_period, n_sub)
         sim_effects = {effect: sim_params}
         n_sub = default_n_sub(motor, sample_period, sim_effects)
-    noise = (float(noise), float(noise)) if np.ndim(noise) == 0 else tuple(map(float, noise))
-    speed, current, _ = simulate(motor, command, sample_period, sim_effects, noise, rng, n_sub)
+    levels = _noise_levels(noise)
+    speed, current, _ = simulate(motor, command, sample_period, sim_effects, levels, rng, n_sub)
     t = np.arange(n_samples) * sample_period
     known = {'R_m': motor.R * (1.0 + r_m_error)}
     data = {'time': t, 'input': command, 'speed': speed, 'current': current,
@@ -354,12 +362,20 @@ def make_case(seed, effect=None, motor_class=None, sample_period=None, n_samples
                       sim_effects=sim_effects, motor=motor.to_dict(), motor_class=motor_class,
                       excitation=excitation, amplitude=amplitude,
                       sample_period=float(sample_period), n_samples=int(n_samples),
-                      n_sub=int(n_sub), noise={'speed': noise[0], 'current': noise[1]},
+                      n_sub=int(n_sub), noise={'speed': levels[0], 'current': levels[1]},
                       known=known)
     return data, truth
 
 
-def to_recording(data):
+def _noise_levels(noise: float | tuple[float, float]) -> tuple[float, float]:
+    """``(speed, current)`` noise fractions from one value or a pair."""
+    if isinstance(noise, (int, float, np.integer, np.floating)):
+        return float(noise), float(noise)
+    speed, current = noise
+    return float(speed), float(current)
+
+
+def to_recording(data: Mapping[str, Any]) -> 'Recording':
     """Build a ``motor_id.recording.Recording`` from the data of :func:`make_case`."""
     from motor_id.recording import Recording
     meta = {'source': 'motor_id.testing.independent_sim', 'known': dict(data['known'])}
@@ -367,7 +383,7 @@ def to_recording(data):
                      data['input_kind'], meta)
 
 
-def main():
+def main() -> None:
     """Print a timing table: one 25,000-sample simulation per class and sample period."""
     import time
     make_case(0, effect='none', n_samples=2000)  # compile the kernel first

@@ -4,6 +4,7 @@ Imports no rclpy: a parent that only starts and stops nodes needs no ROS in itse
 """
 
 import atexit
+from collections.abc import Callable, Mapping, Sequence
 import os
 import re
 import signal
@@ -24,7 +25,7 @@ def _kill_leftovers():
         proc.kill()
 
 
-def domain_id(name, low=1, high=101):
+def domain_id(name: str, low: int = 1, high: int = 101) -> int:
     """A ROS_DOMAIN_ID in ``low..high`` for ``name``, varied by process id.
 
     Different names and concurrent runs get different ids (with high probability); the
@@ -33,7 +34,7 @@ def domain_id(name, low=1, high=101):
     return low + (zlib.crc32(name.encode()) + os.getpid() * 7) % (high - low + 1)
 
 
-def ros_env(domain, pythonpath=None, **extra):
+def ros_env(domain: int, pythonpath: str | None = None, **extra: object) -> dict[str, str]:
     """The environment of a node process: LOCALHOST discovery and ``domain``.
 
     Parameters
@@ -62,14 +63,15 @@ def ros_env(domain, pythonpath=None, **extra):
     return env
 
 
-def use_ros_env(domain):
+def use_ros_env(domain: int) -> None:
     """Select LOCALHOST discovery and ``domain`` for rclpy in this process."""
     os.environ.pop('ROS_STATIC_PEERS', None)
     os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     os.environ['ROS_DOMAIN_ID'] = str(domain)
 
 
-def wait_until(predicate, timeout=20.0, interval=0.05):
+def wait_until(predicate: Callable[[], object], timeout: float = 20.0,
+               interval: float = 0.05) -> bool:
     """Poll ``predicate()`` until true or ``timeout`` [s]; return whether it became true."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -92,9 +94,10 @@ class Process:
     name : str
     """
 
-    def __init__(self, args, env, logdir, name):
+    def __init__(self, args: Sequence[str], env: Mapping[str, str],
+                 logdir: str | os.PathLike[str], name: str) -> None:
         if args[0] == '-m':
-            args = [sys.executable] + list(args)
+            args = [sys.executable, *args]
         self.name = name
         self.args = args
         self.killed = False
@@ -107,30 +110,31 @@ class Process:
         _LIVE.add(self)
 
     @property
-    def pid(self):
+    def pid(self) -> int:
         return self.proc.pid
 
-    def alive(self):
+    def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def stdout(self):
+    def stdout(self) -> str:
         with open(self.out_path, errors='replace') as fh:
             return fh.read()
 
-    def stderr(self):
+    def stderr(self) -> str:
         with open(self.err_path, errors='replace') as fh:
             return fh.read()
 
-    def output(self):
+    def output(self) -> str:
         """stdout and stderr together (ROS logs go to stderr)."""
         return self.stdout() + self.stderr()
 
-    def last_line(self):
+    def last_line(self) -> str:
         """The last non-empty line of the output ('' if none)."""
         lines = self.output().strip().splitlines()
         return lines[-1] if lines else ''
 
-    def wait_for(self, pattern, timeout=20.0, stream='output'):
+    def wait_for(self, pattern: str, timeout: float = 20.0,
+                 stream: str = 'output') -> re.Match[str]:
         """Wait until ``pattern`` (regex) appears in ``stream``; return the match.
 
         Raises
@@ -152,17 +156,17 @@ class Process:
                                    f'{self.output()}')
             time.sleep(0.05)
 
-    def check(self):
+    def check(self) -> None:
         """Raise :class:`MotorIdError` with the last log line if the process has exited."""
         if self.proc.poll() is not None:
             raise MotorIdError(f'the {self.name} process exited ({self.proc.returncode}): '
                                f'{self.last_line()}')
 
-    def wait(self, timeout=20.0):
+    def wait(self, timeout: float = 20.0) -> int:
         """Wait for exit and return the code (raises ``subprocess.TimeoutExpired``)."""
         return self.proc.wait(timeout)
 
-    def stop(self, sig=signal.SIGINT, timeout=15.0):
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int:
         """Send ``sig`` and return the exit code; after ``timeout`` [s] kill the group
         (then :attr:`killed` is true)."""
         if self.proc.poll() is None:
@@ -174,7 +178,7 @@ class Process:
                 self.kill()
         return self.proc.returncode
 
-    def kill(self):
+    def kill(self) -> None:
         """Kill the process group."""
         if self.proc.poll() is None:
             try:
@@ -183,7 +187,7 @@ class Process:
                 pass
             self.proc.wait(10)
 
-    def close(self):
+    def close(self) -> None:
         """End the process: SIGINT first, so that it leaves the ROS graph at once (a
         killed participant's endpoints linger in its peers until their lease expires and
         would match the next run's publishers and clients); SIGKILL if it hangs."""
@@ -199,29 +203,29 @@ class Process:
         self._err.close()
 
 
-class Processes(dict):
+class Processes(dict[str, Process]):
     """Named :class:`Process` es sharing an environment and a log folder."""
 
-    def __init__(self, env, logdir):
+    def __init__(self, env: Mapping[str, str], logdir: str | os.PathLike[str]) -> None:
         super().__init__()
         self.env = env
         self.logdir = str(logdir)
 
-    def start(self, name, args):
+    def start(self, name: str, args: Sequence[str]) -> Process:
         """Start ``args`` as process ``name``; return it."""
         self[name] = Process(args, self.env, self.logdir, name)
         return self[name]
 
-    def check(self):
+    def check(self) -> None:
         """Raise :class:`MotorIdError` if any process has exited."""
         for proc in self.values():
             proc.check()
 
-    def stop(self, *names, timeout=15.0):
+    def stop(self, *names: str, timeout: float = 15.0) -> dict[str, int]:
         """SIGINT the named processes in turn; return ``{name: exit code}``."""
         return {name: self[name].stop(timeout=timeout) for name in names}
 
-    def close(self):
+    def close(self) -> None:
         """End every process (see :meth:`Process.close`)."""
         for proc in self.values():
             proc.close()

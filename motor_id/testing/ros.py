@@ -6,14 +6,21 @@ packages are imported where they are used, so a test that only needs :data:`REPO
 :func:`ros_env` loads no rclpy.
 """
 
+from collections.abc import Iterable
 import os
 import signal
+from typing import Any, TYPE_CHECKING
+import weakref
 
 import numpy as np
+from numpy.typing import NDArray
 
 from motor_id.contracts import SAMPLE_COLUMNS
 from motor_id.testing import procs
 from motor_id.testing.procs import domain_id, Process, wait_until
+
+if TYPE_CHECKING:  # rclpy loads only where a client is used
+    from motor_id.testing.client import RosClient
 
 __all__ = ['domain_id', 'latest_status', 'Process', 'publish_samples', 'REPO', 'ros_env',
            'rows_of', 'samples_publisher', 'stop_cleanly', 'wait_until']
@@ -28,7 +35,11 @@ def ros_env(domain: int, **extra: object) -> dict[str, str]:
     return procs.ros_env(domain, pythonpath=REPO, **extra)
 
 
-def stop_cleanly(proc, sig=None):
+_SAMPLES_PUBLISHERS: 'weakref.WeakKeyDictionary[RosClient, Any]' = weakref.WeakKeyDictionary()
+"""Each client's ``samples`` publisher, created on first use."""
+
+
+def stop_cleanly(proc: Process, sig: int | None = None) -> None:
     """Stop ``proc`` with ``sig`` (SIGINT); assert exit code 0 and no traceback."""
     code = proc.stop(signal.SIGINT if sig is None else sig)
     err = proc.stderr()
@@ -37,7 +48,7 @@ def stop_cleanly(proc, sig=None):
     assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
 
 
-def rows_of(msgs):
+def rows_of(msgs: Iterable[Any]) -> NDArray[np.float64]:
     """All rows of the collected samples messages."""
     from motor_id.nodes import messages
     msgs = list(msgs)
@@ -46,7 +57,7 @@ def rows_of(msgs):
     return np.vstack([messages.msg_to_rows(m) for m in msgs])
 
 
-def latest_status(diags, name):
+def latest_status(diags: Iterable[Any], name: str) -> dict[str, str]:
     """Key/values of the latest /diagnostics status named ``name`` (or {})."""
     for d in reversed(list(diags)):
         for st_ in d.status:
@@ -55,21 +66,21 @@ def latest_status(diags, name):
     return {}
 
 
-def samples_publisher(client):
+def samples_publisher(client: 'RosClient') -> Any:
     """The client's ``samples`` publisher, once another node subscribes to it."""
     from motor_id.nodes import messages
-    pub = getattr(client, '_samples_pub', None)
+    pub = _SAMPLES_PUBLISHERS.get(client)
     if pub is None:
         pub = client.node.create_publisher(messages.Float64MultiArray, 'samples',
                                            messages.SAMPLES_QOS)
-        client._samples_pub = pub
+        _SAMPLES_PUBLISHERS[client] = pub
     own = sum(1 for info in client.node.get_subscriptions_info_by_topic('/samples')
               if info.node_name == client.node.get_name())
     assert wait_until(lambda: pub.get_subscription_count() > own, 20.0)
     return pub
 
 
-def publish_samples(client, rows, batch=100):
+def publish_samples(client: 'RosClient', rows: NDArray[np.float64], batch: int = 100) -> None:
     """Publish sample rows on ``samples`` in batches once another node subscribes."""
     from motor_id.nodes import messages
     pub = samples_publisher(client)
