@@ -165,7 +165,7 @@ class EffectSpec:
         """Start points ``{param: array}`` (the Cartesian product of the param grids)."""
         axes = [p.start_values(scales) for p in self.params]
         mesh = np.meshgrid(*axes, indexing='ij')
-        return {p.name: m.ravel() for p, m in zip(self.params, mesh)}
+        return {p.name: m.ravel() for p, m in zip(self.params, mesh, strict=True)}
 
     def implausible(self, values, scales):
         """A one-line reason when fitted ``values`` are not plausible, else ``''``."""
@@ -427,9 +427,7 @@ def discretize(F, G, dt, method='zoh'):
     if method not in METHODS:
         raise ConfigError(f'discretisation must be one of {METHODS}, got {method!r}')
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
-    P, n, _ = F.shape
-    m = G.shape[2]
-    K = dt.shape[0]
+    n = F.shape[1]
     if method == 'euler':
         eye = np.eye(n)
         A = eye + F[:, None] * dt[None, :, None, None]

@@ -252,7 +252,7 @@ def bad_magnitude(values, relative=True):
     if huge.size:
         k = int(huge[0])
         return k, (f'{values[k]:g} is above {Recording.MAX_MAGNITUDE:g} in magnitude '
-                   '(the fit\'s arithmetic overflows): check the units or the column')
+                   "(the fit's arithmetic overflows): check the units or the column")
     if not relative:
         return None
     typical = float(np.percentile(mag, 90))

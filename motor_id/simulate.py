@@ -14,8 +14,13 @@ import time
 import numpy as np
 
 from motor_id.errors import ConfigError
-from motor_id.model import (continuous_matrices, discretize, EFFECTS, interval_integrals,
-                            validate_effects)
+from motor_id.model import (
+    continuous_matrices,
+    discretize,
+    EFFECTS,
+    interval_integrals,
+    validate_effects,
+)
 
 REGULAR_RTOL = 1e-6
 

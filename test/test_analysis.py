@@ -8,9 +8,9 @@ import pytest
 
 from motor_id.analysis import DiscrepancyAnalysis
 from motor_id.cli import main
+from motor_id.data.csv_io import write_csv
 from motor_id.excitation import bipolar_steps, multisine
 from motor_id.model import MotorParams, Plant
-from motor_id.data.csv_io import write_csv
 from motor_id.recording import Recording
 from motor_id.simulate import simulate_recording
 

@@ -3,12 +3,18 @@
 import numpy as np
 import pytest
 
-from motor_id.analysis import (binned_means, heldout_mask, inverse_dynamics, map_summary,
-                               noise_floor, steady_state_map)
+from motor_id.analysis import (
+    binned_means,
+    heldout_mask,
+    inverse_dynamics,
+    map_summary,
+    noise_floor,
+    steady_state_map,
+)
 from motor_id.analysis.candidates import _spread, CandidateFitter
-from motor_id.identify.estimator import WIDEN
 from motor_id.analysis.heldout import HeldOutSplit
 from motor_id.excitation import bipolar_steps, multisine
+from motor_id.identify.estimator import WIDEN
 from motor_id.model import EFFECTS, MotorParams, Plant, SCALES
 from motor_id.simulate import simulate_recording
 

@@ -19,7 +19,7 @@ def _motion(n=6000, dt=1e-3, seed=0):
     t = np.arange(n) * dt
     f = rng.uniform(0.3, 1.0, 3)
     return t, sum(a * np.sin(2 * np.pi * fk * t + p) for a, fk, p in
-                  zip((60.0, 25.0, 10.0), f, rng.uniform(0, 6, 3)))
+                  zip((60.0, 25.0, 10.0), f, rng.uniform(0, 6, 3), strict=True))
 
 
 def test_an_encoder_grid_is_found_with_its_step_and_counts_per_revolution():

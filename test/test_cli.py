@@ -216,7 +216,7 @@ def test_fit_extreme_units_fit_and_say_so(paper_csv, tmp_path):
     for r in rows[1:]:
         cells = r.split(',')
         scaled.append(','.join(c if h == 'time' else repr(float(c) * 1e140)
-                               for h, c in zip(head, cells)))
+                               for h, c in zip(head, cells, strict=True)))
     big.write_text('\n'.join(scaled) + '\n')
     _, ref = fit_json(tmp_path, paper_csv, '-R', '2.3', name='ref.json')
     proc, rep = fit_json(tmp_path, big, '-R', '2.3')

@@ -246,7 +246,7 @@ def ode_recording(params, noise, seed):
     edges = np.concatenate([[0], np.flatnonzero(np.diff(u)) + 1, [t.size]])
     x = np.zeros(2)
     out = np.zeros((t.size, 2))
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
         t_end = t[b] if b < t.size else t[-1]
         sol = solve_ivp(rhs, (t[a], t_end), x, 'DOP853', t_eval=t[a:b + 1][:b + 1 - a],
                         rtol=1e-10, atol=1e-12, args=(u[a],))

@@ -16,8 +16,7 @@ import time
 import numpy as np
 
 from motor_id.analysis import outcome, selection
-from motor_id.analysis.candidates import (CandidateFitter, data_scales, dynamic_effects,
-                                          FIT_ERRORS)
+from motor_id.analysis.candidates import CandidateFitter, data_scales, dynamic_effects, FIT_ERRORS
 from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
 from motor_id.analysis.heldout import HeldOutSplit, noise_floor
 from motor_id.analysis.inverse_dynamics import electrical_evidence
@@ -434,7 +433,7 @@ class DiscrepancyAnalysis:
             warnings[0] = warnings[0].replace('the model explains',
                                               'the chosen model explains (held out)')
         if not adequate:
-            for key, p in params.items():
+            for p in params.values():
                 if isinstance(p, dict) and p.get('determined') and not p.get('grid'):
                     p['particular_value'] = p.get('value')
                     p['value'], p['std'], p['determined'] = None, None, False

@@ -310,7 +310,7 @@ class CandidateFitter:
             out = simulate_runs(phys, self.rec.time, self.rec.input, self.rec.input_kind,
                                 'zoh', effects, x0, self.rec.segment_ranges)
             cost = np.zeros(P)
-            for c, y, s in zip(self.split.channels, self.split.ys, self.split.scales):
+            for c, y, s in zip(self.split.channels, self.split.ys, self.split.scales, strict=True):
                 r = (out[c] - y[None, :]) / s
                 cost += np.mean(r[:, self.split.train] ** 2, axis=1)
         cost = np.where(np.isfinite(cost), cost, np.inf)

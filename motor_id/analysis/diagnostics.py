@@ -29,7 +29,7 @@ def steady_state_map(rec, min_len=None):
     change = np.flatnonzero(np.abs(np.diff(u)) > 1e-9 * scale) + 1
     edges = np.concatenate([[0], change, [n]])
     ranges = []
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b - a >= min_len:
             ranges.append((int(b - max(3, int(0.4 * (b - a)))), int(b)))
     levels = np.unique(np.round(np.array([u[a] for a, _ in ranges]) / (1e-6 * scale)))

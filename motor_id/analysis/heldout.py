@@ -142,22 +142,22 @@ class HeldOutSplit:
             self.blocks = [(a, b)]
             self.by_run = True
             e = np.linspace(a, b, 13).astype(int)
-            subs = list(zip(e[:-1], e[1:]))
+            subs = list(zip(e[:-1], e[1:], strict=True))
         else:
             self.test, self.blocks = heldout_mask(len(rec), n_blocks)
             self.by_run = False
             subs = []
             for a, b in self.blocks:
                 e = np.linspace(a, b, 5).astype(int)
-                subs.extend(zip(e[:-1], e[1:]))
+                subs.extend(zip(e[:-1], e[1:], strict=True))
         self.train = ~self.test
         self.subblocks = subs
         self.grids = dict(quantization or {})
         floors = []
-        for c, y, s in zip(self.channels, self.ys, self.scales):
+        for c, y, s in zip(self.channels, self.ys, self.scales, strict=True):
             q = self.grids.get(c, (0.0, 0.0))[0]
             floors.append(max(noise_floor(y), q / math.sqrt(12.0)) / s)
-        self.channel_floors = dict(zip(self.channels, floors))
+        self.channel_floors = dict(zip(self.channels, floors, strict=True))
         self.floor = float(np.sqrt(np.mean(np.square(floors))))
 
     def errors(self, preds):
@@ -178,7 +178,7 @@ class HeldOutSplit:
         tr, te = [], []
         sub = np.zeros(len(self.subblocks))
         with np.errstate(all='ignore'):
-            for c, y, p, s in zip(self.channels, self.ys, preds, self.scales):
+            for y, p, s in zip(self.ys, preds, self.scales, strict=True):
                 r2 = ((y - p) / s) ** 2
                 tr.append(np.mean(r2[self.train]))
                 te.append(np.mean(r2[self.test]))

@@ -73,7 +73,8 @@ def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None
     res = y - X @ theta
     cov = np.linalg.pinv(X.T @ X) * float(res @ res) / max(y.size - theta.size, 1)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    params = {k: {'value': float(v), 'std': float(s)} for k, v, s in zip(cols, theta, std)}
+    params = {k: {'value': float(v), 'std': float(s)}
+              for k, v, s in zip(cols, theta, std, strict=True)}
     physical = bool(theta[0] > 0 and theta[1] >= 0 and all(
         params[k]['value'] >= 0 for k in params if k in ('coulomb_friction.T_c',
                                                          'quadratic_load.k_q')))

@@ -7,6 +7,7 @@ from motor_id.analysis import DiscrepancyAnalysis, plot_report
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 
+
 def add_arguments(parser):
     """CLI arguments of `motor-id analyze`."""
     parser.add_argument('data', metavar='DATA', nargs='+',

@@ -7,8 +7,8 @@ import time
 
 import yaml
 
-from motor_id.controller import from_identification, to_ros_parameters
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
+from motor_id.controller import from_identification, to_ros_parameters
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import EFFECTS, parse_effect_args

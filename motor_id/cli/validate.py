@@ -73,7 +73,7 @@ def _plot(val, path, title):
     chans = list(val.channels)
     fig, axes = plt.subplots(len(chans), 1, figsize=(10, 3 * len(chans)), sharex=True,
                              squeeze=False)
-    for ax, ch in zip(axes[:, 0], chans):
+    for ax, ch in zip(axes[:, 0], chans, strict=True):
         ax.plot(val.time, val.measured[ch], lw=0.8, label='measured')
         ax.plot(val.time, val.simulated[ch], lw=0.8, label='simulated (input only)')
         m = val.channels[ch]

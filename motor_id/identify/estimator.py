@@ -13,7 +13,6 @@ from motor_id.identify.result import Estimate, IdentificationResult
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
 
-
 WIDEN = 1e3
 """Factor by which a side of the default box that a fit sits on is moved outward."""
 PRIOR_DOMINATES = 0.7071
@@ -241,7 +240,7 @@ class Identifier:
         params = self.result_.to_dict()['parameters']
         caller = set(self.bounds or {})
         out = {}
-        for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high):
+        for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high, strict=True):
             v = params.get(name, {})
             x = v.get('value', v.get('particular_value'))
             if x is None:
@@ -519,7 +518,7 @@ def _fit_block(rec, problem, x_best, sigma, pred, names, state_names):
     fit = {'channels': {}, 'noise_std': {}}
     prediction = {'time': rec.time, 'input': rec.input}
     i = 0
-    for ch, n, sg in zip(problem.channels, problem.n_per, sigma):
+    for ch, n, sg in zip(problem.channels, problem.n_per, sigma, strict=True):
         m = channel_metrics(problem.y[i:i + n], pred[i:i + n], problem.input)
         m['rms'] = float(un.physical_signal(m['rms'], ch))
         fit['channels'][ch] = m

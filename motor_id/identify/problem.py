@@ -216,7 +216,7 @@ class IdentificationProblem:
         self.state_channels = tuple(signals)
         x0, lo, hi = [], [], []
         for a, b in self.segments:
-            for ch, y in signals.items():
+            for y in signals.values():
                 if y is None:  # not measured: free within a wide range
                     v = 0.0
                     ref = signals['speed']
@@ -232,7 +232,7 @@ class IdentificationProblem:
         self.measured_states = tuple(
             k for k, (ch, y) in enumerate(signals.items()) if y is not None)
         ys = [un.signal(getattr(rec, c), c) for c in self.channels]
-        for ch, y in zip(self.channels, ys):
+        for ch, y in zip(self.channels, ys, strict=True):
             if np.ptp(y) == 0:
                 raise DataError(f'the {ch} channel is constant ({float(y[0]):g} throughout): '
                                 'it holds nothing to fit; check the sensor and the column '
@@ -240,7 +240,8 @@ class IdentificationProblem:
         self.y = np.concatenate(ys)
         self.n_per = [y.size for y in ys]
         scales = [np.std(y) if np.std(y) > 0 else 1.0 for y in ys]
-        self.weights = np.concatenate([np.full(y.size, 1.0 / s) for y, s in zip(ys, scales)])
+        self.weights = np.concatenate([np.full(y.size, 1.0 / s)
+                                       for y, s in zip(ys, scales, strict=True)])
         self.sample_weight = np.ones(self.y.size)
         if sample_weight is not None:
             sw = np.asarray(sample_weight, dtype=float)

@@ -111,7 +111,7 @@ class InternalUnits:
             return value
         out = math.ldexp(float(value), -e)
         if value != 0 and (out == 0 or not math.isfinite(out)):
-            raise IdentificationError(f'{name} = {value:g} x 2^{-e} in the data\'s units is '
+            raise IdentificationError(f"{name} = {value:g} x 2^{-e} in the data's units is "
                                       'outside the floating-point range: convert the data '
                                       'to SI units')
         return out
@@ -129,5 +129,5 @@ class InternalUnits:
         if not self.rescaled:
             return None
         return {'note': 'the data were rescaled internally by powers of two (extreme '
-                        'units); every reported number is in the data\'s own units',
+                        "units); every reported number is in the data's own units",
                 'exponents': dict(self.exponents)}

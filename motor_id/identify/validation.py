@@ -35,7 +35,7 @@ class SavedModel:
     source: str = ''
 
     @classmethod
-    def from_report(cls, report: dict, source: str = '') -> 'SavedModel':
+    def from_report(cls, report: dict, source: str = '') -> SavedModel:
         """Read the JSON of ``motor-id fit`` or ``motor-id analyze``.
 
         Undetermined parameters enter with their particular value: any point on an
