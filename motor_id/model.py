@@ -15,11 +15,17 @@ Every non-linear or extra physical term is a named *effect* in :data:`EFFECTS`; 
 simulator (card), the fitter and the discrepancy analysis all use this one catalogue.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 import json
 import math
+import os
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.errors import ConfigError
 from motor_id.linalg import expm
@@ -45,7 +51,7 @@ class MotorParams:
     L_m: float = 0.0345
     R_m: float = 2.3
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in PARAM_NAMES:
             value = getattr(self, name)
             if not (isinstance(value, (int, float, np.floating)) and math.isfinite(value)):
@@ -53,12 +59,12 @@ class MotorParams:
             if value <= 0:
                 raise ConfigError(f'parameter {name} must be > 0, got {value}')
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, float]:
         """Return the parameters as a plain ``{name: float}`` dict."""
         return {k: float(v) for k, v in asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, values):
+    def from_dict(cls, values: Mapping[str, float]) -> MotorParams:
         """Build from a dict; unknown keys raise :class:`ConfigError`."""
         unknown = set(values) - set(PARAM_NAMES)
         if unknown:
@@ -86,7 +92,8 @@ by an encoder, whose count difference averages over the period); ``one`` is 1.
 """
 
 
-def _at_scale(end, scale, scales):
+def _at_scale(end: float | tuple[float, str], scale: str, scales: Mapping[str, float]
+              ) -> float:
     """An end point ``m`` (in units of ``scale``) or ``(m, other_scale)`` as a number."""
     if isinstance(end, tuple):
         return float(end[0]) * scales[end[1]]
@@ -115,7 +122,7 @@ class EffectParam:
     search: tuple = ()
     spacing: str = 'log'
 
-    def start_values(self, scales):
+    def start_values(self, scales: Mapping[str, float]) -> np.ndarray:
         """The start grid on one recording's scales (``{scale: value}``), an array."""
         first, last, n = self.start
         a, b = _at_scale(first, self.scale, scales), _at_scale(last, self.scale, scales)
@@ -127,7 +134,7 @@ class EffectParam:
         v = np.geomspace(a, max(b, a), n)
         return np.concatenate([v, -v]) if self.spacing == 'signed' else v
 
-    def search_range(self, scales):
+    def search_range(self, scales: Mapping[str, float]) -> tuple[float, float]:
         """``(low, high)`` search range on one recording's scales, inside the allowed one."""
         if not self.search:
             return (self.low, self.high)
@@ -157,17 +164,17 @@ class EffectSpec:
     channel: str = ''
     min_fraction: tuple = ()
 
-    def defaults(self):
+    def defaults(self) -> dict[str, float]:
         """Return ``{param: default}``."""
         return {p.name: p.default for p in self.params}
 
-    def start_grid(self, scales):
+    def start_grid(self, scales: Mapping[str, float]) -> dict[str, np.ndarray]:
         """Start points ``{param: array}`` (the Cartesian product of the param grids)."""
         axes = [p.start_values(scales) for p in self.params]
         mesh = np.meshgrid(*axes, indexing='ij')
         return {p.name: m.ravel() for p, m in zip(self.params, mesh, strict=True)}
 
-    def implausible(self, values, scales):
+    def implausible(self, values: Mapping[str, float], scales: Mapping[str, float]) -> str:
         """A one-line reason when fitted ``values`` are not plausible, else ``''``."""
         for name, (multiple, scale) in self.min_fraction:
             limit = multiple * scales[scale]
@@ -243,12 +250,13 @@ EFFECTS = {e.name: e for e in (
 """The catalogue of named effects; parameter ranges are the allowed ranges."""
 
 
-def validate_effects(effects, input_kind='voltage'):
+def validate_effects(effects: Mapping[str, Mapping[str, float] | None] | None,
+                     input_kind: str = 'voltage') -> dict[str, dict[str, float]]:
     """Check an ``{effect: {param: value}}`` mapping against :data:`EFFECTS`.
 
     Missing parameters take their defaults. Returns a new, complete dict.
     """
-    out = {}
+    out: dict[str, dict[str, float]] = {}
     for name, values in (effects or {}).items():
         if name not in EFFECTS:
             raise ConfigError(f'unknown effect {name!r}; known effects: {sorted(EFFECTS)}')
@@ -260,7 +268,7 @@ def validate_effects(effects, input_kind='voltage'):
         if unknown:
             raise ConfigError(f'effect {name!r} has no parameter(s) {sorted(unknown)}; '
                               f'it takes {[p.name for p in spec.params]}')
-        full = {}
+        full: dict[str, float] = {}
         for p in spec.params:
             v = float(values.get(p.name, p.default))
             if not (math.isfinite(v) and p.low <= v <= p.high):
@@ -271,12 +279,12 @@ def validate_effects(effects, input_kind='voltage'):
     return out
 
 
-def parse_effect_args(items):
+def parse_effect_args(items: Iterable[str] | None) -> dict[str, dict[str, float]]:
     """Parse CLI items ``NAME`` or ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` into effects.
 
     ``NAME=VALUE`` sets the effect's first parameter.
     """
-    effects = {}
+    effects: dict[str, dict[str, float]] = {}
     for item in items or ():
         key, _, value = item.partition('=')
         name, _, pname = key.partition('.')
@@ -300,18 +308,18 @@ class Plant:
     input_kind: str = 'voltage'
     effects: dict = field(default_factory=dict)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.input_kind not in INPUT_KINDS:
             raise ConfigError(f'input_kind must be one of {INPUT_KINDS}, got {self.input_kind!r}')
         self.effects = validate_effects(self.effects, self.input_kind)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready description."""
         return {'params': self.params.to_dict(), 'input_kind': self.input_kind,
                 'effects': self.effects}
 
     @classmethod
-    def from_json(cls, path):
+    def from_json(cls, path: str | os.PathLike[str]) -> Plant:
         """Read a plant from a JSON file.
 
         The file holds ``{"J": ..., "K_T": ..., "K_b": ..., "B": ..., "L_m": ...,
@@ -340,13 +348,15 @@ class Plant:
         return cls(params, kind, effects)
 
 
-def n_states(input_kind, resonance=False):
+def n_states(input_kind: str, resonance: bool = False) -> int:
     """Number of states of the continuous model."""
     base = 2 if input_kind == 'voltage' else 1
     return base + (2 if resonance else 0)
 
 
-def continuous_matrices(theta, input_kind='voltage', resonance=None):
+def continuous_matrices(theta: Mapping[str, ArrayLike], input_kind: str = 'voltage',
+                        resonance: Mapping[str, ArrayLike] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
     """Continuous state-space matrices for a batch of parameter sets.
 
     Parameters
@@ -406,7 +416,8 @@ def continuous_matrices(theta, input_kind='voltage', resonance=None):
     return F, G
 
 
-def discretize(F, G, dt, method='zoh'):
+def discretize(F: np.ndarray, G: np.ndarray, dt: ArrayLike, method: str = 'zoh'
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Discretise ``dx/dt = F x + G u`` with the input held over each interval.
 
     Parameters
@@ -446,7 +457,7 @@ def discretize(F, G, dt, method='zoh'):
     return E[:, :, :n, :n], E[:, :, :n, n:]
 
 
-def _held_input_matrix(F, G, dt):
+def _held_input_matrix(F: np.ndarray, G: np.ndarray, dt: np.ndarray) -> np.ndarray:
     """``M dt`` with ``M = [[F, G], [0, 0]]``: ``z = [x, u]`` under a held input,
     ``dz/ds = M z``; shape (P, K, n + m, n + m) for P plants and K interval lengths."""
     P, n, _ = F.shape
@@ -458,7 +469,8 @@ def _held_input_matrix(F, G, dt):
     return M
 
 
-def interval_integrals(F, G, dt, row=1):
+def interval_integrals(F: np.ndarray, G: np.ndarray, dt: ArrayLike, row: int = 1
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Integrals of one state over each held-input interval, for the heating model.
 
     With the input held, ``z = [x, u]`` evolves as ``dz/ds = M z``, ``M = [[F, G], [0, 0]]``,
@@ -501,7 +513,8 @@ def interval_integrals(F, G, dt, row=1):
     return np.ascontiguousarray(m), np.ascontiguousarray(Q)
 
 
-def transfer_coefficients(p, input_kind='voltage', channels=('speed',)):
+def transfer_coefficients(p: Mapping[str, float], input_kind: str = 'voltage',
+                          channels: Sequence[str] = ('speed',)) -> dict[str, float]:
     """The coefficients of the continuous transfer functions the data can determine.
 
     For a voltage plant, w/V = b0 / (s^2 + a1 s + a0) and
