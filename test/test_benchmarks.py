@@ -6,12 +6,15 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SCRIPT = os.path.join(REPO, 'benchmarks', 'run.py')
 SECTIONS = ('fit_speed', 'crlb', 'scaling', 'streaming', 'discrepancy', 'cold_start',
             'data_io')
 
 
+@pytest.mark.slow   # every section end to end (ROS nodes, fresh processes): about 20 s
 def test_benchmarks_quick_run_writes_tables_and_json(tmp_path):
     out = tmp_path / 'bench.json'
     md = tmp_path / 'bench.md'

@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
 import math
+import multiprocessing
 import time
 from typing import Any
 
@@ -315,7 +316,11 @@ def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None
               jobs: int = 1,
               progress: Callable[[int, int, dict[str, Any]], None] | None = None,
               ) -> list[dict[str, Any]]:
-    """Analyse every case (in ``jobs`` worker processes); rows in the order of ``specs``."""
+    """Analyse every case (in ``jobs`` worker processes); rows in the order of ``specs``.
+
+    Workers start from a fork server (a clean process, not a fork of a caller that may
+    run threads); every case is seeded, so the rows do not depend on ``jobs``.
+    """
     work = [(s, candidates) for s in specs]
     rows = []
     if jobs <= 1:
@@ -324,7 +329,8 @@ def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None
             if progress:
                 progress(k + 1, len(work), rows[-1])
         return rows
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with ProcessPoolExecutor(max_workers=jobs,
+                             mp_context=multiprocessing.get_context('forkserver')) as pool:
         for k, row in enumerate(pool.map(_analyse_job, work)):
             rows.append(row)
             if progress:
