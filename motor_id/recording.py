@@ -1,6 +1,10 @@
 """One in-memory recording (time + channels) and its validation."""
 
+from __future__ import annotations
+
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -36,10 +40,12 @@ class Recording:
     time: np.ndarray
     input: np.ndarray
     speed: np.ndarray
-    current: np.ndarray = None
+    # TODO(owner: main session): ndarray | None, once the callers that pass None (data,
+    # bag) drop their ignores and csv_io/bag.writer narrow it
+    current: np.ndarray = None  # type: ignore[assignment]
     input_kind: str = 'voltage'
     meta: dict = field(default_factory=dict)
-    segments: list = None
+    segments: list[tuple[int, int]] | None = None
 
     MAX_MAGNITUDE = 1e200
     """Largest accepted magnitude of any value. The fit rescales each channel and copes
@@ -49,38 +55,38 @@ class Recording:
     MIN_MOVING_FRACTION = 0.01
     """Fewer samples than this fraction off the output's median is a constant output."""
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         self.time = np.asarray(self.time, dtype=float)
         self.input = np.asarray(self.input, dtype=float)
         self.speed = np.asarray(self.speed, dtype=float)
         if self.current is not None:
             self.current = np.asarray(self.current, dtype=float)
 
-    def __len__(self):
+    def __len__(self) -> int:
         return self.time.size
 
     @property
-    def has_current(self):
+    def has_current(self) -> bool:
         """True when a current channel is present."""
         return self.current is not None
 
     @property
-    def sample_period(self):
+    def sample_period(self) -> float:
         """Median sample interval [s]."""
         return float(np.median(np.diff(self.time)))
 
     @property
-    def is_regular(self):
+    def is_regular(self) -> bool:
         """True when all intervals are equal to within 1 ppm."""
         dt = np.diff(self.time)
         return bool(np.ptp(dt) <= 1e-6 * np.mean(dt))
 
     @property
-    def segment_ranges(self):
+    def segment_ranges(self) -> list[tuple[int, int]]:
         """``[(start, stop), ...]``: the runs of this recording (one unless joined)."""
         return list(self.segments) if self.segments else [(0, len(self))]
 
-    def segment_index(self):
+    def segment_index(self) -> np.ndarray:
         """The run each sample belongs to (0, 1, ...)."""
         out = np.zeros(len(self), dtype=int)
         for k, (a, b) in enumerate(self.segment_ranges):
@@ -88,7 +94,7 @@ class Recording:
         return out
 
     @classmethod
-    def concatenate(cls, recordings):
+    def concatenate(cls, recordings: Iterable[Recording]) -> Recording:
         """Join separate runs of one motor into one recording with :attr:`segments`.
 
         Each run keeps its samples; its times are shifted to follow the previous run by
@@ -111,8 +117,11 @@ class Recording:
                     f'{first.meta.get("source", "the first")}: one has '
                     f'{first.input_kind} input and channels {first.channels()}, the other '
                     f'{r.input_kind} input and {r.channels()}')
-        times, segs, offsets = [], [], []
-        t_end, n = None, 0
+        times: list[np.ndarray] = []
+        segs: list[tuple[int, int]] = []
+        offsets: list[float] = []
+        t_end: float | None = None
+        n = 0
         for r in recordings:
             t = np.asarray(r.time, dtype=float)
             shift = 0.0 if t_end is None else t_end + r.sample_period - t[0]
@@ -127,23 +136,23 @@ class Recording:
         meta['sources'] = [r.meta.get('source') for r in recordings]
         meta['segment_offsets'] = offsets
         return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),
-                   np.concatenate([r.speed for r in recordings]), cur, first.input_kind,
-                   meta, segs)
+                   np.concatenate([r.speed for r in recordings]), cur,  # type: ignore[arg-type]
+                   first.input_kind, meta, segs)
 
-    def segment(self, k):
+    def segment(self, k: int) -> Recording:
         """Run ``k`` as a recording of its own."""
         a, b = self.segment_ranges[k]
         return self.slice(a, b)
 
-    def channels(self):
+    def channels(self) -> tuple[str, ...]:
         """Names of the output channels present: speed, and current if measured."""
         return ('speed', 'current') if self.has_current else ('speed',)
 
-    def slice(self, start, stop):
+    def slice(self, start: int | None, stop: int | None) -> Recording:
         """A new recording with samples ``start:stop``."""
         cur = None if self.current is None else self.current[start:stop]
         start, stop, _ = slice(start, stop).indices(len(self))
-        segs = None
+        segs: list[tuple[int, int]] | None = None
         if self.segments:
             segs = [(max(a, start) - start, min(b, stop) - start)
                     for a, b in self.segments if min(b, stop) > max(a, start)]
@@ -152,7 +161,7 @@ class Recording:
                          self.speed[start:stop], cur, self.input_kind, dict(self.meta),
                          segs)
 
-    def validate(self, min_samples=MIN_SAMPLES):
+    def validate(self, min_samples: int = MIN_SAMPLES) -> Recording:
         """Raise :class:`DataError` with a one-line reason if the data cannot be fitted.
 
         Checks equal lengths, enough samples, finite values of sane magnitude (see
@@ -189,7 +198,7 @@ class Recording:
         self._check_output_moves()
         return self
 
-    def _check_output_moves(self):
+    def _check_output_moves(self) -> None:
         """DataError when the speed is constant or nearly so (nothing to fit)."""
         speed = self.speed
         if _is_constant(speed):
@@ -203,7 +212,7 @@ class Recording:
                             f'{speed.size - moving} of {speed.size} samples); check the speed '
                             'column/topic and that the motor moved')
 
-    def sample_rows(self):
+    def sample_rows(self) -> np.ndarray:
         """The recording as sample rows (:data:`motor_id.contracts.SAMPLE_COLUMNS`).
 
         Sequence numbers count from 0, flags are 0 and a missing current is NaN: the
@@ -214,7 +223,7 @@ class Recording:
         return np.column_stack([np.arange(n, dtype=float), self.time, self.input, self.speed,
                                 cur, np.zeros(n)])
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """Plain lists for JSON."""
         d = {'time': self.time.tolist(), 'input': self.input.tolist(),
              'speed': self.speed.tolist(), 'input_kind': self.input_kind, 'meta': self.meta}
@@ -223,12 +232,12 @@ class Recording:
         return d
 
 
-def _is_constant(values):
+def _is_constant(values: np.ndarray) -> bool:
     """True when the values vary by no more than rounding (relative 1e-12)."""
     return bool(np.ptp(values) <= 1e-12 * max(1.0, float(np.max(np.abs(values)))))
 
 
-def bad_magnitude(values, relative=True):
+def bad_magnitude(values: np.ndarray, relative: bool = True) -> tuple[int, str] | None:
     """The first value no measurement can have, and why; None when all are sane.
 
     Parameters
