@@ -1,4 +1,4 @@
-"""Tests of motor_id.bag: round trips, a second reader, errors, truncation and recovery."""
+"""Tests of motor_id.bag: round trips, a second reader, the file layout, read errors."""
 
 import json
 from pathlib import Path
