@@ -102,6 +102,54 @@ def _stats(values):
     return float(np.median(values)), float(np.min(values))
 
 
+def _targets(quick, compiled, ga_w, ga_w_cpu, fit_ga, fit_wall, fit_cpu):
+    """The targets: strict wall times on a full run, CPU times with slack on a quick one."""
+    if quick:  # loaded CI machines: CPU time with slack, and the cache must be used
+        return [
+            target('kernels compiled in a fresh process after the first (cache used)',
+                   compiled, '0', compiled == 0),
+            target('GA CPU time after warm_up(), fresh process (quick: 3x slack)',
+                   ga_w_cpu[0], '< 0.6 s', ga_w_cpu[0] < 0.6, 's'),
+            target('motor-id fit CPU time, fresh process (quick: a guard against gross '
+                   'regressions such as compiling at every start)', fit_cpu[0], '< 5.0 s',
+                   fit_cpu[0] < 5.0, 's'),
+        ]
+    else:
+        return [
+            target('kernels compiled in a fresh process after the first (cache used)',
+                   compiled, '0', compiled == 0),
+            target('ga.seconds in a fresh process after warm_up(), paper budget, '
+                   '4,000 samples (median)', ga_w[0], '< 0.2 s', ga_w[0] < 0.2, 's'),
+            target('ga.seconds inside a fresh motor-id fit (median)', fit_ga[0], '< 0.2 s',
+                   fit_ga[0] < 0.2, 's'),
+            target('motor-id fit DATA -R 2.3 wall time, no plot (median)', fit_wall[0],
+                   '< 1.0 s', fit_wall[0] < 1.0, 's'),
+        ]
+
+
+def _notes(compiled):
+    """What the figures mean; ``compiled``: kernels the unmeasured first run compiled."""
+    return [
+        'each figure comes from a new Python process; the kernels were compiled (or '
+        "found in numba's cache) by one unmeasured run before, as at install time "
+        f'(that run compiled {compiled} kernel(s))',
+        "ga.seconds is the Identifier's own GA timer (result.ga.seconds); the first "
+        'generation is timed by the progress callback from the start of fit()',
+        'motor-id fit runs with --json (to read ga.seconds; writing it takes ~1 ms); '
+        "its CPU time is the child process's user + system time",
+        'motor-id fit before -> after: the loop checks of the controller design no '
+        'longer import python-control (0.6 s with scipy.signal, scipy.stats and '
+        'matplotlib; now numpy polynomials + scipy.optimize.brentq, held to '
+        'python-control in test_controller.py), and the process exits without the '
+        "interpreter's last garbage collection of numba's ~10^5 objects (gc.freeze, "
+        '~0.2 s); what remains is numba import + kernel load (~0.35 s), GA (~0.12 s), '
+        'least squares with the scipy.optimize import (~0.15 s), other imports',
+        'quick runs check that the kernel cache is used, and CPU times with wide '
+        'slack (CPU, not wall: the smoke test runs on loaded 2-core machines, where a '
+        "fit's CPU time rose to 3.1 s at a load average of 6-8)",
+    ]
+
+
 def run(quick=False):
     """Run the section; returns the section record."""
     repeats = 1 if quick else 5
@@ -148,27 +196,7 @@ def run(quick=False):
         row('motor-id fit DATA -R 2.3 (no plot), wall', BEFORE['fit_wall'], fit_wall,
             '< 1.0 s', cpu=fit_cpu),
     ]
-    if quick:  # loaded CI machines: CPU time with slack, and the cache must be used
-        targets = [
-            target('kernels compiled in a fresh process after the first (cache used)',
-                   compiled, '0', compiled == 0),
-            target('GA CPU time after warm_up(), fresh process (quick: 3x slack)',
-                   ga_w_cpu[0], '< 0.6 s', ga_w_cpu[0] < 0.6, 's'),
-            target('motor-id fit CPU time, fresh process (quick: a guard against gross '
-                   'regressions such as compiling at every start)', fit_cpu[0], '< 5.0 s',
-                   fit_cpu[0] < 5.0, 's'),
-        ]
-    else:
-        targets = [
-            target('kernels compiled in a fresh process after the first (cache used)',
-                   compiled, '0', compiled == 0),
-            target('ga.seconds in a fresh process after warm_up(), paper budget, '
-                   '4,000 samples (median)', ga_w[0], '< 0.2 s', ga_w[0] < 0.2, 's'),
-            target('ga.seconds inside a fresh motor-id fit (median)', fit_ga[0], '< 0.2 s',
-                   fit_ga[0] < 0.2, 's'),
-            target('motor-id fit DATA -R 2.3 wall time, no plot (median)', fit_wall[0],
-                   '< 1.0 s', fit_wall[0] < 1.0, 's'),
-        ]
+    targets = _targets(quick, compiled, ga_w, ga_w_cpu, fit_ga, fit_wall, fit_cpu)
     return {
         'title': TITLE,
         'status': 'ok',
@@ -184,24 +212,6 @@ def run(quick=False):
              'rows': rows},
         ],
         'targets': targets,
-        'notes': [
-            'each figure comes from a new Python process; the kernels were compiled (or '
-            "found in numba's cache) by one unmeasured run before, as at install time "
-            f'(that run compiled {primed["warm_up"]["compiled"]} kernel(s))',
-            "ga.seconds is the Identifier's own GA timer (result.ga.seconds); the first "
-            'generation is timed by the progress callback from the start of fit()',
-            'motor-id fit runs with --json (to read ga.seconds; writing it takes ~1 ms); '
-            "its CPU time is the child process's user + system time",
-            'motor-id fit before -> after: the loop checks of the controller design no '
-            'longer import python-control (0.6 s with scipy.signal, scipy.stats and '
-            'matplotlib; now numpy polynomials + scipy.optimize.brentq, held to '
-            'python-control in test_controller.py), and the process exits without the '
-            "interpreter's last garbage collection of numba's ~10^5 objects (gc.freeze, "
-            '~0.2 s); what remains is numba import + kernel load (~0.35 s), GA (~0.12 s), '
-            'least squares with the scipy.optimize import (~0.15 s), other imports',
-            'quick runs check that the kernel cache is used, and CPU times with wide '
-            'slack (CPU, not wall: the smoke test runs on loaded 2-core machines, where a '
-            "fit's CPU time rose to 3.1 s at a load average of 6-8)",
-        ],
+        'notes': _notes(primed['warm_up']['compiled']),
         'runs': runs,
     }

@@ -221,21 +221,38 @@ def _rate(rows, key):
     return float(np.mean(vals)) if vals else None
 
 
-def run(quick=False, blas_one=None):
-    """Run the section; returns the section record."""
-    seeds = range(1) if quick else range(10)
-    n = 1000 if quick else 4000
-    budget = 400 if quick else 3200
-    warm = paper_recording(n=500, dt=0.1, seed=99)
-    obj = Objective(warm, warm.meta['truth'], **SETUP)
-    for _, fn in GLOBAL_METHODS:  # imports, JIT and first-call caches stay out of timings
-        fn(Tracker(obj), 0, 40)
-    runs = []
-    for seed in seeds:
-        runs += run_seed(seed, n, budget, blas_one)
-    names = list(dict.fromkeys(r['method'] for r in runs))
+NOTES = [
+    'all global optimisers search the same unit cube mapped by motor_id.ga.Bounds '
+    '(log scale), with population 20 and the same evaluation budget',
+    'pygad: sol_per_pop 20, num_parents_mating 10, crossover_probability 0.75, '
+    'mutation_probability 0.04, other settings default (single-point crossover, '
+    'steady-state selection, keep_elitism 1); pygad does not re-evaluate offspring '
+    "identical to a parent, so the paper's 160 generations cost fewer than 3,200 "
+    'evaluations (the "paper generations" row: 160); the first two pygad rows run '
+    'until 3,200 evaluations are spent (on_generation stop). "1 solution / call" is what '
+    'a typical user writes, fitness_batch_size=20 the documented batched form',
+    'scipy DE: popsize 5 x 4 parameters = 20, maxiter 159, tol 0 (full budget), '
+    'polish False, vectorized=True with updating="deferred"',
+    'pycma: x0 = centre, sigma0 0.3, bounds [0, 1], popsize 20, maxfevals = budget, '
+    'tolfun/tolx disabled',
+    'least_squares: scipy defaults (trf, 2-point Jacobian, x_scale 1) in physical '
+    'units from a nameplate guess (each parameter off by a factor 2-3); '
+    '"motor_id refinement only" is the project\'s own refinement (log '
+    'parameters, x_scale="jac", initial state estimated) from the same guess',
+    '"+polish" is the standard refinement of the project (Identifier warm start, '
+    'use_ga=False) from the best point of the method; times exclude it',
+    'wall s and cpu s are medians over seeds (cpu s: process time, all threads); '
+    'the JSON also has the fastest seed (seconds_min)',
+    'cost/truth: final cost divided by the cost at the true parameters '
+    '(the noise floor)',
+]
+"""How each method is run and what the columns mean."""
+
+
+def _summary_rows(runs):
+    """One row per method: medians over the seeds."""
     table = []
-    for name in names:
+    for name in dict.fromkeys(r['method'] for r in runs):
         rs = [r for r in runs if r['method'] == name]
         row = {'method': name, 'runs': len(rs),
                'seconds': _median(rs, 'seconds'), 'seconds_min': min(r['seconds'] for r in rs),
@@ -251,6 +268,22 @@ def run(quick=False, blas_one=None):
         for p in rs[0]['errors']:
             row['err_' + p] = float(np.median([abs(r['errors'][p]) for r in rs]))
         table.append(row)
+    return table
+
+
+def run(quick=False, blas_one=None):
+    """Run the section; returns the section record."""
+    seeds = range(1) if quick else range(10)
+    n = 1000 if quick else 4000
+    budget = 400 if quick else 3200
+    warm = paper_recording(n=500, dt=0.1, seed=99)
+    obj = Objective(warm, warm.meta['truth'], **SETUP)
+    for _, fn in GLOBAL_METHODS:  # imports, JIT and first-call caches stay out of timings
+        fn(Tracker(obj), 0, 40)
+    runs = []
+    for seed in seeds:
+        runs += run_seed(seed, n, budget, blas_one)
+    table = _summary_rows(runs)
     by = {r['method']: r for r in table}
     ga_t = by['motor_id GA']['seconds']
     per_seed = {}
@@ -299,30 +332,7 @@ def run(quick=False, blas_one=None):
              'rows': table},
         ],
         'targets': targets,
-        'notes': [
-            'all global optimisers search the same unit cube mapped by motor_id.ga.Bounds '
-            '(log scale), with population 20 and the same evaluation budget',
-            'pygad: sol_per_pop 20, num_parents_mating 10, crossover_probability 0.75, '
-            'mutation_probability 0.04, other settings default (single-point crossover, '
-            'steady-state selection, keep_elitism 1); pygad does not re-evaluate offspring '
-            "identical to a parent, so the paper's 160 generations cost fewer than 3,200 "
-            'evaluations (the "paper generations" row: 160); the first two pygad rows run '
-            'until 3,200 evaluations are spent (on_generation stop). "1 solution / call" is what '
-            'a typical user writes, fitness_batch_size=20 the documented batched form',
-            'scipy DE: popsize 5 x 4 parameters = 20, maxiter 159, tol 0 (full budget), '
-            'polish False, vectorized=True with updating="deferred"',
-            'pycma: x0 = centre, sigma0 0.3, bounds [0, 1], popsize 20, maxfevals = budget, '
-            'tolfun/tolx disabled',
-            'least_squares: scipy defaults (trf, 2-point Jacobian, x_scale 1) in physical '
-            'units from a nameplate guess (each parameter off by a factor 2-3); '
-            '"motor_id refinement only" is the project\'s own refinement (log '
-            'parameters, x_scale="jac", initial state estimated) from the same guess',
-            '"+polish" is the standard refinement of the project (Identifier warm start, '
-            'use_ga=False) from the best point of the method; times exclude it',
-            'wall s and cpu s are medians over seeds (cpu s: process time, all threads); '
-            'the JSON also has the fastest seed (seconds_min)',
-            'cost/truth: final cost divided by the cost at the true parameters '
-            '(the noise floor)',
+        'notes': NOTES + [
             'Identifier.fit row: wall is the whole fit (GA, 3-start refinement, '
             'covariance); its GA alone took a median of '
             f'{by["motor_id Identifier.fit (GA+polish)"]["ga_seconds"]:.3f} s',

@@ -76,59 +76,17 @@ def run(quick=False):
         'duration_s': duration, 'identify_at_s': list(calls_at), 'ros_domain_id': domain,
     }
     try:
-        pfile = os.path.join(tmp, 'motor.json')
-        with open(pfile, 'w') as fh:
-            json.dump(MOTOR.to_dict(), fh)
-        link = os.path.join(tmp, 'card')
         # identifier, client and driver first, so that every sample the card sends
-        # reaches matched subscribers; the driver waits for the device with a short
-        # backoff, then the card comes up
+        # reaches matched subscribers; the driver waits for the device, then the card starts
         procs.start('identifier', [
             '-m', 'motor_id.nodes.identifier', '--ros-args',
             '-p', f'window_s:={window}', '-p', f'generations:={generations}',
             '-p', f'R_m:={MOTOR.R_m}'])
         client = rows_counter_client(domain)
-        procs.start('driver', [
-            '-m', 'motor_id.nodes.driver', '--ros-args', '-p', f'device:={link}',
-            '-p', f'sample_period:={period}', '-p', 'excitation:=multisine',
-            '-p', 'autostart:=true',
-            '-p', f'duration:={duration + 30.0}', '-p', 'reopen_backoff_max:=0.2'])
-        topic = '/' + client.messages.SAMPLES_TOPIC
-        if not wait_for(lambda: client.node.count_publishers(topic) >= 1
-                     and client.node.count_subscribers(topic) >= 2
-                     and client.node.count_publishers('/identifier/estimate') >= 1, 40.0):
-            raise RuntimeError('driver / identifier did not come up:\n'
-                               + procs['driver'].output()[-1500:]
-                               + procs['identifier'].output()[-1500:])
-        time.sleep(0.5)
-        procs.start('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
-                             '--period', str(period), '--params', pfile,
-                             '--noise', '0.05,0.005', '--seed', '0'])
-        if not wait_for(lambda: client.first_rx is not None or not procs['card'].alive(), 40.0) \
-                or not procs['card'].alive():
-            raise RuntimeError('no samples from the card through the driver:\n'
-                               + procs['card'].output()[-1500:]
-                               + procs['driver'].output()[-1500:])
+        _start_driver_and_card(procs, client, tmp, period, duration)
         t0 = client.first_rx
         cpu_start = cpu_times(procs)
-        cpu_idle = None
-        calls = []
-        for at in calls_at:
-            wait_for(lambda at=at: time.monotonic() - t0 >= at, at + 1.0, 0.01)
-            if cpu_idle is None:
-                cpu_idle = cpu_times(procs)
-            n_est = len(client.estimates)
-            t_call, t_resp, resp = client.call_identify(timeout=120.0)
-            got = resp.success and wait_for(
-                lambda n_est=n_est: len(client.estimates) > n_est, 10.0, 0.002)
-            t_est = client.estimates[-1][0] if got else None
-            est = client.estimates[-1][1] if got else {}
-            calls.append({'at_s': at, 'success': bool(resp.success),
-                          'response_s': t_resp - t_call,
-                          'estimate_s': (t_est - t_call) if t_est else None,
-                          'message': resp.message.splitlines()[0] if resp.message else '',
-                          'estimate': {k: num(est, k) for k in ('J', 'K_T', 'K_b', 'B',
-                                                                 'L_m')}})
+        calls, cpu_idle = _identify_calls(client, procs, t0, calls_at)
         wait_for(lambda: time.monotonic() - t0 >= duration, duration + 1.0, 0.01)
         cpu_end = cpu_times(procs)
         with client.lock:
@@ -146,6 +104,68 @@ def run(quick=False):
         logs = {name: p.output()[-3000:] for name, p in procs.items()}
         shutil.rmtree(tmp, ignore_errors=True)
 
+    return _record(quick, settings, calls, (cpu_start, cpu_idle, cpu_end), drv, idn,
+                   (rows_total, rx_rows, rx_batches, seq), exit_codes, logs,
+                   (duration, calls_at, window))
+
+
+def _start_driver_and_card(procs, client, tmp, period, duration):
+    """The driver (waiting for the device with a short backoff), then the card; return
+    once the client receives samples."""
+    pfile = os.path.join(tmp, 'motor.json')
+    with open(pfile, 'w') as fh:
+        json.dump(MOTOR.to_dict(), fh)
+    link = os.path.join(tmp, 'card')
+    procs.start('driver', [
+        '-m', 'motor_id.nodes.driver', '--ros-args', '-p', f'device:={link}',
+        '-p', f'sample_period:={period}', '-p', 'excitation:=multisine',
+        '-p', 'autostart:=true',
+        '-p', f'duration:={duration + 30.0}', '-p', 'reopen_backoff_max:=0.2'])
+    topic = '/' + client.messages.SAMPLES_TOPIC
+    if not wait_for(lambda: client.node.count_publishers(topic) >= 1
+                    and client.node.count_subscribers(topic) >= 2
+                    and client.node.count_publishers('/identifier/estimate') >= 1, 40.0):
+        raise RuntimeError('driver / identifier did not come up:\n'
+                           + procs['driver'].output()[-1500:]
+                           + procs['identifier'].output()[-1500:])
+    time.sleep(0.5)
+    procs.start('card', ['-m', 'motor_id.cli', 'card-sim', '--link', link,
+                         '--period', str(period), '--params', pfile,
+                         '--noise', '0.05,0.005', '--seed', '0'])
+    if not wait_for(lambda: client.first_rx is not None or not procs['card'].alive(), 40.0) \
+            or not procs['card'].alive():
+        raise RuntimeError('no samples from the card through the driver:\n'
+                           + procs['card'].output()[-1500:]
+                           + procs['driver'].output()[-1500:])
+
+
+def _identify_calls(client, procs, t0, calls_at):
+    """Call ~/identify at each of ``calls_at`` [s]; the calls and the CPU before the first."""
+    cpu_idle = None
+    calls = []
+    for at in calls_at:
+        wait_for(lambda at=at: time.monotonic() - t0 >= at, at + 1.0, 0.01)
+        if cpu_idle is None:
+            cpu_idle = cpu_times(procs)
+        n_est = len(client.estimates)
+        t_call, t_resp, resp = client.call_identify(timeout=120.0)
+        got = resp.success and wait_for(
+            lambda n_est=n_est: len(client.estimates) > n_est, 10.0, 0.002)
+        t_est = client.estimates[-1][0] if got else None
+        est = client.estimates[-1][1] if got else {}
+        calls.append({'at_s': at, 'success': bool(resp.success),
+                      'response_s': t_resp - t_call,
+                      'estimate_s': (t_est - t_call) if t_est else None,
+                      'message': resp.message.splitlines()[0] if resp.message else '',
+                      'estimate': {k: num(est, k) for k in ('J', 'K_T', 'K_b', 'B', 'L_m')}})
+    return calls, cpu_idle
+
+
+def _record(quick, settings, calls, cpu, drv, idn, rows, exit_codes, logs, plan):
+    """The section record: tables, targets and notes from what the run measured."""
+    cpu_start, cpu_idle, cpu_end = cpu
+    rows_total, rx_rows, rx_batches, seq = rows
+    duration, calls_at, window = plan
     wall = cpu_end[0] - cpu_start[0]
     cpu_all = cpu_percent(cpu_start, cpu_end)
     cpu_stream = cpu_percent(cpu_start, cpu_idle) if cpu_idle else {}
@@ -175,32 +195,7 @@ def run(quick=False):
     proc_rows = [{'process': n, 'cpu_streaming': cpu_stream.get(n),
                   'cpu_total': cpu_all.get(n)} for n in ('card', 'driver', 'identifier')]
     count_rows = [{'where': k, 'value': v} for k, v in counts.items()]
-    lat = [c['estimate_s'] for c in calls if c['estimate_s'] is not None]
-    later = lat[1:] if len(lat) > 1 else lat
-    published = counts['driver: samples published']
-    received = counts['identifier: received']
-    ros_lost = None if None in (published, received) else published - received
-    serial_lost = counts['driver: frames lost (seq gaps)']
-    held = None if None in (published, counts['driver: frames ok']) else \
-        counts['driver: frames ok'] - published
-    rate = counts['client: rate [Hz]']
-    targets = [
-        target('samples lost in ROS transport (driver published - identifier received)',
-               ros_lost, '0', ros_lost == 0 if ros_lost is not None else None),
-        target('frames lost on the serial link (sequence gaps seen by the driver)',
-               serial_lost, '0', serial_lost == 0 if serial_lost is not None else None),
-        target('frames the driver read but had not published when the card stopped',
-               held, 'informative (< batch_size)', None),
-        target('samples the card sent before the driver opened the pty',
-               seq[0], 'informative', None),
-        target('client receive rate', rate, '~1000 Hz (+-2 %)',
-               abs(rate - 1000) <= 20 if not quick and rate else None, 'Hz'),
-        target('latency identify call -> published estimate (median, after the first)',
-               float(np.median(later)) if later else None, 'informative', None, 's'),
-        target('clean exit of driver and identifier on SIGINT',
-               float(max(abs(v or 0) for v in exit_codes.values())), 'exit code 0',
-               all(v == 0 for v in exit_codes.values())),
-    ]
+    targets = _targets(quick, counts, calls, seq, exit_codes)
     return {
         'title': TITLE,
         'status': 'ok',
@@ -242,3 +237,33 @@ def run(quick=False):
             'subscribes), so the first identify call does not stall reception',
         ],
     }
+
+
+def _targets(quick, counts, calls, seq, exit_codes):
+    """The section's targets: losses, latency and a clean exit."""
+    lat = [c['estimate_s'] for c in calls if c['estimate_s'] is not None]
+    later = lat[1:] if len(lat) > 1 else lat
+    published = counts['driver: samples published']
+    received = counts['identifier: received']
+    ros_lost = None if None in (published, received) else published - received
+    serial_lost = counts['driver: frames lost (seq gaps)']
+    held = None if None in (published, counts['driver: frames ok']) else \
+        counts['driver: frames ok'] - published
+    rate = counts['client: rate [Hz]']
+    return [
+        target('samples lost in ROS transport (driver published - identifier received)',
+               ros_lost, '0', ros_lost == 0 if ros_lost is not None else None),
+        target('frames lost on the serial link (sequence gaps seen by the driver)',
+               serial_lost, '0', serial_lost == 0 if serial_lost is not None else None),
+        target('frames the driver read but had not published when the card stopped',
+               held, 'informative (< batch_size)', None),
+        target('samples the card sent before the driver opened the pty',
+               seq[0], 'informative', None),
+        target('client receive rate', rate, '~1000 Hz (+-2 %)',
+               abs(rate - 1000) <= 20 if not quick and rate else None, 'Hz'),
+        target('latency identify call -> published estimate (median, after the first)',
+               float(np.median(later)) if later else None, 'informative', None, 's'),
+        target('clean exit of driver and identifier on SIGINT',
+               float(max(abs(v or 0) for v in exit_codes.values())), 'exit code 0',
+               all(v == 0 for v in exit_codes.values())),
+    ]
