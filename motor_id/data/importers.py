@@ -124,8 +124,7 @@ def load_emps(path: str | os.PathLike[str]) -> Recording:
         'units': {'t': 's', 'voltage': 'N', 'speed': 'm/s', 'current': 'A', 'flags': '1'},
         'parameter_meaning': {'J': 'moving mass M [kg]', 'B': 'viscous friction Fv [N s/m]'},
     }
-    # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
-    return Recording(time, force, speed, None, 'torque', meta)  # type: ignore[arg-type]
+    return Recording(time, force, speed, input_kind='torque', meta=meta)
 
 
 def load_dunker(path: str | os.PathLike[str], motor: int = 1) -> Recording:
@@ -224,8 +223,7 @@ def load_dunker(path: str | os.PathLike[str], motor: int = 1) -> Recording:
         'sign_held': int(np.count_nonzero((vel == 0) & (setvel == 0) & (cur > 0))),
         'units': {'t': 's', 'voltage': 'N m', 'speed': 'rad/s', 'current': 'A', 'flags': '1'},
     }
-    # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
-    return Recording(t_ms * 1e-3, torque, vel, None, 'torque', meta)  # type: ignore[arg-type]
+    return Recording(t_ms * 1e-3, torque, vel, input_kind='torque', meta=meta)
 
 
 def dunker_sign(vel: NDArray[np.float64], setvel: NDArray[np.float64]) -> NDArray[np.float64]:
