@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from motor_id.analysis import DiscrepancyAnalysis
-from motor_id.analysis import selection
+from motor_id.analysis import DiscrepancyAnalysis, selection
 from motor_id.cli import main
 from motor_id.identify import Identifier
 from motor_id.identify.determinacy import MIN_RELATIVE_STD
@@ -227,8 +226,8 @@ def test_one_direction_runs_report_friction_and_load_as_ambiguous():
 # ------------------------------------------------------------------------ 5. adequacy
 @needs_data
 def test_the_floor_record_is_inadequate_and_says_so(tmp_path, capsys):
-    from motor_id.data.importers import load_dunker
     from motor_id.data.csv_io import write_csv
+    from motor_id.data.importers import load_dunker
     rec = load_dunker(FLOOR_FILE, motor=1)
     path = tmp_path / 'floor.csv'
     write_csv(rec, path)
@@ -295,3 +294,14 @@ def test_two_recordings_fit_together_with_an_initial_state_each():
     model = SavedModel.from_report(res.to_dict())
     val = validate(model, joint)
     assert val.segment.max() == 1 and val.channels['speed']['fit_percent'] > 50
+
+
+def test_a_huge_relative_std_gives_a_finite_interval():
+    from motor_id.identify.determinacy import practical
+    from motor_id.identify.result import Estimate
+    params = {'B': Estimate(2e-6, 5.0, True)}   # 2.5 million times its value
+    warnings = practical(params, 0.01, {'speed': 0.01}, None)
+    b = params['B']
+    assert not b.determined and b.value is None and warnings
+    lo, hi = b.bound['interval']
+    assert 0 < lo < 2e-6 < hi and math.isfinite(hi)

@@ -30,6 +30,8 @@ CHANNEL_FIT = 20.0
 cannot carry the parameters that only it determines."""
 MIN_LEVELS = 4
 """A channel that takes fewer distinct values than this holds no waveform to fit."""
+MAX_LOG_SPREAD = 50.0
+"""Largest log-width of a reported interval (e^50 ~ 5e21: beyond, "anything")."""
 VISIBLE = 1e-3
 """Smallest relative residue of a step, one sample later, that a record can show."""
 
@@ -114,8 +116,9 @@ def practical(params: dict, period: float, noise: dict, R_m: float | None) -> li
             continue
         rel = e.std / abs(e.value) if e.value else math.inf
         if rel > MAX_RELATIVE_STD:
-            lo = e.value * math.exp(-2 * rel) if e.value > 0 else e.value - 2 * e.std
-            hi = e.value * math.exp(2 * rel) if e.value > 0 else e.value + 2 * e.std
+            spread = min(2.0 * rel, MAX_LOG_SPREAD)   # (a std of 1e3 x the value: 1e-22..)
+            lo = e.value * math.exp(-spread) if e.value > 0 else e.value - 2 * e.std
+            hi = e.value * math.exp(spread) if e.value > 0 else e.value + 2 * e.std
             text = (f'{name} is not determined by this record: its relative error bar is '
                     f'{100 * rel:.0f} % (data allow about {lo:.3g} .. {hi:.3g})')
             mark_undetermined(e, text, {'interval': [lo, hi]})
