@@ -305,3 +305,24 @@ def test_a_huge_relative_std_gives_a_finite_interval():
     assert not b.determined and b.value is None and warnings
     lo, hi = b.bound['interval']
     assert 0 < lo < 2e-6 < hi and math.isfinite(hi)
+
+
+@pytest.mark.skipif(not (DATA / 'emps' / 'DATA_EMPS.mat').exists(), reason='EMPS not present')
+def test_the_halves_of_the_emps_record_agree_within_their_error_bars():
+    # M, Fv, Fc and the offset of the two halves of the EMPS record (the inverse-dynamics
+    # model's terms, fitted on simulation error): measured |z| 0.86, 0.16, 0.20, 0.77
+    from motor_id.data.importers import load_emps
+    rec = load_emps(DATA / 'emps' / 'DATA_EMPS.mat')
+    n = len(rec)
+    fits = []
+    for part in (rec.slice(0, n // 2), rec.slice(n // 2, n)):
+        res = _fit(part, use_ga=False, start={'J': 80.0, 'B': 150.0},
+                   effects={'coulomb_friction': {'T_c': 20.0}, 'load_torque': {'T_L': -3.0}},
+                   free_effects=['coulomb_friction.T_c', 'load_torque.T_L']).to_dict()
+        vals = {p: res['parameters'][p] for p in ('J', 'B')}
+        vals.update({q: res['effects'][e][q] for e, q in (('coulomb_friction', 'T_c'),
+                                                           ('load_torque', 'T_L'))})
+        fits.append(vals)
+    for p in fits[0]:
+        a, b = fits[0][p], fits[1][p]
+        assert abs(a['value'] - b['value']) <= 3 * math.hypot(a['std'], b['std']), p
