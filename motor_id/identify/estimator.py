@@ -1,9 +1,14 @@
 """The estimator: GA fit of the constrained Elman net, then least-squares refinement."""
 
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
 import math
 import time
+from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.errors import ConfigError, IdentificationError, MotorIdError
 from motor_id.ga import GeneticAlgorithm
@@ -12,6 +17,11 @@ from motor_id.identify.problem import IdentificationProblem, TORQUE_FREE
 from motor_id.identify.result import Estimate, IdentificationResult
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
+
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
+
+_Progress = Callable[[int, int, float], object]
 
 WIDEN = 1e3
 """Factor by which a side of the default box that a fit sits on is moved outward."""
@@ -89,12 +99,19 @@ class Identifier:
         candidates with them); the covariance always uses central differences.
     """
 
-    def __init__(self, method='zoh', R_m=None, tie=None, population=20, generations=160,
-                 crossover=0.75, mutation=0.04, random_state=None, fixed=None, bounds=None,
-                 channels=None, effects=None, free_effects=None, start=None, use_ga=True,
-                 bootstrap=0, refine_starts=3, R_m_tolerance=0.10, widen=True,
-                 error_blocks=10, settle=True, reweight=4, max_nfev=60,
-                 quick_jacobian=False):
+    def __init__(self, method: str = 'zoh', R_m: float | None = None, tie: bool | None = None,
+                 population: int = 20, generations: int = 160, crossover: float = 0.75,
+                 mutation: float = 0.04,
+                 random_state: int | np.random.Generator | None = None,
+                 fixed: Mapping[str, float] | None = None,
+                 bounds: Mapping[str, tuple[float, float]] | None = None,
+                 channels: Iterable[str] | None = None,
+                 effects: Mapping[str, Mapping[str, float]] | None = None,
+                 free_effects: Iterable[str] | None = None,
+                 start: Mapping[str, float] | None = None, use_ga: bool = True,
+                 bootstrap: int = 0, refine_starts: int = 3, R_m_tolerance: float = 0.10,
+                 widen: bool = True, error_blocks: int = 10, settle: bool = True,
+                 reweight: int = 4, max_nfev: int = 60, quick_jacobian: bool = False) -> None:
         self.method = method
         self.R_m = R_m
         self.tie = tie
@@ -120,7 +137,8 @@ class Identifier:
         self.max_nfev = max_nfev
         self.quick_jacobian = quick_jacobian
 
-    def fit(self, rec, progress=None, sample_weight=None):
+    def fit(self, rec: Recording, progress: _Progress | None = None,
+            sample_weight: ArrayLike | None = None) -> Identifier:
         """Fit the model to a recording.
 
         Parameters
@@ -154,7 +172,7 @@ class Identifier:
         rec.validate()
         try:
             self._fit(rec, progress, sample_weight)
-            self.widened_ = {}
+            self.widened_: dict[str, tuple[float, float]] = {}
             if self.widen and self.use_ga:
                 self._widen(rec, progress, sample_weight)
             if self.settle:
@@ -167,7 +185,8 @@ class Identifier:
         self.result_.seconds = time.perf_counter() - t_start
         return self
 
-    def _widen(self, rec, progress, sample_weight):
+    def _widen(self, rec: Recording, progress: _Progress | None,
+               sample_weight: ArrayLike | None) -> None:
         """Refit with the default box widened where a physical parameter sits on it."""
         for _ in range(WIDEN_ROUNDS):
             sides = self._on_default_bound()
@@ -185,7 +204,8 @@ class Identifier:
             self.result_.fit['widened'] = {k: [float(lo), float(hi)]
                                            for k, (lo, hi) in self.widened_.items()}
 
-    def _settle(self, rec, progress, sample_weight):
+    def _settle(self, rec: Recording, progress: _Progress | None,
+                sample_weight: ArrayLike | None) -> None:
         """Refit without what the record cannot carry (a warm start from the estimate).
 
         A current channel that takes fewer than :data:`determinacy.MIN_LEVELS` values, or
@@ -195,10 +215,12 @@ class Identifier:
         held at the given value. The warnings say which and why.
         """
         res = self.result_
-        notes, channels, fixed = [], self.channels, dict(self.fixed or {})
+        notes: list[str] = []
+        channels, fixed = self.channels, dict(self.fixed or {})
         cur = res.fit['channels'].get('current')
         if cur is not None and self.channels is None:
             levels = determinacy.channel_levels(rec.current)
+            why: str | None
             if levels < determinacy.MIN_LEVELS:
                 why = f'the current takes only {levels} distinct values'
             elif not cur['fit_percent'] >= determinacy.CHANNEL_FIT:
@@ -233,13 +255,13 @@ class Identifier:
         for attr in ('problem_', 'result_', 'params_', 'covariance_'):
             setattr(self, attr, getattr(again, attr))
 
-    def _on_default_bound(self):
+    def _on_default_bound(self) -> dict[str, tuple[float, float]]:
         """``{name: (low, high)}`` SI: the widened range of each physical parameter the
         fit left on a side of the default box (never one the caller bounded)."""
         prob = self.problem_
         params = self.result_.to_dict()['parameters']
         caller = set(self.bounds or {})
-        out = {}
+        out: dict[str, tuple[float, float]] = {}
         for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high, strict=True):
             v = params.get(name, {})
             x = v.get('value', v.get('particular_value'))
@@ -257,7 +279,8 @@ class Identifier:
             out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
         return out
 
-    def _fit(self, rec, progress, sample_weight):
+    def _fit(self, rec: Recording, progress: _Progress | None,
+             sample_weight: ArrayLike | None) -> None:
         problem = IdentificationProblem(
             rec, method=self.method, R_m=self.R_m, R_m_tolerance=self.R_m_tolerance,
             tie=self.tie, fixed=self.fixed, bounds=self.bounds, channels=self.channels,
@@ -287,7 +310,9 @@ class Identifier:
         self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
 
     # -------------------------------------------------------------- the search
-    def _run_ga(self, problem, rng, progress):
+    def _run_ga(self, problem: IdentificationProblem, rng: np.random.Generator,
+                progress: _Progress | None
+                ) -> tuple[GeneticAlgorithm | None, np.ndarray, float]:
         """The paper's network training; returns (ga or None, best vector, seconds)."""
         t_ga = time.perf_counter()
         x_start = None
@@ -310,9 +335,10 @@ class Identifier:
             raise IdentificationError('no parameter set inside the search bounds gives a '
                                       'finite simulation: check the units of the data and '
                                       'the --bounds')
-        return ga, ga.best_, time.perf_counter() - t_ga
+        return ga, cast(np.ndarray, ga.best_), time.perf_counter() - t_ga
 
-    def _refine(self, problem, ga, best):
+    def _refine(self, problem: IdentificationProblem, ga: GeneticAlgorithm | None, best: np.ndarray
+                ) -> tuple[np.ndarray, dict[str, Any]]:
         """Least squares from the GA's best individuals (not for ``paper``)."""
         z_best = problem.to_z(best)
         if self.method == 'paper':
@@ -322,7 +348,7 @@ class Identifier:
         z_best = np.concatenate([z_best, problem.x0])
         starts = [z_best]
         if ga is not None and self.refine_starts > 1:
-            order = np.argsort(ga.costs_)
+            order = np.argsort(cast(np.ndarray, ga.costs_))
             pop = problem.to_z(ga.bounds.decode(ga.genes_))
             for k in order:
                 if len(starts) >= self.refine_starts:
@@ -346,7 +372,9 @@ class Identifier:
                         'status': int(sol.status), 'message': str(sol.message)}
 
     # ------------------------------------------------------------ the result
-    def _build_result(self, rec, problem, x_best, z_best, J, sigma, w, pred):
+    def _build_result(self, rec: Recording, problem: IdentificationProblem, x_best: np.ndarray,
+                      z_best: np.ndarray, J: np.ndarray, sigma: Sequence[float], w: np.ndarray,
+                      pred: np.ndarray) -> IdentificationResult:
         names = list(problem.bounds.names)
         state_names = problem.state_names()[:z_best.size - len(names)]
         names = names + state_names
@@ -398,7 +426,8 @@ class Identifier:
                 result.r_m_sensitivity = _sensitivity_block(problem, params, names, dz)
         return result
 
-    def _honesty(self, rec, problem, params, fit):
+    def _honesty(self, rec: Recording, problem: IdentificationProblem, params: dict[str, Estimate],
+                 fit: dict[str, Any]) -> list[str]:
         """Floors the stds and marks what this record leaves open (warnings)."""
         for e in params.values():
             if not e.assumed:
@@ -407,18 +436,19 @@ class Identifier:
         r_m = params['R_m'].value if 'R_m' in params else None
         return determinacy.practical(params, rec.sample_period, noise, r_m)
 
-    def _assumptions(self, problem):
+    def _assumptions(self, problem: IdentificationProblem) -> dict[str, Any]:
         fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
         return {'R_m': fixed.get('R_m'), 'R_m_given': problem.R_m_given,
                 'R_m_prior': None if problem.r_m_prior is None else {
                     'mean': problem.R_m_given,
-                    'std': problem.R_m_tolerance * problem.R_m_given},
+                    'std': problem.R_m_tolerance * cast(float, problem.R_m_given)},
                 'K_T_eq_K_b': bool(problem.tie),
                 'fixed': {k: v for k, v in fixed.items() if k != 'R_m'},
                 'discretisation': problem.discretisation}
 
-    def _resistance_block(self, problem, params):
-        given = problem.R_m_given
+    def _resistance_block(self, problem: IdentificationProblem, params: dict[str, Estimate]
+                          ) -> dict[str, Any]:
+        given = cast(float, problem.R_m_given)  # a voltage plant's
         if problem.r_m_prior is None:
             if 'R_m' in (self.fixed or {}):
                 why = 'fixed by --fix R_m'
@@ -450,7 +480,8 @@ class Identifier:
                 'estimated': True, 'note': note,
                 'prior_std': prior_std * given}
 
-    def _ga_block(self, problem, ga, ga_seconds):
+    def _ga_block(self, problem: IdentificationProblem, ga: GeneticAlgorithm | None,
+                  ga_seconds: float) -> dict[str, Any]:
         if ga is None:
             return {'generations': 0, 'evaluations': 0, 'seconds': ga_seconds,
                     'history': []}
@@ -464,7 +495,8 @@ class Identifier:
                 'population': ga.population, 'crossover': ga.crossover,
                 'mutation': ga.mutation, 'history': history}
 
-    def _bootstrap(self, problem, result, z_best, w, rng):
+    def _bootstrap(self, problem: IdentificationProblem, result: IdentificationResult,
+                   z_best: np.ndarray, w: np.ndarray, rng: np.random.Generator) -> None:
         samples = uncertainty.bootstrap(problem, z_best, w, self.bootstrap, rng)
         names = list(problem.bounds.names)
         for n, e in result.parameters.items():
@@ -478,9 +510,11 @@ class Identifier:
 
 
 # ---------------------------------------------------------------- result pieces
-def _estimates(problem, names, x_best, std_z, lg, determined, bound):
+def _estimates(problem: IdentificationProblem, names: list[str], x_best: np.ndarray,
+               std_z: np.ndarray, lg: np.ndarray, determined: np.ndarray, bound: np.ndarray
+               ) -> dict[str, Estimate]:
     """Estimates of every plant parameter (SI)."""
-    params = {}
+    params: dict[str, Estimate] = {}
     all_names = list(PARAM_NAMES) if problem.kind == 'voltage' else list(TORQUE_FREE)
     for n in all_names:
         if n in problem.fixed:
@@ -500,8 +534,9 @@ def _estimates(problem, names, x_best, std_z, lg, determined, bound):
     return params
 
 
-def _effects_block(problem, x_best, std_z, determined, bound):
-    eff_out = {e: dict(v) for e, v in problem.effects.items()}
+def _effects_block(problem: IdentificationProblem, x_best: np.ndarray, std_z: np.ndarray,
+                   determined: np.ndarray, bound: np.ndarray) -> dict[str, dict[str, Any]]:
+    eff_out: dict[str, dict[str, Any]] = {e: dict(v) for e, v in problem.effects.items()}
     for j, fe in enumerate(problem.free_effects):
         e, _, p = fe.partition('.')
         k = len(problem.free) + j
@@ -512,11 +547,14 @@ def _effects_block(problem, x_best, std_z, determined, bound):
     return eff_out
 
 
-def _fit_block(rec, problem, x_best, sigma, pred, names, state_names):
+def _fit_block(rec: Recording, problem: IdentificationProblem, x_best: np.ndarray,
+               sigma: Sequence[float],
+               pred: np.ndarray, names: list[str], state_names: list[str]
+               ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Per-channel fit metrics (in the data's units) and the predictions."""
     un = problem.units
-    fit = {'channels': {}, 'noise_std': {}}
-    prediction = {'time': rec.time, 'input': rec.input}
+    fit: dict[str, Any] = {'channels': {}, 'noise_std': {}}
+    prediction: dict[str, np.ndarray] = {'time': rec.time, 'input': rec.input}
     i = 0
     for ch, n, sg in zip(problem.channels, problem.n_per, sigma, strict=True):
         m = channel_metrics(problem.y[i:i + n], pred[i:i + n], problem.input)
@@ -533,7 +571,7 @@ def _fit_block(rec, problem, x_best, sigma, pred, names, state_names):
     return fit, prediction
 
 
-def _prior_verdict(problem, z_best):
+def _prior_verdict(problem: IdentificationProblem, z_best: np.ndarray) -> dict[str, Any]:
     """What R_m's prior does to the identifiability verdict (empty without a prior)."""
     if problem.r_m_prior is None:
         return {}
@@ -547,20 +585,23 @@ def _prior_verdict(problem, z_best):
     return {'prior': text, 'r_m_determined_by_data': by_data}
 
 
-def _covariance_block(problem, params, names, cov):
+def _covariance_block(problem: IdentificationProblem, params: dict[str, Estimate],
+                      names: list[str], cov: np.ndarray) -> dict[str, Any] | None:
     """``parameter_covariance`` over the determined estimated plant parameters (SI)."""
-    index, values = {}, {}
+    index: dict[str, int] = {}
+    values: dict[str, float] = {}
     for n, e in params.items():
         src = 'K_T' if (problem.tie and n == 'K_b') else n
         if e.determined and not e.assumed and src in names:
             index[n] = names.index(src)
-            values[n] = e.value
+            values[n] = cast(float, e.value)  # determined: a value
     return uncertainty.parameter_covariance(list(index), values, cov, index)
 
 
-def _sensitivity_block(problem, params, names, dz):
+def _sensitivity_block(problem: IdentificationProblem, params: dict[str, Estimate],
+                       names: list[str], dz: np.ndarray) -> dict[str, float | None]:
     """``{name: % change per +1 % in R_m}`` of the determined estimated parameters."""
-    out = {}
+    out: dict[str, float | None] = {}
     for n, e in params.items():
         if e.assumed:
             continue

@@ -1,12 +1,16 @@
 """Parsing of user-stated parameter values and search ranges (``--fix``, ``--bounds``)."""
 
+from __future__ import annotations
+
+from collections.abc import Iterable
+
 import numpy as np
 
 from motor_id.errors import ConfigError
 from motor_id.model import PARAM_NAMES
 
 
-def parse_fixed(items, option='--fix'):
+def parse_fixed(items: Iterable[str] | None, option: str = '--fix') -> dict[str, float]:
     """Parse ``NAME=VALUE`` items: motor parameters known in advance.
 
     Parameters
@@ -26,7 +30,7 @@ def parse_fixed(items, option='--fix'):
         A malformed item, a name not in :data:`motor_id.model.PARAM_NAMES`, or a value
         that is not a finite positive number.
     """
-    out = {}
+    out: dict[str, float] = {}
     for item in items or ():
         name, sep, value = (x.strip() for x in item.partition('='))
         if not (sep and name):
@@ -45,7 +49,8 @@ def parse_fixed(items, option='--fix'):
     return out
 
 
-def parse_bounds(items, option='--bounds'):
+def parse_bounds(items: Iterable[str] | None, option: str = '--bounds'
+                 ) -> dict[str, tuple[float, float]]:
     """Parse ``NAME=LOW:HIGH`` items: search ranges.
 
     Parameters
@@ -66,14 +71,16 @@ def parse_bounds(items, option='--bounds'):
         parameters (searched on a log scale), LOW <= 0. Other names (effect parameters)
         are checked by :class:`Identifier` against what it fits.
     """
-    out = {}
+    out: dict[str, tuple[float, float]] = {}
     for item in items or ():
         name, sep, rng = (x.strip() for x in item.partition('='))
         lo, sep2, hi = rng.partition(':')
+        low: float | None
+        high: float  # None only with low None, which raises below
         try:
             low, high = float(lo), float(hi)
         except ValueError:
-            low = high = None
+            low = high = None  # type: ignore[assignment]
         if not (sep and sep2 and name) or low is None:
             raise ConfigError(f'{option} takes NAME=LOW:HIGH, got {item!r}')
         if not (np.isfinite(low) and np.isfinite(high) and low < high):

@@ -4,13 +4,22 @@ The problem works in internal units (:mod:`motor_id.identify.units`): SI exactly
 every ordinary recording, SI over powers of two for data in extreme units.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any, cast, TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds
 from motor_id.identify.units import InternalUnits
 from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
 from motor_id.simulate import simulate_runs
+
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
 
 METHODS = ('zoh', 'euler', 'paper')
 VOLTAGE_FREE = ('J', 'K_T', 'K_b', 'B', 'L_m')
@@ -24,7 +33,8 @@ R_M_SPAN = 4.0      # a free R_m is searched in [given / 4, given * 4]
 FAILED_RESIDUAL = 1e6       # weighted residual given to a diverging simulation
 
 
-def _pick_channels(rec, method, channels):
+def _pick_channels(rec: Recording, method: str, channels: Iterable[str] | None
+                   ) -> tuple[str, ...]:
     """The output channels to fit (default: all measured; ``paper``: speed only)."""
     if channels is not None:
         channels = tuple(channels)
@@ -39,7 +49,9 @@ def _pick_channels(rec, method, channels):
     return channels
 
 
-def _effect_terms(effects, free_effects):
+def _effect_terms(effects: Mapping[str, Mapping[str, float]] | None,
+                  free_effects: Iterable[str] | None
+                  ) -> tuple[dict[str, Mapping[str, float]], list[str]]:
     """Complete effect parameters (catalogue defaults) and the checked free ones."""
     effects = {k: dict(v) for k, v in (effects or {}).items()}
     for e in effects:
@@ -55,7 +67,8 @@ def _effect_terms(effects, free_effects):
     return effects, free_eff
 
 
-def _plant_parameters(problem, R_m, fixed):
+def _plant_parameters(problem: IdentificationProblem, R_m: float | None, fixed: dict[str, float]
+                      ) -> tuple[list[str], dict[str, tuple[float, float]], float | None]:
     """Plant parameter names, default search box and the given R_m (None: torque plant).
 
     Decides whether R_m is free: for a voltage plant with a fitted current channel (not
@@ -91,7 +104,9 @@ def _plant_parameters(problem, R_m, fixed):
     return names, box, float(given)
 
 
-def _search_box(box, bounds, fitted, units):
+def _search_box(box: Mapping[str, tuple[float, float]],
+                bounds: Mapping[str, tuple[float, float]] | None, fitted: Sequence[str],
+                units: InternalUnits) -> dict[str, tuple[float, float]]:
     """Default box updated by the user's ``bounds`` (SI -> internal) and effect ranges."""
     box = dict(box)
     for key, (lo, hi) in (bounds or {}).items():
@@ -107,7 +122,7 @@ def _search_box(box, bounds, fitted, units):
     return box
 
 
-def initial_tolerance(y):
+def initial_tolerance(y: ArrayLike) -> float:
     """How far a run's initial state may sit from its first measured value: three times
     the channel's sample-to-sample noise, or half its resolution if larger.
 
@@ -165,9 +180,14 @@ class IdentificationProblem:
         Parameter sets simulated so far.
     """
 
-    def __init__(self, rec, method='zoh', R_m=None, R_m_tolerance=0.10, tie=None,
-                 fixed=None, bounds=None, channels=None, effects=None, free_effects=None,
-                 sample_weight=None):
+    def __init__(self, rec: Recording, method: str = 'zoh', R_m: float | None = None,
+                 R_m_tolerance: float = 0.10, tie: bool | None = None,
+                 fixed: Mapping[str, float] | None = None,
+                 bounds: Mapping[str, tuple[float, float]] | None = None,
+                 channels: Iterable[str] | None = None,
+                 effects: Mapping[str, Mapping[str, float]] | None = None,
+                 free_effects: Iterable[str] | None = None,
+                 sample_weight: ArrayLike | None = None) -> None:
         if method not in METHODS:
             raise ConfigError(f'method must be one of {METHODS}, got {method!r}')
         self.method = method
@@ -182,7 +202,11 @@ class IdentificationProblem:
         self._load(rec, sample_weight)
 
     # ----------------------------------------------------------------- set-up
-    def _configure(self, R_m, R_m_tolerance, tie, fixed, bounds, effects, free_effects):
+    def _configure(self, R_m: float | None, R_m_tolerance: float, tie: bool | None,
+                   fixed: Mapping[str, float] | None,
+                   bounds: Mapping[str, tuple[float, float]] | None,
+                   effects: Mapping[str, Mapping[str, float]] | None,
+                   free_effects: Iterable[str] | None) -> None:
         fixed = {k: float(v) for k, v in (fixed or {}).items()}
         self.R_m_tolerance = float(R_m_tolerance)
         names, box, self.R_m_given = _plant_parameters(self, R_m, fixed)
@@ -199,27 +223,29 @@ class IdentificationProblem:
         self.bounds = Bounds(tuple(order), tuple(box[n][0] for n in order),
                              tuple(box[n][1] for n in order),
                              tuple(n in PARAM_NAMES for n in order))
-        self.r_m_prior = None
+        self.r_m_prior: tuple[int, float, float] | None = None
         if 'R_m' in free:
-            mean = self.units.to_internal('R_m', self.R_m_given)
+            mean = self.units.to_internal('R_m', cast(float, self.R_m_given))
             self.r_m_prior = (free.index('R_m'), mean, self.R_m_tolerance * mean)
 
-    def _load(self, rec, sample_weight):
+    def _load(self, rec: Recording, sample_weight: ArrayLike | None) -> None:
         un = self.units
         self.time = un.signal(rec.time, 'time')
         self.input = un.signal(rec.input, 'input')
         self.segments = rec.segment_ranges
-        signals = {'speed': un.signal(rec.speed, 'speed')}
+        signals: dict[str, np.ndarray | None] = {'speed': un.signal(rec.speed, 'speed')}
         if self.kind == 'voltage':
             signals['current'] = (un.signal(rec.current, 'current') if rec.has_current
                                   else None)
         self.state_channels = tuple(signals)
-        x0, lo, hi = [], [], []
+        x0: list[float] = []
+        lo: list[float] = []
+        hi: list[float] = []
         for a, b in self.segments:
             for y in signals.values():
                 if y is None:  # not measured: free within a wide range
                     v = 0.0
-                    ref = signals['speed']
+                    ref = cast(np.ndarray, signals['speed'])
                     span = 2.0 * float(np.max(np.abs(y if y is not None else ref))) + 1.0
                 else:          # measured: data, within the noise of the first sample
                     v = float(y[a])
@@ -253,7 +279,8 @@ class IdentificationProblem:
             self.weights = self.weights * self.sample_weight
 
     # -------------------------------------------------------------- simulation
-    def expand(self, X, overrides=None):
+    def expand(self, X: ArrayLike, overrides: Mapping[str, float] | None = None
+               ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
         """Parameter rows X (P, d) -> (theta dict, effects dict) batches for the model."""
         X = np.atleast_2d(X)
         P = X.shape[0]
@@ -269,7 +296,8 @@ class IdentificationProblem:
             effects[e][p] = X[:, len(self.free) + j]
         return theta, effects
 
-    def simulate_channels(self, X, overrides=None):
+    def simulate_channels(self, X: ArrayLike, overrides: Mapping[str, float] | None = None
+                          ) -> list[np.ndarray]:
         """Outputs per channel for parameter rows X (trailing columns: initial state).
 
         ``overrides`` replaces fixed parameter values (internal units).
@@ -285,25 +313,25 @@ class IdentificationProblem:
                                 self.discretisation, effects, x0, self.segments)
         return [out[c] for c in self.channels]
 
-    def state_names(self):
+    def state_names(self) -> list[str]:
         """Names of the initial-state coordinates (``x0:speed``; ``x0[k]:speed`` for the
         runs of a joined recording)."""
         multi = len(self.segments) > 1
         return [f'x0[{k}]:{ch}' if multi else f'x0:{ch}'
                 for k in range(len(self.segments)) for ch in self.state_channels]
 
-    def simulate(self, X, overrides=None):
+    def simulate(self, X: ArrayLike, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """All fitted channels side by side, shape (P, n_channels * N)."""
         return np.concatenate(self.simulate_channels(X, overrides), axis=1)
 
-    def prior_residuals(self, X):
+    def prior_residuals(self, X: ArrayLike) -> np.ndarray | None:
         """R_m's prior residual ``(R_m - given) / std`` per row of X, or None."""
         if self.r_m_prior is None:
             return None
         j, mean, std = self.r_m_prior
         return (np.atleast_2d(X)[:, j] - mean) / std
 
-    def cost(self, X):
+    def cost(self, X: ArrayLike) -> np.ndarray:
         """The GA's fitness: weighted mean squared output error (plus R_m's prior) per row.
 
         Equals ``sum(residuals(x)**2) / y.size`` for each row x.
@@ -323,7 +351,7 @@ class IdentificationProblem:
         c /= n * len(ys)
         return np.where(np.isfinite(c), c, np.inf)
 
-    def residuals(self, x, weights=None):
+    def residuals(self, x: ArrayLike, weights: np.ndarray | None = None) -> np.ndarray:
         """Weighted residuals at one parameter vector x (free parameters, internal units;
         trailing entries, if any, are the initial state); R_m's prior is the last entry.
 
@@ -338,31 +366,31 @@ class IdentificationProblem:
             r = np.concatenate([r, p])
         return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
 
-    def output_residuals(self, z):
+    def output_residuals(self, z: np.ndarray) -> np.ndarray:
         """Simulated minus measured outputs (unweighted) at search vector z."""
         return self.simulate(self.from_z(z[None, :]))[0] - self.y
 
     # ------------------------------------------------------------- transforms
-    def log_mask(self, size):
+    def log_mask(self, size: int) -> np.ndarray:
         """Which of ``size`` coordinates are on a log scale (initial states never are)."""
         lg = np.zeros(size, dtype=bool)
         lg[:self.bounds.dim] = self.bounds.log
         return lg
 
-    def to_z(self, x):
+    def to_z(self, x: ArrayLike) -> np.ndarray:
         """Parameters (and initial state) -> search coordinates (log of the positive ones)."""
         x = np.asarray(x, dtype=float)
         lg = self.log_mask(np.shape(x)[-1])
         with np.errstate(all='ignore'):
             return np.where(lg, np.log(np.where(lg, np.maximum(x, 1e-300), 1.0)), x)
 
-    def from_z(self, z):
+    def from_z(self, z: ArrayLike) -> np.ndarray:
         """Search coordinates -> parameters."""
         lg = self.log_mask(np.shape(z)[-1])
         with np.errstate(over='ignore'):
             return np.where(lg, np.exp(z), z)
 
-    def z_bounds(self, size=None):
+    def z_bounds(self, size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Bounds in search coordinates; with the initial state when ``size`` asks."""
         lo = self.to_z(np.array(self.bounds.low))
         hi = self.to_z(np.array(self.bounds.high))
@@ -371,15 +399,15 @@ class IdentificationProblem:
             hi = np.concatenate([hi, self.x0_bounds[1]])
         return lo, hi
 
-    def start_vector(self, start):
+    def start_vector(self, start: Mapping[str, float]) -> np.ndarray:
         """A starting parameter vector from SI values ``{name: value}``, clipped to bounds."""
-        vals = []
+        vals: list[float] = []
         for n in self.bounds.names:
             if '.' in n:
                 e, _, p = n.partition('.')
                 vals.append(self.effects[e][p] if n not in start else start[n])
             elif n == 'R_m' and n not in start:
-                vals.append(self.r_m_prior[1])
+                vals.append(cast(tuple[int, float, float], self.r_m_prior)[1])
             else:
                 if n not in start:
                     raise ConfigError(f'start values lack {n!r}')
@@ -387,7 +415,8 @@ class IdentificationProblem:
         return np.clip(np.array(vals, dtype=float), self.bounds.low, self.bounds.high)
 
     # ------------------------------------------------------------ derivatives
-    def weighted_residuals(self, z, weights, overrides=None):
+    def weighted_residuals(self, z: np.ndarray, weights: np.ndarray,
+                           overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """Weighted residuals at search vector z (with the prior entry, if any)."""
         x = self.from_z(z[None, :])
         with np.errstate(all='ignore'):
@@ -397,7 +426,7 @@ class IdentificationProblem:
             r = np.concatenate([r, p])
         return np.where(np.isfinite(r), r, FAILED_RESIDUAL)
 
-    def jacobian_z(self, z, weights):
+    def jacobian_z(self, z: np.ndarray, weights: np.ndarray) -> np.ndarray:
         """Central-difference Jacobian of the weighted residuals w.r.t. z, one batch."""
         d = z.size
         h = 1e-5 * np.maximum(1.0, np.abs(z))
@@ -424,12 +453,12 @@ class IdentificationProblem:
             Jt = np.concatenate([Jt, row], axis=1)
         return Jt.T
 
-    def refine(self, z0, weights, max_nfev=60):
+    def refine(self, z0: np.ndarray, weights: np.ndarray, max_nfev: int = 60) -> Any:
         """Bounded least squares (trust region) from search vector z0."""
         lo, hi = self.z_bounds(z0.size)
         z0 = np.clip(z0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
 
-        def jac(z, w):
+        def jac(z: np.ndarray, w: np.ndarray) -> np.ndarray:
             J = self.jacobian_z(z, w)
             return np.where(np.isfinite(J), J, 0.0)
 
@@ -440,7 +469,7 @@ class IdentificationProblem:
                              ftol=1e-12, args=(weights,))
 
     # ------------------------------------------------------------ structure
-    def values_at(self, z):
+    def values_at(self, z: np.ndarray) -> dict[str, float]:
         """Full ``{name: value}`` of the physical parameters at free vector z (internal)."""
         x = self.from_z(z)
         v = dict(self.fixed)
@@ -450,7 +479,7 @@ class IdentificationProblem:
             v['K_b'] = v['K_T']
         return v
 
-    def coefficients(self, z, physical=False):
+    def coefficients(self, z: np.ndarray, physical: bool = False) -> dict[str, float]:
         """The transfer-function coefficients the data determine, at z."""
         v = self.values_at(z)
         if physical:

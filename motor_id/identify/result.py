@@ -1,26 +1,29 @@
 """What a fit produced: per-parameter estimates and the result with its JSON and table."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
 import math
+from typing import Any
 
 
 @dataclass
 class Estimate:
     """One parameter's estimate (SI units)."""
 
-    value: float = None
-    std: float = None
+    value: float | None = None
+    std: float | None = None
     determined: bool = False
     assumed: bool = False
-    particular_value: float = None
-    ci95: tuple = None
+    particular_value: float | None = None
+    ci95: tuple[float, float] | None = None
     at_bound: bool = False
-    reason: str = None
-    bound: dict = None
+    reason: str | None = None
+    bound: dict[str, Any] | None = None
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready; undetermined parameters have value and std null."""
-        d = {'value': self.value, 'std': self.std, 'determined': self.determined,
+        d: dict[str, Any] = {'value': self.value, 'std': self.std, 'determined': self.determined,
              'at_bound': bool(self.at_bound)}
         if self.assumed:
             d['assumed'] = True
@@ -35,7 +38,7 @@ class Estimate:
         return d
 
 
-def _num(x, spec='.4g'):
+def _num(x: float | None, spec: str = '.4g') -> str:
     """Format a number for the table; None and NaN print as '-'."""
     if x is None or (isinstance(x, float) and math.isnan(x)):
         return '-'
@@ -49,7 +52,7 @@ class IdentificationResult:
     method: str
     input_kind: str
     channels: tuple
-    parameters: dict
+    parameters: dict[str, Estimate]
     identifiable_combinations: list
     undetermined_directions: list
     identifiability: dict
@@ -60,16 +63,16 @@ class IdentificationResult:
     effects: dict = field(default_factory=dict)
     prediction: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
-    resistance: dict = None
-    r_m_sensitivity: dict = None
-    parameter_covariance: dict = None
-    units: dict = None
+    resistance: dict[str, Any] | None = None
+    r_m_sensitivity: dict[str, float | None] | None = None
+    parameter_covariance: dict[str, Any] | None = None
+    units: dict[str, Any] | None = None
     adequate: bool = True
     warnings: list = field(default_factory=list)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The JSON shape documented in the README (extra keys beyond the contract)."""
-        d = {
+        d: dict[str, Any] = {
             'adequate': bool(self.adequate),
             'warnings': list(self.warnings),
             'parameters': {k: v.to_dict() for k, v in self.parameters.items()},
@@ -95,14 +98,14 @@ class IdentificationResult:
             d['units'] = self.units
         return d
 
-    def values(self):
+    def values(self) -> dict[str, float | None]:
         """``{name: value}`` of every parameter, using the particular value if undetermined."""
-        out = {}
+        out: dict[str, float | None] = {}
         for k, e in self.parameters.items():
             out[k] = e.value if e.value is not None else e.particular_value
         return out
 
-    def summary(self):
+    def summary(self) -> str:
         """A plain-text table for people."""
         lines = [f'method: {self.method}   channels: {", ".join(self.channels)}   '
                  f'plant: {self.input_kind} input']
@@ -124,7 +127,7 @@ class IdentificationResult:
                      f'evaluations, {self.ga["seconds"]:.3f} s; total {self.seconds:.2f} s')
         return '\n'.join(lines)
 
-    def _parameter_lines(self):
+    def _parameter_lines(self) -> list[str]:
         lines = [f'{"parameter":<12}{"estimate":>14}{"std":>12}  note']
         for name, e in self.parameters.items():
             if e.value is None:
@@ -148,8 +151,8 @@ class IdentificationResult:
             lines.append(f'{name:<12}{e.value:>14.6g}{std:>12}  {note.strip()}'.rstrip())
         return lines
 
-    def _resistance_lines(self):
-        lines = []
+    def _resistance_lines(self) -> list[str]:
+        lines: list[str] = []
         r = self.resistance
         if r is not None:
             if r['estimated']:
@@ -165,7 +168,7 @@ class IdentificationResult:
                 lines.append(f'  a +1 % error in R_m moves: {moves}')
         return lines
 
-    def _identifiability_lines(self):
+    def _identifiability_lines(self) -> list[str]:
         idf = self.identifiability
         lines = [f'identifiability: rank {idf["rank"]} of {idf["n_free"]} free '
                  f'parameter(s), condition {idf["condition"]:.3g}']

@@ -6,17 +6,26 @@ parameters to the transfer-function coefficients (what input-output data can det
 a prior on R_m is one more observation, a unit row in that map.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, cast, TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from motor_id.identify.problem import IdentificationProblem
 
 NULL_TOL = 1e-7     # singular value ratio below which a direction is structurally unseen
 DETERMINED_TOL = 1e-6  # max projection of a parameter on the unseen directions
 AT_BOUND = 1e-3     # share of the (log-)range within which an estimate is at its bound
 
 
-def noise_levels(problem, z):
+def noise_levels(problem: IdentificationProblem, z: np.ndarray) -> tuple[list[float], np.ndarray]:
     """Per-channel noise std of the residuals at z and the matching weights (1/std)."""
     r = problem.output_residuals(z)
-    sig, w = [], []
+    sig: list[float] = []
+    w: list[np.ndarray] = []
     i = 0
     d = z.size
     for n in problem.n_per:
@@ -31,12 +40,13 @@ def noise_levels(problem, z):
     return sig, np.concatenate(w)
 
 
-def _log_coefficients(problem, z):
+def _log_coefficients(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
     with np.errstate(all='ignore'):
         return np.log(np.abs(np.array(list(problem.coefficients(z).values()))))
 
 
-def structural_jacobian(problem, z, prior=True):
+def structural_jacobian(problem: IdentificationProblem, z: np.ndarray, prior: bool = True
+                        ) -> np.ndarray:
     """d log|c| / dz of the transfer coefficients; effect parameters (and R_m's prior,
     when ``prior``) get unit rows."""
     d = z.size
@@ -55,11 +65,12 @@ def structural_jacobian(problem, z, prior=True):
     for j in range(n_phys, d):
         rows[base.size + j - n_phys, j] = 1.0
     if extra > d - n_phys:
-        rows[-1, problem.r_m_prior[0]] = 1.0
+        rows[-1, cast(tuple[int, float, float], problem.r_m_prior)[0]] = 1.0
     return rows
 
 
-def structural(problem, z, prior=True):
+def structural(problem: IdentificationProblem, z: np.ndarray, prior: bool = True
+               ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """Generic structural rank, bases and per-parameter verdict near z.
 
     The rank of the coefficient map is evaluated at z and at three random points inside
@@ -77,7 +88,7 @@ def structural(problem, z, prior=True):
     rng = np.random.default_rng(20261122)
     lo, hi = problem.z_bounds(z.size)
     points = [z] + [lo + rng.uniform(0.2, 0.8, z.size) * (hi - lo) for _ in range(3)]
-    best = None
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
     determined = np.ones(z.size, dtype=bool)
     for zz in points:
         Jc = structural_jacobian(problem, zz, prior)
@@ -89,10 +100,11 @@ def structural(problem, z, prior=True):
         determined &= proj < DETERMINED_TOL
         if best is None or rank > best[0]:
             best = (rank, Vt[:rank].T, Vn)
+    best = cast(tuple[int, np.ndarray, np.ndarray], best)  # z is always one of the points
     return best[0], best[1], best[2], determined
 
 
-def covariance(J, Vr, rank):
+def covariance(J: np.ndarray, Vr: np.ndarray, rank: int) -> tuple[np.ndarray, float]:
     """Gauss-Newton covariance on the identifiable subspace and its condition number."""
     Jr = J @ Vr  # output sensitivities along the identifiable directions
     fisher_r = Jr.T @ Jr
@@ -102,7 +114,8 @@ def covariance(J, Vr, rank):
     return cov, cond
 
 
-def block_ids(n_per, n_blocks, segments=None):
+def block_ids(n_per: Sequence[int], n_blocks: int,
+              segments: Sequence[tuple[int, int]] | None = None) -> tuple[np.ndarray, int]:
     """Block index of every residual row: contiguous blocks in time, the same block for
     every channel at one sample (channels measured together share their errors).
 
@@ -126,7 +139,8 @@ def block_ids(n_per, n_blocks, segments=None):
     return np.tile(ids, len(n_per)), nxt
 
 
-def robust_covariance(J, r, Vr, ids, n_blocks):
+def robust_covariance(J: np.ndarray, r: np.ndarray, Vr: np.ndarray, ids: np.ndarray,
+                      n_blocks: int) -> np.ndarray:
     """Sandwich covariance with a block (batch-means) estimate of the score variance.
 
     The Gauss-Newton covariance ``(J^T J)^-1`` holds when the weighted residuals are white
@@ -173,7 +187,7 @@ def robust_covariance(J, r, Vr, ids, n_blocks):
     return Vr @ (Hinv @ meat @ Hinv) @ Vr.T
 
 
-def combine(cov_gn, cov_rob):
+def combine(cov_gn: np.ndarray, cov_rob: np.ndarray) -> np.ndarray:
     """The larger of the two standard deviations per coordinate, with the robust
     estimate's correlations (the Gauss-Newton ones where it has none)."""
     s_gn = np.sqrt(np.maximum(np.diag(cov_gn), 0.0))
@@ -184,7 +198,9 @@ def combine(cov_gn, cov_rob):
     return base * np.outer(scale, scale)
 
 
-def undetermined_directions(names, Vn, determined, log_mask):
+def undetermined_directions(names: Sequence[str], Vn: np.ndarray, determined: np.ndarray,
+                            log_mask: np.ndarray
+                            ) -> tuple[list[dict[str, Any]], tuple[list[str], list[str]]]:
     """The unseen directions with one free "pivot" parameter each (QR column pivoting).
 
     Returns
@@ -202,7 +218,7 @@ def undetermined_directions(names, Vn, determined, log_mask):
     basis = Vn @ np.linalg.inv(Vn[piv])
     pivots = [names[j] for j in piv]
     others = [n for j, n in enumerate(names) if j not in piv and not determined[j]]
-    out = []
+    out: list[dict[str, Any]] = []
     for k, v in enumerate(basis.T):
         comp = {names[j]: round(float(c), 4) for j, c in enumerate(v) if abs(c) > 1e-6}
         desc = ' '.join(f'{n}^{c:+.3g}' if log_mask[names.index(n)] else f'{n}{c:+.3g}'
@@ -212,10 +228,11 @@ def undetermined_directions(names, Vn, determined, log_mask):
     return out, (pivots, others)
 
 
-def combinations(problem, z_best, cov):
+def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.ndarray
+                 ) -> list[dict[str, Any]]:
     """The transfer-function coefficients (SI), with delta-method standard errors."""
     base = problem.coefficients(z_best, physical=True)
-    out = []
+    out: list[dict[str, Any]] = []
     for key, val in base.items():
         g = np.zeros(z_best.size)
         for j in range(len(problem.free)):
@@ -228,7 +245,7 @@ def combinations(problem, z_best, cov):
     return out
 
 
-def at_bound(problem, z):
+def at_bound(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
     """Per free parameter: on or within :data:`AT_BOUND` of its (log-)range from a bound.
 
     A linear (effect) parameter whose range starts at 0 is not at a bound near 0: a
@@ -241,7 +258,8 @@ def at_bound(problem, z):
     return ((z[:d] <= lo + tol) & ~low_open) | (z[:d] >= hi - tol)
 
 
-def r_m_sensitivity(problem, z, weights, J, cov):
+def r_m_sensitivity(problem: IdentificationProblem, z: np.ndarray, weights: np.ndarray,
+                    J: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """Percent change of each free estimate per +1 % error in a fixed R_m (linearised).
 
     The estimate moves by ``dz = -cov J^T dr/dlog(R_m)`` where r are the weighted
@@ -255,7 +273,8 @@ def r_m_sensitivity(problem, z, weights, J, cov):
     return dz
 
 
-def parameter_covariance(names, values, cov, index):
+def parameter_covariance(names: Sequence[str], values: Mapping[str, float], cov: np.ndarray,
+                         index: Mapping[str, int]) -> dict[str, Any] | None:
     """Covariance of the determined estimated physical parameters in linear SI units.
 
     Parameters
@@ -277,7 +296,8 @@ def parameter_covariance(names, values, cov, index):
     return {'names': list(names), 'matrix': m.tolist()}
 
 
-def bootstrap(problem, z_best, weights, n_boot, rng, block=50):
+def bootstrap(problem: IdentificationProblem, z_best: np.ndarray, weights: np.ndarray, n_boot: int,
+              rng: np.random.Generator, block: int = 50) -> np.ndarray:
     """Residual moving-block bootstrap: refit ``n_boot`` times from the estimate.
 
     Returns
@@ -288,7 +308,7 @@ def bootstrap(problem, z_best, weights, n_boot, rng, block=50):
     y_true = problem.y.copy()
     r = -problem.output_residuals(z_best)
     y_hat = y_true - r
-    samples = []
+    samples: list[np.ndarray] = []
     try:
         for _ in range(int(n_boot)):
             r_star = np.empty_like(r)

@@ -6,12 +6,20 @@ about 10 ms and the input and each output peak near one. Data whose magnitudes l
 that internal units are SI exactly; powers of two make the rescaling itself exact.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping
 from dataclasses import dataclass
 import math
+from typing import Any, overload, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.errors import DataError, IdentificationError
+
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
 
 NORMAL_RANGE = (1e-6, 1e6)  # peak magnitudes used as they are; outside, rescaled
 NORMAL_STEP = (1e-6, 1.0)   # median sample periods [s] used as they are; outside,
@@ -19,7 +27,7 @@ TYPICAL_STEP = 0.01         # rescaled to about this (what the default bounds su
 QUANTITIES = ('time', 'input', 'speed', 'current')
 
 
-def _exponent(peak, normal, typical=1.0):
+def _exponent(peak: float, normal: tuple[float, float], typical: float = 1.0) -> int:
     """Power of two dividing a quantity whose peak magnitude is ``peak`` (0: none), so
     that it becomes about ``typical``."""
     if not np.isfinite(peak):
@@ -29,7 +37,7 @@ def _exponent(peak, normal, typical=1.0):
     return int(np.round(np.log2(peak / typical)))
 
 
-def parameter_exponents(exps, input_kind):
+def parameter_exponents(exps: Mapping[str, int], input_kind: str) -> dict[str, int]:
     """Powers of two that turn SI parameters into internal ones (value * 2**e).
 
     Parameters
@@ -56,11 +64,11 @@ def parameter_exponents(exps, input_kind):
 class InternalUnits:
     """Exponents of the internal units of one recording (all 0: SI)."""
 
-    exponents: dict
+    exponents: dict[str, int]
     input_kind: str = 'voltage'
 
     @classmethod
-    def from_recording(cls, rec, has_effects=False):
+    def from_recording(cls, rec: Recording, has_effects: bool = False) -> InternalUnits:
         """Choose the units for a recording.
 
         Raises
@@ -85,20 +93,26 @@ class InternalUnits:
         return units
 
     @property
-    def rescaled(self):
+    def rescaled(self) -> bool:
         """True when any quantity is rescaled."""
         return any(self.exponents.values())
 
     @property
-    def parameters(self):
+    def parameters(self) -> dict[str, int]:
         """``{parameter: exponent}`` (see :func:`parameter_exponents`)."""
         return parameter_exponents(self.exponents, self.input_kind)
 
-    def to_internal(self, name, value):
+    def to_internal(self, name: str, value: float) -> float:
         """SI value of parameter ``name`` -> internal units (effect parameters: as is)."""
         return math.ldexp(float(value), self.parameters.get(name, 0))
 
-    def to_physical(self, name, value):
+    @overload
+    def to_physical(self, name: str, value: float) -> float: ...
+
+    @overload
+    def to_physical(self, name: str, value: None) -> None: ...
+
+    def to_physical(self, name: str, value: float | None) -> float | None:
         """Internal value of parameter ``name`` -> SI.
 
         Raises
@@ -116,15 +130,15 @@ class InternalUnits:
                                       'to SI units')
         return out
 
-    def signal(self, x, quantity):
+    def signal(self, x: ArrayLike, quantity: str) -> np.ndarray:
         """A measured signal (time, input, speed, current) in internal units."""
         return np.ldexp(np.asarray(x, dtype=float), -self.exponents[quantity])
 
-    def physical_signal(self, x, quantity):
+    def physical_signal(self, x: ArrayLike, quantity: str) -> np.ndarray:
         """An internal signal back in the data's units."""
         return np.ldexp(np.asarray(x, dtype=float), self.exponents[quantity])
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any] | None:
         """JSON block, or None when nothing was rescaled."""
         if not self.rescaled:
             return None
