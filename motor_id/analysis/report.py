@@ -1,7 +1,11 @@
 """Results of the discrepancy analysis: scored models, the report, its summary and plots."""
 
+from __future__ import annotations
+
 from dataclasses import dataclass, field
 import math
+import os
+from typing import Any
 
 
 @dataclass
@@ -35,9 +39,9 @@ class ModelScore:
     prediction: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The report's ``effects`` entry: name, parameters, gain, evidence."""
-        ev = {'kind': 'dynamic', 'heldout_error': _finite(self.heldout_error),
+        ev: dict[str, Any] = {'kind': 'dynamic', 'heldout_error': _finite(self.heldout_error),
               'train_error': _finite(self.train_error),
               'heldout_blocks_improved': self.block_wins,
               'extra_parameters': self.n_extra, 'delta_bic': _finite(self.delta_bic),
@@ -53,7 +57,7 @@ class ModelScore:
                 'gain': _finite(self.gain), 'evidence': ev}
 
 
-def _finite(v):
+def _finite(v: float | None) -> float | None:
     """None for a non-finite number (JSON has no inf)."""
     return float(v) if v is not None and math.isfinite(v) else None
 
@@ -80,15 +84,15 @@ class DiscrepancyReport:
     channels: tuple
     measurement: dict = field(default_factory=dict)
     failed: list = field(default_factory=list)
-    inverse_dynamics: dict = None
+    inverse_dynamics: dict | None = None
     plot_data: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
     adequate: bool = True
     warnings: list = field(default_factory=list)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
-        d = {'verdict': self.verdict, 'adequate': bool(self.adequate),
+        d: dict[str, Any] = {'verdict': self.verdict, 'adequate': bool(self.adequate),
              'warnings': list(self.warnings),
              'effects': [e.to_dict() for e in self.effects],
              'unexplained': self.unexplained,
@@ -107,7 +111,7 @@ class DiscrepancyReport:
             d['inverse_dynamics'] = self.inverse_dynamics
         return d
 
-    def summary(self):
+    def summary(self) -> str:
         """A readable report for people."""
         lines = _fit_lines(self) + _diagnostic_lines(self.diagnostics)
         lines += _measurement_lines(self) + _candidate_lines(self)
@@ -120,7 +124,7 @@ class DiscrepancyReport:
         return '\n'.join(lines)
 
 
-def _fit_lines(rep):
+def _fit_lines(rep: DiscrepancyReport) -> list[str]:
     h = rep.heldout
     lines = [f'linear model: held-out error {h["base_error"]:.4g} '
              f'(noise floor {h["noise_floor"]:.4g}; errors are RMS / channel std)']
@@ -133,8 +137,8 @@ def _fit_lines(rep):
     return lines
 
 
-def _diagnostic_lines(diag):
-    lines = []
+def _diagnostic_lines(diag: dict[str, Any]) -> list[str]:
+    lines: list[str] = []
     for ch, dd in diag['residual'].items():
         lines.append(f'  {ch} residual: {100 * dd["autocorrelation_outside"]:.0f} % of '
                      f'autocorrelation lags and {100 * dd["cross_correlation_outside"]:.0f}'
@@ -144,7 +148,7 @@ def _diagnostic_lines(diag):
             f'{k} {100 * v["explained"]:.0f} %' for k, v in top) + ' of its variance')
     ms = diag['steady_state']
     if ms.get('n_points'):
-        parts = []
+        parts: list[str] = []
         for side in ('positive', 'negative'):
             if side in ms:
                 z = ms[side]['zero_speed_input']
@@ -160,8 +164,8 @@ def _diagnostic_lines(diag):
     return lines
 
 
-def _measurement_lines(rep):
-    lines = []
+def _measurement_lines(rep: DiscrepancyReport) -> list[str]:
+    lines: list[str] = []
     for ch, ev in rep.measurement.items():
         if ev['found']:
             lines.append(f'measurement: {ch} on a grid of {ev["q"]:.5g} (coherence '
@@ -187,7 +191,7 @@ def _measurement_lines(rep):
     return lines
 
 
-def _candidate_lines(rep):
+def _candidate_lines(rep: DiscrepancyReport) -> list[str]:
     lines = [f'{"candidate":<42}{"gain":>8}{"held-out":>11}  parameters']
     for e in rep.effects:
         d = e.to_dict()
@@ -216,7 +220,7 @@ def _candidate_lines(rep):
     return lines
 
 
-def _parameter_lines(rep):
+def _parameter_lines(rep: DiscrepancyReport) -> list[str]:
     lines = [f'parameters under the chosen model ({rep.chosen.get("estimator", "")}):']
     for k, v in rep.parameters.items():
         if v.get('value') is None:
@@ -237,7 +241,8 @@ def _parameter_lines(rep):
     return lines
 
 
-def plot_report(report, path, title=None):
+def plot_report(report: DiscrepancyReport, path: str | os.PathLike[str],
+                title: str | None = None) -> None:
     """Residuals before/after, the steady-state map and the gain per candidate, as PNG.
 
     Parameters
@@ -266,7 +271,7 @@ def plot_report(report, path, title=None):
     plt.close(fig)
 
 
-def _plot_residual(ax, report, k, ch):
+def _plot_residual(ax: Any, report: DiscrepancyReport, k: int, ch: str) -> None:
     pd = report.plot_data
     t = pd['time']
     ax.plot(t, pd['ys'][k] - pd['base'][k], lw=0.7, label='linear model')
@@ -280,7 +285,7 @@ def _plot_residual(ax, report, k, ch):
     ax.legend(loc='best', fontsize=8)
 
 
-def _plot_map(ax, report):
+def _plot_map(ax: Any, report: DiscrepancyReport) -> None:
     pts = report.plot_data['points']
     if pts:
         u = [p['input'] for p in pts]
@@ -295,7 +300,7 @@ def _plot_map(ax, report):
     ax.set_ylabel('speed')
 
 
-def _plot_gains(ax, report):
+def _plot_gains(ax: Any, report: DiscrepancyReport) -> None:
     items = [e for e in report.effects if e.to_dict()['evidence']['kind'] == 'dynamic']
     items = [e for e in items if '+' not in e.name] + [e for e in items if '+' in e.name]
     gains = [0.0 if e.failed else 100 * e.gain for e in items]
@@ -310,7 +315,7 @@ def _plot_gains(ax, report):
     ax.set_title(f'gain per candidate; verdict: {report.verdict}')
 
 
-def _plot_channel(ax, report):
+def _plot_channel(ax: Any, report: DiscrepancyReport) -> None:
     pd = report.plot_data
     t = pd['time']
     ax.plot(t, pd['ys'][0], lw=0.8, color='k', label='measured')
