@@ -1,11 +1,16 @@
 """Fit quality and residual diagnostics: fit %, RMS, autocorrelation, input cross-correlation."""
 
+from __future__ import annotations
+
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 Z99 = 2.576
 
 
-def normalised_fit(y, y_hat):
+def normalised_fit(y: ArrayLike, y_hat: ArrayLike) -> float:
     """Normalised fit in percent: ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``."""
     y = np.asarray(y, dtype=float)
     den = np.linalg.norm(y - y.mean())
@@ -14,7 +19,7 @@ def normalised_fit(y, y_hat):
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))
 
 
-def correlation(a, b, max_lag):
+def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
     """Normalised cross-correlation ``r_ab(tau)`` for tau = 0..max_lag (b lags a)."""
     a = np.asarray(a, dtype=float) - np.mean(a)
     b = np.asarray(b, dtype=float) - np.mean(b)
@@ -25,7 +30,8 @@ def correlation(a, b, max_lag):
     return np.array([np.dot(a[:n - k], b[k:]) / den for k in range(max_lag + 1)])
 
 
-def residual_diagnostics(residual, u, max_lag=25):
+def residual_diagnostics(residual: ArrayLike, u: np.ndarray, max_lag: int = 25
+                         ) -> dict[str, Any]:
     """Whiteness and independence tests of a residual sequence.
 
     Parameters
@@ -57,11 +63,12 @@ def residual_diagnostics(residual, u, max_lag=25):
             'white': ac_out <= 0.05, 'independent': cc_out <= 0.05}
 
 
-def channel_metrics(y, y_hat, u, max_lag=25):
+def channel_metrics(y: ArrayLike, y_hat: ArrayLike, u: np.ndarray, max_lag: int = 25
+                    ) -> dict[str, Any]:
     """Fit %, RMS error and residual diagnostics of one output channel."""
     y = np.asarray(y, dtype=float)
     e = y - np.asarray(y_hat, dtype=float)
-    out = {'fit_percent': normalised_fit(y, y_hat), 'rms': float(np.sqrt(np.mean(e * e))),
-           'n_samples': int(y.size)}
+    out: dict[str, Any] = {'fit_percent': normalised_fit(y, y_hat),
+                           'rms': float(np.sqrt(np.mean(e * e))), 'n_samples': int(y.size)}
     out.update(residual_diagnostics(e, u, max_lag))
     return out

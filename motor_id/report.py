@@ -1,12 +1,19 @@
 """Reports for people and machines: JSON files and PNG plots of a fit."""
 
+from __future__ import annotations
+
 import json
 import math
+import os
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from motor_id.identify.result import IdentificationResult
 
-def to_jsonable(obj):
+
+def to_jsonable(obj: Any) -> Any:
     """Make an object JSON-safe: numpy to Python, tuples to lists, NaN/inf to None.
 
     Parameters
@@ -35,14 +42,14 @@ def to_jsonable(obj):
     return obj
 
 
-def write_json(data, path):
+def write_json(data: Any, path: str | os.PathLike[str]) -> None:
     """Write a report dict as indented JSON (NaN/inf become null)."""
     with open(path, 'w') as fh:
         json.dump(to_jsonable(data), fh, indent=2)
         fh.write('\n')
 
 
-def _figure(rows, cols, size):
+def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, Any]:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
@@ -50,7 +57,8 @@ def _figure(rows, cols, size):
     return plt, fig, axes
 
 
-def plot_fit(result, path, title=None):
+def plot_fit(result: IdentificationResult, path: str | os.PathLike[str],
+             title: str | None = None) -> str | os.PathLike[str]:
     """Measured vs model outputs (paper Fig. 4), GA parameter trajectories (Fig. 3),
     GA cost, and residual diagnostics, in one PNG.
 
@@ -71,7 +79,7 @@ def plot_fit(result, path, title=None):
     return path
 
 
-def _plot_outputs(result, row):
+def _plot_outputs(result: IdentificationResult, row: Any) -> None:
     pred = result.prediction
     channels = list(result.channels)
     t = pred['time']
@@ -93,7 +101,7 @@ def _plot_outputs(result, row):
         ax.set_ylabel('input [V]' if result.input_kind == 'voltage' else 'input [N m]')
 
 
-def _plot_ga(hist, row):
+def _plot_ga(hist: list[dict[str, Any]], row: Any) -> None:
     ax = row[0]
     if hist:
         gens = [h['generation'] for h in hist]
@@ -114,7 +122,7 @@ def _plot_ga(hist, row):
     ax.set_xlabel('generation')
 
 
-def _plot_residuals(result, row):
+def _plot_residuals(result: IdentificationResult, row: Any) -> None:
     channels = list(result.channels)
     for k, ch in enumerate(channels[:2]):
         ax = row[k]
