@@ -1,14 +1,23 @@
 """Diagnostics of the linear model's residuals: correlation, binned means, steady-state map."""
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any, TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.analysis.heldout import binned_means
 from motor_id.metrics import residual_diagnostics
 
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
+
 KEYS = ('autocorrelation_outside', 'cross_correlation_outside', 'white', 'independent')
 
 
-def steady_state_map(rec, min_len=None):
+def steady_state_map(rec: Recording, min_len: int | None = None) -> list[dict[str, Any]]:
     """Steady-state points (input, speed[, current]) from plateaus of the recording.
 
     Plateaus are runs of a constant input at least ``min_len`` samples long (the last
@@ -28,7 +37,7 @@ def steady_state_map(rec, min_len=None):
     scale = float(np.max(np.abs(u))) or 1.0
     change = np.flatnonzero(np.abs(np.diff(u)) > 1e-9 * scale) + 1
     edges = np.concatenate([[0], change, [n]])
-    ranges = []
+    ranges: list[tuple[int, int]] = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b - a >= min_len:
             ranges.append((int(b - max(3, int(0.4 * (b - a)))), int(b)))
@@ -40,9 +49,9 @@ def steady_state_map(rec, min_len=None):
             seg = rec.speed[a:a + min_len]
             if np.std(seg) < 0.05 * spread:
                 ranges.append((a, a + min_len))
-    points = []
+    points: list[dict[str, Any]] = []
     for a, b in ranges:
-        p = {'start': a, 'stop': b, 'input': float(np.mean(u[a:b])),
+        p: dict[str, Any] = {'start': a, 'stop': b, 'input': float(np.mean(u[a:b])),
              'speed': float(np.mean(rec.speed[a:b]))}
         if rec.has_current:
             p['current'] = float(np.mean(rec.current[a:b]))
@@ -50,7 +59,7 @@ def steady_state_map(rec, min_len=None):
     return points
 
 
-def map_summary(points):
+def map_summary(points: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Straight-line fits ``speed = a input + b`` to the positive and negative plateaus.
 
     Returns the slope, intercept and the input at which the fitted speed is zero (an
@@ -58,7 +67,7 @@ def map_summary(points):
     least two points, and the quadratic coefficient over all points (curvature points to
     a quadratic load or saturation).
     """
-    out = {'n_points': len(points)}
+    out: dict[str, Any] = {'n_points': len(points)}
     if not points:
         return out
     u = np.array([p['input'] for p in points])
@@ -75,17 +84,19 @@ def map_summary(points):
     return out
 
 
-def residual_block(rec, channels, prediction, after=None):
+def residual_block(rec: Recording, channels: Sequence[str],
+                   prediction: Mapping[str, ArrayLike],
+                   after: Mapping[str, ArrayLike] | None = None) -> dict[str, Any]:
     """Residual diagnostics of a fit (``prediction``: IdentificationResult.prediction).
 
     Returns ``{'residual': {ch: ...}, 'binned': {ch: ...}}``; with ``after`` (the chosen
     model's prediction) also ``'residual_after'``.
     """
-    variables = {'speed': rec.speed, 'input': rec.input, 'sign(speed)': rec.speed,
-                 'sign(input)': rec.input}
+    variables: dict[str, np.ndarray] = {'speed': rec.speed, 'input': rec.input,
+                                        'sign(speed)': rec.speed, 'sign(input)': rec.input}
     if rec.has_current:
         variables.update({'current': rec.current, 'sign(current)': rec.current})
-    out = {'residual': {}, 'binned': {}}
+    out: dict[str, Any] = {'residual': {}, 'binned': {}}
     for c in channels:
         r = np.asarray(prediction[c + '_measured']) - np.asarray(prediction[c])
         dd = residual_diagnostics(r, rec.input)

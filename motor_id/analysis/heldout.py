@@ -1,13 +1,22 @@
 """Held-out split, noise floor and the normalised simulation errors the analysis scores."""
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 import math
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.errors import ConfigError
 
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
 
-def heldout_mask(n, n_blocks=10, every=3, first=2):
+
+def heldout_mask(n: int, n_blocks: int = 10, every: int = 3, first: int = 2
+                 ) -> tuple[np.ndarray, list[tuple[int, int]]]:
     """Boolean mask of held-out samples: blocks ``first, first + every, ...``.
 
     Parameters
@@ -32,14 +41,14 @@ def heldout_mask(n, n_blocks=10, every=3, first=2):
                           'every >= 1')
     edges = np.linspace(0, n, n_blocks + 1).astype(int)
     mask = np.zeros(n, dtype=bool)
-    blocks = []
+    blocks: list[tuple[int, int]] = []
     for b in range(first, n_blocks, every):
         mask[edges[b]:edges[b + 1]] = True
         blocks.append((int(edges[b]), int(edges[b + 1])))
     return mask, blocks
 
 
-def noise_floor(y):
+def noise_floor(y: ArrayLike) -> float:
     """Robust white-noise level of a smooth signal from its second differences.
 
     For white noise of variance s^2 the second difference has variance 6 s^2; the median
@@ -72,7 +81,8 @@ def noise_floor(y):
     return float(np.sqrt(np.mean(keep * keep) / 6.0)) if keep.size else 0.0
 
 
-def binned_means(residual, variables, n_bins=8):
+def binned_means(residual: ArrayLike, variables: Mapping[str, ArrayLike], n_bins: int = 8
+                 ) -> dict[str, dict[str, Any]]:
     """Mean residual per bin of each explanatory variable.
 
     Parameters
@@ -91,7 +101,7 @@ def binned_means(residual, variables, n_bins=8):
     """
     r = np.asarray(residual, dtype=float)
     var = float(np.var(r))
-    out = {}
+    out: dict[str, dict[str, Any]] = {}
     for name, x in variables.items():
         x = np.asarray(x, dtype=float)
         if name.startswith('sign('):
@@ -130,7 +140,8 @@ class HeldOutSplit:
         treated as noise (see :meth:`errors`).
     """
 
-    def __init__(self, rec, n_blocks=10, quantization=None):
+    def __init__(self, rec: Recording, n_blocks: int = 10,
+                 quantization: Mapping[str, tuple[float, float]] | None = None) -> None:
         self.channels = rec.channels()
         self.ys = [getattr(rec, c) for c in self.channels]
         self.scales = [float(np.std(y)) or 1.0 for y in self.ys]
@@ -142,7 +153,7 @@ class HeldOutSplit:
             self.blocks = [(a, b)]
             self.by_run = True
             e = np.linspace(a, b, 13).astype(int)
-            subs = list(zip(e[:-1], e[1:], strict=True))
+            subs: list[tuple[int, int]] = list(zip(e[:-1], e[1:], strict=True))
         else:
             self.test, self.blocks = heldout_mask(len(rec), n_blocks)
             self.by_run = False
@@ -153,14 +164,14 @@ class HeldOutSplit:
         self.train = ~self.test
         self.subblocks = subs
         self.grids = dict(quantization or {})
-        floors = []
+        floors: list[float] = []
         for c, y, s in zip(self.channels, self.ys, self.scales, strict=True):
             q = self.grids.get(c, (0.0, 0.0))[0]
             floors.append(max(noise_floor(y), q / math.sqrt(12.0)) / s)
         self.channel_floors = dict(zip(self.channels, floors, strict=True))
         self.floor = float(np.sqrt(np.mean(np.square(floors))))
 
-    def errors(self, preds):
+    def errors(self, preds: Sequence[np.ndarray]) -> tuple[float, float, np.ndarray]:
         """Train error, held-out error and per-sub-block SSE of channel predictions.
 
         Errors are the RMS simulation error per channel divided by that channel's
@@ -175,7 +186,8 @@ class HeldOutSplit:
         resonance and a sensor lag on top of its friction (T_c 0.0097 N m, outside the
         authors' 0.0070 .. 0.0081).
         """
-        tr, te = [], []
+        tr: list[float] = []
+        te: list[float] = []
         sub = np.zeros(len(self.subblocks))
         with np.errstate(all='ignore'):
             for y, p, s in zip(self.ys, preds, self.scales, strict=True):
@@ -188,7 +200,7 @@ class HeldOutSplit:
             return math.inf, math.inf, np.full(len(self.subblocks), np.inf)
         return e_tr, e_te, sub
 
-    def n_eff(self, preds):
+    def n_eff(self, preds: Sequence[np.ndarray]) -> float:
         """Training samples (all channels) reduced for the lag-1 autocorrelation of the
         speed residual of ``preds``: the sample count of the BIC and the likelihood."""
         k = self.channels.index('speed')

@@ -1,12 +1,24 @@
 """The outcome: the chosen model refitted on all data and its headline parameters."""
 
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, cast, TYPE_CHECKING
+
 import numpy as np
 
 from motor_id.analysis.candidates import dynamic_effects, FIT_ERRORS, grid_only
 from motor_id.analysis.inverse_dynamics import inverse_dynamics
 
+if TYPE_CHECKING:
+    from motor_id.analysis.candidates import CandidateFitter
+    from motor_id.analysis.report import ModelScore
+    from motor_id.identify import Identifier
+    from motor_id.recording import Recording
 
-def final_fits(fitter, base, chosen, say):
+
+def final_fits(fitter: CandidateFitter, base: ModelScore, chosen: ModelScore,
+               say: Callable[[str], object]) -> tuple[Identifier, Identifier | None]:
     """Linear and chosen model refitted on all data.
 
     Returns ``(full_base, full)`` fitted Identifiers; ``full`` is None when the chosen
@@ -17,7 +29,7 @@ def final_fits(fitter, base, chosen, say):
         full_base = fitter.fit_model({}, [], dict(base.physical), weight=False)
     except FIT_ERRORS as exc:
         say(f'  the linear model failed on all data ({exc}); keeping its training fit')
-        full_base = fitter.linear_estimator
+        full_base = cast('Identifier', fitter.linear_estimator)  # fitted by fit_linear
     if chosen is base:
         return full_base, full_base
     eff = {e: dict(v) for e, v in chosen.effects.items()}
@@ -35,7 +47,8 @@ def final_fits(fitter, base, chosen, say):
     return full_base, full
 
 
-def parameters(chosen, base, full):
+def parameters(chosen: ModelScore, base: ModelScore, full: Identifier | None
+               ) -> dict[str, Any]:
     """``{name: {value, std, determined}}`` of the chosen model (all-data fit)."""
     if full is None:
         return dict(chosen.parameters, **{k: {'value': v, 'std': None,
@@ -51,7 +64,9 @@ def parameters(chosen, base, full):
     return params
 
 
-def torque_headline(rec, chosen, params, chosen_d):
+def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
+                    chosen_d: dict[str, Any]
+                    ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
     """Equation-error estimate; the headline for a closed-loop record.
 
     In closed loop the input depends on the measured output, and a free-run
