@@ -7,19 +7,28 @@ with the current measured, tells heating, a brush drop and a dead zone apart by 
 shape of the voltage each one removes.
 """
 
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, TYPE_CHECKING
+
 import numpy as np
 
 from motor_id.errors import ConfigError
 
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
 
-def _filter(dt, cutoff):
+
+def _filter(dt: float, cutoff: float) -> Any:
     from scipy.signal import butter
     wn = min(cutoff * 2 * dt, 0.99)
     return butter(4, wn)
 
 
-def inverse_dynamics(rec, terms=('coulomb_friction', 'load_torque'), cutoff=None,
-                     delay=0, min_speed=0.02):
+def inverse_dynamics(rec: Recording, terms: Sequence[str] = ('coulomb_friction', 'load_torque'),
+                     cutoff: float | None = None, delay: int = 0, min_speed: float = 0.02
+                     ) -> dict[str, Any]:
     """Equation-error (inverse dynamics) least squares for a torque-input plant.
 
     Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for) with
@@ -90,7 +99,8 @@ MECHANICAL_TERMS = {'coulomb_friction': ' + T_c sgn(w)', 'load_torque': ' + T_L'
 """Torque terms the mechanical equation error can carry, and how they read."""
 
 
-def _mechanical_columns(w, t, terms):
+def _mechanical_columns(w: np.ndarray, t: np.ndarray, terms: Sequence[str]
+                       ) -> dict[str, np.ndarray]:
     """Regressors of ``u = J dw/dt + B w + ...`` from the filtered speed."""
     cols = {'J': np.gradient(w, t), 'B': w}
     if 'coulomb_friction' in terms:
@@ -106,7 +116,7 @@ ELECTRICAL_TERMS = ('resistance_drift', 'brush_drop', 'dead_zone')
 """Voltage-side effects the electrical equation error tells apart."""
 
 
-def _heating_regressor(t, i, tau):
+def _heating_regressor(t: np.ndarray, i: np.ndarray, tau: float) -> np.ndarray:
     """First-order lag of i^2 from zero (a winding that starts cold) times i."""
     from scipy.signal import lfilter
     dt = float(np.mean(np.diff(t)))
@@ -115,20 +125,22 @@ def _heating_regressor(t, i, tau):
     return h * i
 
 
-def _electrical_columns(rec, scales):
+def _electrical_columns(rec: Recording, scales: object
+                       ) -> dict[str, list[tuple[float | None, np.ndarray]]]:
     """Candidate regressors ``{effect: [(param value, column), ...]}`` (unfiltered)."""
     t, u, i = rec.time, rec.input, rec.current
     T = float(t[-1] - t[0])
     u_max = float(np.max(np.abs(u))) or 1.0
-    cols = {'brush_drop': [(None, np.sign(i))],
-            'dead_zone': [(f * u_max, np.sign(u) * np.minimum(np.abs(u), f * u_max))
-                          for f in (0.02, 0.05, 0.1, 0.2, 0.3, 0.45)],
-            'resistance_drift': [(f * T, _heating_regressor(t, i, f * T))
-                                 for f in (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)]}
+    cols: dict[str, list[tuple[float | None, np.ndarray]]] = {
+        'brush_drop': [(None, np.sign(i))],
+        'dead_zone': [(f * u_max, np.sign(u) * np.minimum(np.abs(u), f * u_max))
+                      for f in (0.02, 0.05, 0.1, 0.2, 0.3, 0.45)],
+        'resistance_drift': [(f * T, _heating_regressor(t, i, f * T))
+                             for f in (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)]}
     return cols
 
 
-def electrical_evidence(rec, cutoff=None):
+def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str, Any]:
     """Which voltage-side effect the electrical equation error points to, and R_m.
 
     Regresses the filtered voltage on the filtered current, its derivative and the
@@ -162,7 +174,7 @@ def electrical_evidence(rec, cutoff=None):
     dt = float(np.median(np.diff(t)))
     b, a = _filter(dt, float(cutoff or 0.05 / dt))
 
-    def f(x):
+    def f(x: np.ndarray) -> np.ndarray:
         return filtfilt(b, a, x)
 
     i_f = f(rec.current)
@@ -171,7 +183,10 @@ def electrical_evidence(rec, cutoff=None):
     trim = max(1, int(0.02 * t.size))
     sl = slice(trim, t.size - trim)
     th0, rss0 = _lstsq(base[sl], y[sl])
-    explained, best, R, starts = {}, {}, {}, {}
+    explained: dict[str, float] = {}
+    best: dict[str, float | None] = {}
+    R: dict[str, float] = {}
+    starts: dict[str, dict[str, float]] = {}
     for name, cols in _electrical_columns(rec, None).items():
         explained[name], best[name], R[name] = 0.0, None, float(th0[0])
         coef = 0.0
@@ -208,7 +223,7 @@ def _start_values(name, value, coef):
     return {'k_h': coef / value, 'tau_th': value}
 
 
-def _lstsq(X, y):
+def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ theta
     return theta, float(r @ r)

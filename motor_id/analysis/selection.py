@@ -10,11 +10,20 @@ in BIC (with the sample count reduced for residual autocorrelation), has no para
 at a search limit and is plausible (:meth:`motor_id.model.EffectSpec.implausible`).
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
 import math
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.model import EFFECTS
+
+if TYPE_CHECKING:
+    from motor_id.analysis.heldout import HeldOutSplit
+    from motor_id.analysis.report import ModelScore
+    from motor_id.recording import Recording
 
 EXPERIMENTS = {
     frozenset(('coulomb_friction', 'load_torque')):
@@ -72,7 +81,7 @@ GENERIC_EXPERIMENT = ('an excitation that visits more operating points: bipolar 
                       'rests at several amplitudes, a PRBS, and the current measured')
 
 
-def experiment(a, b, input_kind):
+def experiment(a: str, b: str, input_kind: str) -> str:
     """The experiment that separates effects ``a`` and ``b``."""
     key = frozenset((a, b))
     return ((TORQUE_EXPERIMENTS.get(key) if input_kind == 'torque' else None)
@@ -87,14 +96,15 @@ SIGN_ALPHA = 1e-3
 """Level of the sign test over the held-out sub-blocks (12 of 12 improved: p = 2.4e-4)."""
 
 
-def sign_test(wins, n):
+def sign_test(wins: float, n: int) -> float:
     """One-sided sign test: the chance of ``wins`` or more of ``n`` by coin flips."""
     if n <= 0:
         return 1.0
     return sum(math.comb(n, k) for k in range(int(wins), n + 1)) / 2.0 ** n
 
 
-def judge(score, ref, split, min_gain, scales):
+def judge(score: ModelScore, ref: ModelScore, split: HeldOutSplit, min_gain: float,
+          scales: Mapping[str, float]) -> ModelScore:
     """Gain, block wins, BIC and significance of ``score`` against ``ref`` (in place).
 
     The gain is ``1 - error / error_ref`` on the held-out blocks.
@@ -132,7 +142,7 @@ ALIAS = 0.8
 """A mode above this fraction of the Nyquist frequency is an alias, not a resonance."""
 
 
-def aliased(effects, scales):
+def aliased(effects: Mapping[str, Mapping[str, float]], scales: Mapping[str, float]) -> str:
     """Why a model's pole is an alias of the sampling ('' when it is not).
 
     A resonance at or near the Nyquist frequency (half the sample rate) cannot be told
@@ -149,7 +159,7 @@ def aliased(effects, scales):
     return ''
 
 
-def responds_at_once(rec, floor_speed):
+def responds_at_once(rec: Recording, floor_speed: float) -> bool:
     """True when the speed answers input steps within one sample.
 
     At every large input step (over a fifth of the input's range) the speed change over
@@ -169,7 +179,7 @@ def responds_at_once(rec, floor_speed):
     return bool(np.mean(moved) > 0.5)
 
 
-def one_direction(rec):
+def one_direction(rec: Recording) -> bool:
     """True when the speed keeps one sign (at least 97 % of the moving samples)."""
     w = rec.speed
     moving = np.abs(w) > 0.05 * (np.max(np.abs(w)) or 1.0)
@@ -179,7 +189,7 @@ def one_direction(rec):
     return pos >= 0.97 or pos <= 0.03
 
 
-def steady_offset(summary):
+def steady_offset(summary: Mapping[str, Any]) -> tuple[float, float] | None:
     """The zero-speed inputs of the steady-state map when they point to static friction
     (or a dead band): positive on the positive side and negative on the negative side.
 
@@ -194,7 +204,8 @@ def steady_offset(summary):
     return up, un
 
 
-def _blind_heldout(score, ref, split, min_gain):
+def _blind_heldout(score: ModelScore, ref: ModelScore, split: HeldOutSplit, min_gain: float
+                   ) -> bool:
     """True when the held-out blocks cannot see a misfit the training blocks show.
 
     The reference already predicts the held-out blocks to the noise floor while its
@@ -208,7 +219,9 @@ def _blind_heldout(score, ref, split, min_gain):
     return bool(blind and train_gain >= 4 * min_gain and score.gain >= -0.01)
 
 
-def pick_single(singles, catalogue, structure, ambiguity, electrical=None):
+def pick_single(singles: Sequence[ModelScore], catalogue: Sequence[str],
+                structure: Callable[[ModelScore], bool], ambiguity: float,
+                electrical: Mapping[str, Any] | None = None) -> ModelScore | None:
     """The chosen one-effect model, or None.
 
     The best significant single by held-out error; when even it leaves structure,
@@ -233,13 +246,14 @@ def pick_single(singles, catalogue, structure, ambiguity, electrical=None):
     return chosen
 
 
-def components(combo, singles, parts_error):
+def components(combo: ModelScore, singles: Sequence[ModelScore], parts_error: Mapping[str, float]
+               ) -> dict[str, dict[str, float]]:
     """Each effect's own gain alone and its marginal gain on top of the others.
 
     ``parts_error`` maps each effect of the combination to the held-out error of the
     combination without it.
     """
-    out = {}
+    out: dict[str, dict[str, float]] = {}
     for e in combo.name.split('+'):
         alone = next((s.gain for s in singles if s.name == e), 0.0)
         rest = parts_error.get(e, math.inf)
@@ -251,14 +265,15 @@ def components(combo, singles, parts_error):
 ONE_WAY = ('coulomb_friction', 'load_torque')
 
 
-def ambiguous(chosen, ranked, ambiguity, input_kind, one_way=False):
+def ambiguous(chosen: ModelScore, ranked: Sequence[ModelScore], ambiguity: float, input_kind: str,
+              one_way: bool = False) -> list[dict[str, Any]]:
     """Other significant single models as good as the chosen one, with experiments.
 
     With ``one_way`` (the speed kept one sign) Coulomb friction and a constant load act
     alike: whichever the verdict names, the other is listed, and the model holds for
     that direction only.
     """
-    out = []
+    out: list[dict[str, Any]] = []
     have = chosen.name.split('+')
     if one_way:
         for a, b in (ONE_WAY, ONE_WAY[::-1]):
