@@ -27,12 +27,19 @@ differentiated 12500-line encoder is on a grid of 2.5e-5 m/s, 1.4e-4 of the spee
 spread, far below any model error).
 """
 
+from __future__ import annotations
+
 from dataclasses import asdict, dataclass
 import math
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.model import EFFECTS
+
+if TYPE_CHECKING:
+    from motor_id.recording import Recording
 
 MIN_MOVING = 20
 """Moving samples the test needs."""
@@ -59,7 +66,7 @@ class LatticeEvidence:
     relative_to_spread: float
     reason: str = ''
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
 
@@ -79,17 +86,18 @@ class MeasurementEffect:
     failed = ''
 
     @property
-    def parameters(self):
+    def parameters(self) -> dict[str, dict[str, Any]]:
         """``{effect.param: {value, std, determined, grid}}`` as the fitted effects."""
         pname = EFFECTS[self.name].params[0].name
-        out = {f'{self.name}.{pname}': {'value': self.q, 'std': None, 'determined': True,
-                                        'grid': True}}
+        out: dict[str, dict[str, Any]] = {
+            f'{self.name}.{pname}': {'value': self.q, 'std': None, 'determined': True,
+                                     'grid': True}}
         if 'counted' in self.extra:  # the speed reading chosen by the linear model
             out[f'{self.name}.counted'] = {'value': float(self.extra['counted']),
                                            'std': None, 'determined': True, 'grid': True}
         return out
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The report's ``effects`` entry: name, parameters, gain (none), evidence."""
         ev = {'kind': 'measurement', 'significant': True, **self.evidence.to_dict(),
               **self.extra}
@@ -97,12 +105,12 @@ class MeasurementEffect:
                 'evidence': ev}
 
 
-def _phases(y, qs):
+def _phases(y: np.ndarray, qs: np.ndarray) -> np.ndarray:
     """exp(2 pi i y / q) for each q (rows)."""
     return np.exp(2j * np.pi * y[None, :] / qs[:, None])
 
 
-def _slope(y):
+def _slope(y: np.ndarray) -> np.ndarray:
     """Per sample: the size of the change from the previous sample."""
     return np.abs(np.diff(y, prepend=y[0]))
 
@@ -129,7 +137,7 @@ def _coherence(y, slope, qs):
     return out_c, out_n
 
 
-def _distinct(y):
+def _distinct(y: np.ndarray) -> np.ndarray:
     """Sorted distinct values (values closer than 1e-9 of the range merged)."""
     u = np.unique(y)
     tol = 1e-9 * (float(np.max(np.abs(y))) or 1.0)
@@ -138,7 +146,7 @@ def _distinct(y):
     return u
 
 
-def _candidates(u, n_all):
+def _candidates(u: np.ndarray, n_all: int) -> np.ndarray:
     """Candidate step from the spacing of the distinct values, when values repeat.
 
     A sensor's counter or ADC reports a finite set of values, each many times; values
@@ -152,12 +160,12 @@ def _candidates(u, n_all):
     return np.array([float(np.median(small))])
 
 
-def _levels(y, slope, q):
+def _levels(y: np.ndarray, slope: np.ndarray, q: float) -> int:
     """Grid levels the moving samples occupy."""
     return int(np.unique(np.round(y[_moving(slope, q).ravel()] / q)).size)
 
 
-def _refine(y, slope, q0):
+def _refine(y: np.ndarray, slope: np.ndarray, q0: float) -> float:
     """The step of largest coherence within 3 % of q0, then its largest coherent multiple."""
     fine = q0 * np.concatenate([[1.0], np.linspace(0.97, 1.03, 241)])
     c, _ = _coherence(y, slope, fine)
@@ -171,8 +179,9 @@ def _refine(y, slope, q0):
     return q
 
 
-def lattice_evidence(y, channel='speed', alpha=1e-3, min_coherence=0.5, min_share=2e-3,
-                     max_samples=4000):
+def lattice_evidence(y: ArrayLike, channel: str = 'speed', alpha: float = 1e-3,
+                     min_coherence: float = 0.5, min_share: float = 2e-3,
+                     max_samples: int = 4000) -> LatticeEvidence:
     """Test whether the values of one channel sit on a grid, and find its step.
 
     Parameters
@@ -232,7 +241,8 @@ def lattice_evidence(y, channel='speed', alpha=1e-3, min_coherence=0.5, min_shar
                            reason)
 
 
-def _decide(q, c, p, n_mov, levels, share, alpha, min_coherence, min_share):
+def _decide(q: float, c: float, p: float, n_mov: int, levels: int, share: float, alpha: float,
+            min_coherence: float, min_share: float) -> tuple[bool, str]:
     """Whether the evidence makes a grid a measurement effect, and why not."""
     if n_mov < MIN_MOVING:
         return False, f'only {n_mov} samples change by half a step of {q:.4g} or more'
@@ -248,7 +258,8 @@ def _decide(q, c, p, n_mov, levels, share, alpha, min_coherence, min_share):
     return True, ''
 
 
-def find_measurement_effects(rec, **kw):
+def find_measurement_effects(rec: Recording, **kw: Any
+                             ) -> tuple[list[MeasurementEffect], dict[str, dict[str, Any]]]:
     """Grids of the recording's output channels (effects) and of its input (a note).
 
     Parameters
@@ -266,7 +277,8 @@ def find_measurement_effects(rec, **kw):
         ``{channel: LatticeEvidence.to_dict()}`` for every channel and the input, with a
         note where a grid cannot be a model effect.
     """
-    effects, evidence = [], {}
+    effects: list[MeasurementEffect] = []
+    evidence: dict[str, dict[str, Any]] = {}
     T = rec.sample_period
     for name, spec in EFFECTS.items():
         if spec.category != 'measurement' or rec.input_kind not in spec.kinds:
@@ -277,7 +289,7 @@ def find_measurement_effects(rec, **kw):
         evidence[spec.channel] = ev.to_dict()
         if not ev.found:
             continue
-        extra = {}
+        extra: dict[str, float] = {}
         if spec.channel == 'speed':
             extra['counts_per_revolution'] = float(2 * math.pi / (ev.q * T))
             extra['position_step'] = float(ev.q * T)
