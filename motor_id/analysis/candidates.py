@@ -8,17 +8,26 @@ exception of the fitter or the simulator, a diverging simulation) comes back as 
 :class:`ModelScore` with ``failed`` set, never as an exception.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 import dataclasses
 import math
 import time
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.analysis.report import ModelScore
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
 from motor_id.model import EFFECTS
 from motor_id.simulate import simulate_runs
+
+if TYPE_CHECKING:
+    from motor_id.analysis.heldout import HeldOutSplit
+    from motor_id.recording import Recording
 
 FLAT = 0.95 ** 2
 """A start grid whose best point does not cut the reference's training error by 5 % (the
@@ -33,12 +42,13 @@ FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError, np.linalg
 """What a candidate's fit may raise; each is recorded as a failed candidate."""
 
 
-def grid_only(effect):
+def grid_only(effect: str) -> tuple[str, ...]:
     """Parameters of ``effect`` found by its grid only (integer ones), never refined."""
     return tuple(p.name for p in EFFECTS[effect].params if p.spacing == 'integer')
 
 
-def data_scales(rec, physical, R_m, T, dt, max_delay, counted=False):
+def data_scales(rec: Recording, physical: Mapping[str, float], R_m: float | None, T: float,
+                dt: float, max_delay: int, counted: bool = False) -> dict[str, float]:
     """The scales of :data:`motor_id.model.SCALES` measured on one recording.
 
     ``counted``: the speed sits on an encoder grid (a count difference per period).
@@ -58,12 +68,12 @@ def data_scales(rec, physical, R_m, T, dt, max_delay, counted=False):
             'lag_floor': dt if counted else 0.5 * dt}
 
 
-def dynamic_effects(effects):
+def dynamic_effects(effects: Mapping[str, Any]) -> dict[str, Any]:
     """``effects`` without the measurement ones (the fixed speed reading of a fit)."""
     return {e: v for e, v in effects.items() if EFFECTS[e].category == 'dynamic'}
 
 
-def _distinct(grid, a, b):
+def _distinct(grid: Mapping[str, np.ndarray], a: int, b: int) -> bool:
     """True when grid rows a and b differ by more than a factor 2 in some parameter."""
     for v in grid.values():
         x, y = abs(v[a]), abs(v[b])
@@ -72,7 +82,8 @@ def _distinct(grid, a, b):
     return False
 
 
-def _spread(grid, best, cost, n=3):
+def _spread(grid: Mapping[str, np.ndarray], best: int, cost: np.ndarray, n: int = 3
+            ) -> list[int]:
     """Rows along the grid's finest axis (the others as in row ``best``).
 
     Used when no grid point beats the reference: its parameters have absorbed the effect
@@ -88,7 +99,7 @@ def _spread(grid, best, cost, n=3):
     same = np.ones(cost.size, dtype=bool)
     for p in others:
         same &= grid[p] == grid[p][best]
-    out = []
+    out: list[int] = []
     for v in values[np.linspace(0, values.size - 1, n + 2).astype(int)[1:-1]]:
         rows = np.flatnonzero(same & (grid[axis] == v) & np.isfinite(cost))
         if rows.size and rows[0] != best:
@@ -115,8 +126,9 @@ class CandidateFitter:
         Relative standard deviation of the Identifier's prior on R_m.
     """
 
-    def __init__(self, rec, split, R_m=None, random_state=0, starts=2, max_delay=40,
-                 R_m_tolerance=0.10):
+    def __init__(self, rec: Recording, split: HeldOutSplit, R_m: float | None = None,
+                 random_state: int | None = 0, starts: int = 2, max_delay: int = 40,
+                 R_m_tolerance: float = 0.10) -> None:
         self.rec = rec
         self.R_m_tolerance = R_m_tolerance
         self.split = split
@@ -124,19 +136,19 @@ class CandidateFitter:
         self.random_state = random_state
         self.starts = starts
         self.max_delay = max_delay
-        self.scales = {}
-        self.resistance = None
-        self.extra_starts = {}
-        self.linear_estimator = None
-        self.physical_bounds = {}
+        self.scales: dict[str, float] = {}
+        self.resistance: dict[str, Any] | None = None
+        self.extra_starts: dict[str, dict[str, float]] = {}
+        self.linear_estimator: Identifier | None = None
+        self.physical_bounds: dict[str, tuple[float, float]] = {}
         self.spread = False
-        self.reading = {}
+        self.reading: dict[str, dict[str, float]] = {}
         """``{'speed_quantization': {'q': 0, 'counted': 1}}`` when the speed is a count
         difference (the mean over each sample period; the grid itself is scored by the
         split, as noise), else ``{}`` (the speed read at the samples)."""
 
     # ----------------------------------------------------------------- fitting
-    def identifier(self, **kw):
+    def identifier(self, **kw: Any) -> Identifier:
         """An :class:`Identifier` with this analysis' resistance, its prior and seed
         (and the speed reading :attr:`reading`, fixed, in every model)."""
         if self.reading:
@@ -144,9 +156,10 @@ class CandidateFitter:
         return Identifier(R_m=self.R_m, random_state=self.random_state,
                           R_m_tolerance=self.R_m_tolerance, **kw)
 
-    def fit_model(self, effects, free, start, weight=True):
+    def fit_model(self, effects: Mapping[str, Mapping[str, float]], free: Sequence[str],
+                  start: Mapping[str, float], weight: bool = True) -> Identifier:
         """Refine ``effects`` (``free``: 'effect.param' entries) from ``start``."""
-        kw = {}
+        kw: dict[str, Any] = {}
         if effects:
             kw = {'effects': effects, 'free_effects': free}
         est = self.identifier(start=start, use_ga=False, settle=False, reweight=1,
@@ -159,18 +172,19 @@ class CandidateFitter:
             est.fit(self.rec, sample_weight=sw)
         return est
 
-    def bounds_for(self, key):
+    def bounds_for(self, key: str) -> tuple[float, float]:
         """Search range of ``effect.param`` on this recording's scale."""
         e, _, p = key.partition('.')
         spec = {q.name: q for q in EFFECTS[e].params}[p]
         return spec.search_range(self.scales)
 
-    def score(self, name, est, n_extra, t0):
+    def score(self, name: str, est: Identifier, n_extra: int, t0: float) -> ModelScore:
         """A :class:`ModelScore` (errors on the split) from a fitted Identifier."""
         res = est.result_
         preds = [np.asarray(res.prediction[c]) for c in self.split.channels]
         e_tr, e_te, sub = self.split.errors(preds)
-        params, eff = {}, {}
+        params: dict[str, dict[str, Any]] = {}
+        eff: dict[str, dict[str, float]] = {}
         for e, vals in dynamic_effects(res.effects).items():
             eff[e] = {}
             for p, v in vals.items():
@@ -193,8 +207,8 @@ class CandidateFitter:
             s.failed = 'the simulation diverges (non-finite prediction)'
         return s
 
-    def _at_bound(self, est, eff):
-        out = []
+    def _at_bound(self, est: Identifier, eff: Mapping[str, Mapping[str, float]]) -> list[str]:
+        out: list[str] = []
         for key, (lo, hi) in (est.bounds or {}).items():
             e, _, p = key.partition('.')
             if e not in eff or p not in eff[e]:
@@ -204,7 +218,8 @@ class CandidateFitter:
                 out.append(key)
         return out
 
-    def start(self, ref, effects):
+    def start(self, ref: ModelScore, effects: Mapping[str, Mapping[str, float]]
+              ) -> dict[str, float]:
         """Start values: the physical parameters of ``ref`` plus effect values."""
         start = dict(ref.physical)
         for e, vals in effects.items():
@@ -213,7 +228,8 @@ class CandidateFitter:
         return start
 
     # --------------------------------------------------------------- candidates
-    def fit(self, name, ref, prior=None, seed=None):
+    def fit(self, name: str, ref: ModelScore, prior: ModelScore | None = None,
+            seed: ModelScore | None = None) -> ModelScore:
         """Fit ``name`` (on top of the effects of ``prior``); a failure is recorded.
 
         Parameters
@@ -243,7 +259,8 @@ class CandidateFitter:
         s.seconds = time.perf_counter() - t0
         return s
 
-    def _fit(self, name, ref, prior, seed, t0):
+    def _fit(self, name: str, ref: ModelScore, prior: ModelScore | None, seed: ModelScore | None,
+             t0: float) -> ModelScore:
         base = prior or ref
         if seed is not None:
             base = dataclasses.replace(base, physical=dict(seed.physical), x0=dict(seed.x0))
@@ -272,15 +289,17 @@ class CandidateFitter:
             raise ArithmeticError('every start point of the grid gives a non-finite cost')
         return best
 
-    def _fit_integer(self, name, base, fixed_eff, free_prior, t0):
+    def _fit_integer(self, name: str, base: ModelScore,
+                     fixed_eff: Mapping[str, Mapping[str, float]], free_prior: Sequence[str],
+                     t0: float) -> ModelScore:
         """A grid-only parameter (a delay): the two best grid points, then climb."""
         pname = grid_only(name)[0]
         grid = EFFECTS[name].start_grid(self.scales)
         lo, hi = int(grid[pname].min()), int(grid[pname].max())
         rows = self.grid_best(base, name, grid, fixed_eff, top=2)
-        tried = {}
+        tried: dict[int, ModelScore] = {}
 
-        def fit_at(d):
+        def fit_at(d: int) -> ModelScore | None:
             if d not in tried and lo <= d <= hi:
                 eff = {**fixed_eff, name: {pname: float(d)}}
                 est = self.fit_model(eff, free_prior, self.start(base, fixed_eff))
@@ -298,10 +317,13 @@ class CandidateFitter:
             if min(tried, key=lambda d: tried[d].train_error) == d_best:
                 return tried[d_best]
 
-    def grid_best(self, ref, name, grid, fixed_effects=None, top=1):
+    def grid_best(self, ref: ModelScore, name: str, grid: Mapping[str, np.ndarray],
+                  fixed_effects: Mapping[str, Mapping[str, float]] | None = None, top: int = 1
+                  ) -> list[dict[str, float]]:
         """Start rows ``[{param: value}]``: the best ``top`` distinct grid points."""
         P = next(iter(grid.values())).size
-        effects = {**self.reading, **{e: dict(v) for e, v in (fixed_effects or {}).items()}}
+        effects: dict[str, Mapping[str, ArrayLike]] = {
+            **self.reading, **{e: dict(v) for e, v in (fixed_effects or {}).items()}}
         effects[name] = {**{p: np.full(P, v) for p, v in EFFECTS[name].defaults().items()},
                          **grid}
         phys = dict(ref.physical)
@@ -314,7 +336,7 @@ class CandidateFitter:
                 r = (out[c] - y[None, :]) / s
                 cost += np.mean(r[:, self.split.train] ** 2, axis=1)
         cost = np.where(np.isfinite(cost), cost, np.inf)
-        picked = []
+        picked: list[int] = []
         for k in np.argsort(cost):
             if len(picked) >= top or not np.isfinite(cost[k]):
                 break
@@ -326,7 +348,7 @@ class CandidateFitter:
         return [{p: float(v[k]) for p, v in grid.items()} for k in picked]
 
     # --------------------------------------------------------------- linear model
-    def fit_linear(self, generations):
+    def fit_linear(self, generations: int) -> ModelScore:
         """The linear model: GA and refinement on the training blocks.
 
         A physical parameter on a bound of the Identifier's default box (a hobby motor's
