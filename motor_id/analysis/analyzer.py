@@ -9,9 +9,13 @@ only when it beats the best one-effect model on held-out data, ambiguity
 (:mod:`.inverse_dynamics`); the report (:mod:`.report`).
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
 import contextlib
 import math
 import time
+from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 
@@ -21,11 +25,15 @@ from motor_id.analysis.diagnostics import map_summary, residual_block, steady_st
 from motor_id.analysis.heldout import HeldOutSplit, noise_floor
 from motor_id.analysis.inverse_dynamics import electrical_evidence
 from motor_id.analysis.measurement import find_measurement_effects
-from motor_id.analysis.report import DiscrepancyReport
+from motor_id.analysis.report import DiscrepancyReport, ModelScore
 from motor_id.errors import ConfigError, DataError, IdentificationError
 from motor_id.identify import determinacy
 from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS
+
+if TYPE_CHECKING:
+    from motor_id.identify import Identifier
+    from motor_id.recording import Recording
 
 CANDIDATES = tuple(EFFECTS)
 """Candidate effects, in catalogue order (the more common first)."""
@@ -69,10 +77,11 @@ class DiscrepancyAnalysis:
         Relative standard deviation of the prior on R_m (with the current measured).
     """
 
-    def __init__(self, R_m=None, candidates=None, random_state=0, min_gain=0.05,
-                 ambiguity=0.03, max_effects=3, structure_ratio=1.5, n_blocks=10,
-                 max_delay=None, generations=100, pool_size=4, starts=2,
-                 R_m_tolerance=0.10):
+    def __init__(self, R_m: float | None = None, candidates: Sequence[str] | None = None,
+                 random_state: int | None = 0, min_gain: float = 0.05,
+                 ambiguity: float = 0.03, max_effects: int = 3, structure_ratio: float = 1.5,
+                 n_blocks: int = 10, max_delay: int | None = None, generations: int = 100,
+                 pool_size: int = 4, starts: int = 2, R_m_tolerance: float = 0.10) -> None:
         self.R_m = R_m
         self.candidates = candidates
         self.random_state = random_state
@@ -87,7 +96,8 @@ class DiscrepancyAnalysis:
         self.starts = starts
         self.R_m_tolerance = R_m_tolerance
 
-    def fit(self, rec, progress=None):
+    def fit(self, rec: Recording, progress: Callable[[str], object] | None = None
+            ) -> DiscrepancyAnalysis:
         """Run the analysis.
 
         Parameters
@@ -105,11 +115,11 @@ class DiscrepancyAnalysis:
             return self._fit(rec, progress)
 
     # ------------------------------------------------------------------ steps
-    def _say(self, msg):
+    def _say(self, msg: str) -> None:
         if self._progress is not None:
             self._progress(msg)
 
-    def _check(self, rec):
+    def _check(self, rec: Recording) -> list[str]:
         rec.validate()  # also rejects corrupt cells (1e300) whose squares would overflow
         if rec.input_kind == 'voltage' and self.R_m is None:
             raise ConfigError('the armature resistance R_m is required for voltage-input '
@@ -123,7 +133,7 @@ class DiscrepancyAnalysis:
                 raise ConfigError(f'unknown candidate effect {n!r}; known: {sorted(EFFECTS)}')
         return [n for n in names if rec.input_kind in EFFECTS[n].kinds]
 
-    def _setup(self, rec, names):
+    def _setup(self, rec: Recording, names: Sequence[str]) -> None:
         self._rec = rec
         self._cands = [n for n in names if EFFECTS[n].category == 'dynamic']
         meas, self._meas_evidence = find_measurement_effects(rec)
@@ -133,7 +143,7 @@ class DiscrepancyAnalysis:
             self._say(f'  {m.name}: values on a grid of {m.q:.5g} (coherence '
                       f'{m.evidence.coherence:.3f}, p = {m.evidence.p_value:.2g})')
         self._split = HeldOutSplit(rec, self.n_blocks, quant)
-        self._electrical = None
+        self._electrical: dict[str, Any] | None = None
         if rec.input_kind == 'voltage' and rec.has_current:
             try:
                 self._electrical = electrical_evidence(rec)
@@ -149,7 +159,7 @@ class DiscrepancyAnalysis:
         self._fitter = CandidateFitter(rec, self._split, self.R_m, self.random_state,
                                        self.starts, max_delay, self.R_m_tolerance)
 
-    def _linear(self, rec):
+    def _linear(self, rec: Recording) -> ModelScore:
         self._say(f'fitting the linear model ({len(rec)} samples, '
                   f'{100 * np.mean(self._split.test):.0f} % held out)')
         f = self._fitter
@@ -174,7 +184,7 @@ class DiscrepancyAnalysis:
                   f'(noise floor {self._split.floor:.4g})')
         return base
 
-    def _speed_reading(self, base):
+    def _speed_reading(self, base: ModelScore) -> ModelScore:
         """Speed on an encoder grid: read at the samples, or a count difference?
 
         A count difference is the mean speed over the sample period (half a period
@@ -189,6 +199,7 @@ class DiscrepancyAnalysis:
         f = self._fitter
         kept = (f.resistance, f.linear_estimator, f.physical_bounds)
         f.reading = {'speed_quantization': {'q': 0.0, 'counted': 1.0}}
+        counted: ModelScore | None
         try:
             counted = f.fit_linear(self.generations)
         except FIT_ERRORS as exc:
@@ -206,16 +217,16 @@ class DiscrepancyAnalysis:
             ' sampled, ' + (f'{counted.heldout_error:.4g}' if counted is not None else '-')
             + ' counted)')
         if better:
-            return counted
+            return cast(ModelScore, counted)
         f.reading = {}
         f.resistance, f.linear_estimator, f.physical_bounds = kept
         return base
 
-    def _judge(self, s, ref):
+    def _judge(self, s: ModelScore, ref: ModelScore) -> ModelScore:
         return selection.judge(s, ref, self._split, self.min_gain, self._fitter.scales)
 
-    def _singles(self, base):
-        singles = []
+    def _singles(self, base: ModelScore) -> list[ModelScore]:
+        singles: list[ModelScore] = []
         for name in self._cands:
             s = self._judge(self._fitter.fit(name, base), base)
             self._evidence_against(s)
@@ -239,7 +250,7 @@ class DiscrepancyAnalysis:
             singles.sort(key=_order)
         return singles
 
-    def _evidence_against(self, s):
+    def _evidence_against(self, s: ModelScore) -> None:
         """What the record itself says against a candidate (in place): a delay of two
         samples or more while the speed answers input steps within one."""
         d = s.effects.get('input_delay', {}).get('d')
@@ -248,10 +259,11 @@ class DiscrepancyAnalysis:
                              'steps within one sample')
             s.significant = False
 
-    def _structure(self, model):
+    def _structure(self, model: ModelScore) -> bool:
         return model.heldout_error > self.structure_ratio * self._split.floor
 
-    def _add_effect(self, base, chosen, singles):
+    def _add_effect(self, base: ModelScore, chosen: ModelScore, singles: Sequence[ModelScore]
+                    ) -> ModelScore | None:
         """The best significant extension of ``chosen`` by one more effect, or None."""
         have = chosen.name.split('+')
         # an effect that alone cut the held-out error by less than a quarter of min_gain,
@@ -263,7 +275,7 @@ class DiscrepancyAnalysis:
                 and s.name not in have and self._added.get(s.name, 1.0) > 0]
         if self._one_way:  # one sign of speed: friction and a constant load are one term
             pool = [s for s in pool if not set(selection.ONE_WAY) <= set(have + [s.name])]
-        trials = []
+        trials: list[ModelScore] = []
         for s in pool[:self.pool_size]:
             t = self._judge(self._fitter.fit(s.name, base, prior=chosen), chosen)
             t.reference, t.gain_over_reference = chosen.name, t.gain
@@ -284,7 +296,8 @@ class DiscrepancyAnalysis:
         ok = sorted((t for t in trials if t.significant), key=lambda t: t.heldout_error)
         return self._confirm(base, chosen, ok[0]) if ok else None
 
-    def _confirm(self, base, chosen, combo):
+    def _confirm(self, base: ModelScore, chosen: ModelScore, combo: ModelScore
+                 ) -> ModelScore | None:
         """The combination, unless ``chosen`` refitted from its parameters does as well.
 
         The combination's refinement can find a better optimum of the effects ``chosen``
@@ -292,7 +305,7 @@ class DiscrepancyAnalysis:
         """
         last = combo.name.split('+')[-1]
         prior_name = chosen.name.split('+')
-        prior = None
+        prior: ModelScore | None = None
         for e in prior_name[:-1]:
             prior = self._fitter.fit(e, base, prior=prior, seed=combo)
         again = self._fitter.fit(prior_name[-1], base, prior=prior, seed=combo)
@@ -308,9 +321,10 @@ class DiscrepancyAnalysis:
             return None
         return combo
 
-    def _select(self, base, singles):
+    def _select(self, base: ModelScore, singles: Sequence[ModelScore]
+                ) -> tuple[ModelScore, list[ModelScore]]:
         self._ranked = list(singles)
-        self._added = {}
+        self._added: dict[str, float] = {}
         chosen = selection.pick_single(singles, CANDIDATES, self._structure, self.ambiguity,
                                        self._electrical) or base
         if self._steady and chosen.name not in ('coulomb_friction', 'dead_zone'):
@@ -332,7 +346,8 @@ class DiscrepancyAnalysis:
                                    s.heldout_error))
         return chosen, ranked
 
-    def _fit(self, rec, progress):
+    def _fit(self, rec: Recording, progress: Callable[[str], object] | None
+             ) -> DiscrepancyAnalysis:
         t_start = time.perf_counter()
         self._progress = progress
         names = self._check(rec)
@@ -345,7 +360,8 @@ class DiscrepancyAnalysis:
         return self
 
     # ------------------------------------------------------------------ report
-    def _report(self, rec, base, chosen, ranked):
+    def _report(self, rec: Recording, base: ModelScore, chosen: ModelScore,
+                ranked: list[ModelScore]) -> DiscrepancyReport:
         full_base, full = outcome.final_fits(self._fitter, base, chosen, self._say)
         params = outcome.parameters(chosen, base, full)
         for m in self._meas:
@@ -353,7 +369,7 @@ class DiscrepancyAnalysis:
         dyn = 'none' if chosen is base else chosen.name
         names = ([] if chosen is base else [dyn]) + [m.name for m in self._meas]
         verdict = '+'.join(names) if names else 'none'
-        chosen_d = {'name': dyn, 'estimator': 'output error (simulation)',
+        chosen_d: dict[str, Any] = {'name': dyn, 'estimator': 'output error (simulation)',
                     'effects': {} if chosen is base else chosen.effects,
                     'fit': full.result_.fit if (full is not None and chosen is not base)
                     else None}
@@ -362,14 +378,16 @@ class DiscrepancyAnalysis:
                                        for p, v in vals.items()}
                                    for e, vals in
                                    dynamic_effects(full.result_.effects).items()}
-        idyn = None
+        idyn: dict[str, Any] | None = None
         if rec.input_kind == 'torque':
             idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)
         diag, points = self._diagnostics(rec, full_base, full, chosen, base)
         return self._assemble(rec, base, chosen, ranked, verdict, params, chosen_d, diag,
                               points, full_base, idyn)
 
-    def _diagnostics(self, rec, full_base, full, chosen, base):
+    def _diagnostics(self, rec: Recording, full_base: Identifier, full: Identifier | None,
+                     chosen: ModelScore, base: ModelScore
+                     ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         after = full.result_.prediction if (full is not None and chosen is not base) \
             else None
         diag = residual_block(rec, self._split.channels, full_base.result_.prediction,
@@ -388,8 +406,10 @@ class DiscrepancyAnalysis:
         diag['steady_state'] = {**map_summary(points), 'points': points}
         return diag, points
 
-    def _assemble(self, rec, base, chosen, ranked, verdict, params, chosen_d, diag,
-                  points, full_base, idyn):
+    def _assemble(self, rec: Recording, base: ModelScore, chosen: ModelScore,
+                  ranked: list[ModelScore], verdict: str, params: dict[str, Any],
+                  chosen_d: dict[str, Any], diag: dict[str, Any], points: list[dict[str, Any]],
+                  full_base: Identifier, idyn: dict[str, Any] | None) -> DiscrepancyReport:
         held = list(range(2, self.n_blocks, 3))
         scheme = (f'{len(rec.segment_ranges)} separate runs; the last is held out whole'
                   if self._split.by_run else
@@ -419,7 +439,8 @@ class DiscrepancyAnalysis:
             measurement=self._meas_evidence, failed=failed, inverse_dynamics=idyn,
             plot_data=plot_data, adequate=adequate, warnings=warnings)
 
-    def _adequacy(self, chosen, verdict, params):
+    def _adequacy(self, chosen: ModelScore, verdict: str, params: dict[str, Any]
+                  ) -> tuple[bool, list[str]]:
         """``(adequate, warnings)``: the chosen model's held-out fit of the speed, the
         steady-state evidence the verdict leaves out, one-direction data."""
         k = self._split.channels.index('speed')
@@ -449,11 +470,11 @@ class DiscrepancyAnalysis:
         return adequate, warnings
 
 
-def _order(s):
+def _order(s: ModelScore) -> tuple[bool, float]:
     return (bool(s.failed), s.heldout_error if math.isfinite(s.heldout_error) else math.inf)
 
 
-def _single_blas_thread():
+def _single_blas_thread() -> contextlib.AbstractContextManager[Any]:
     """Limit BLAS to one thread: the analysis does many small solves, where threads only
     contend (a no-op without threadpoolctl)."""
     try:
