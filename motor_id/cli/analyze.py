@@ -1,5 +1,6 @@
 """`motor-id analyze`: find what the linear model misses and extend it."""
 
+import argparse
 import os
 import sys
 
@@ -8,7 +9,7 @@ from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id analyze`."""
     parser.add_argument('data', metavar='DATA', nargs='+',
                         help=DATA_HELP + '; several: separate runs of one motor (the last '
@@ -29,7 +30,7 @@ def add_arguments(parser):
     add_data_arguments(parser)
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Analyse the recording, print the report, write JSON / plots."""
     rec = load_runs(args)
     cands = None
@@ -39,7 +40,7 @@ def run(args):
         raise ConfigError('--resistance R (the known armature resistance in Ohm) is required '
                           'for voltage-input data')
 
-    def progress(msg):
+    def progress(msg: str) -> None:
         if not args.quiet:
             print(msg, file=sys.stderr, flush=True)
 

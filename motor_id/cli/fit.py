@@ -1,9 +1,14 @@
 """`motor-id fit`: identify motor parameters from a CSV or MCAP recording."""
 
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Mapping
 import math
 import os
 import sys
 import time
+from typing import Any, TextIO, TYPE_CHECKING
 
 import yaml
 
@@ -15,12 +20,17 @@ from motor_id.model import EFFECTS, parse_effect_args
 from motor_id.report import plot_fit, to_jsonable, write_json
 from motor_id.simulate import warm_up
 
+if TYPE_CHECKING:
+    from motor_id.controller import ControllerDesign
+    from motor_id.identify import IdentificationResult
+    from motor_id.recording import Recording
+
 GRID_ONLY = {'input_delay': ('d',), 'speed_quantization': ('q',)}
 """Effect parameters that a least-squares refinement cannot move (integer or steps):
 ``--effect`` keeps them at the given value."""
 
 
-def add_fit_arguments(parser):
+def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Options shared by `fit` and `replay --offline`."""
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
                         help='armature resistance R_m [Ohm] as measured (an ohmmeter '
@@ -67,7 +77,7 @@ def add_fit_arguments(parser):
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id fit`."""
     parser.add_argument('data', metavar='DATA', nargs='+',
                         help=DATA_HELP + '; several: separate runs of one motor, fitted '
@@ -76,12 +86,13 @@ def add_arguments(parser):
     add_data_arguments(parser)
 
 
-def progress_printer(quiet, stream=None):
+def progress_printer(quiet: bool, stream: TextIO | None = None
+                     ) -> Callable[[int, int, float], bool]:
     """A GA progress callback that rewrites one status line on stderr."""
     stream = stream or sys.stderr
     start = time.perf_counter()
 
-    def progress(gen, gens, best):
+    def progress(gen: int, gens: int, best: float) -> bool:
         if quiet:
             return False
         if gen == 1 or gen % 10 == 0 or gen == gens:
@@ -96,7 +107,7 @@ def progress_printer(quiet, stream=None):
     return progress
 
 
-def build_identifier(rec, args):
+def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
     """The :class:`Identifier` the options ask for (checked before any work)."""
     fixed = parse_fixed(args.fix, '--fix')
     r_m = fixed.get('R_m', args.resistance)
@@ -122,9 +133,10 @@ def build_identifier(rec, args):
                       effects=effects or None, free_effects=free or None)
 
 
-def controller_design(report, args):
+def controller_design(report: Mapping[str, Any], args: argparse.Namespace
+                      ) -> tuple[ControllerDesign | None, str | None]:
     """The controller block for a fit report, or None (with the reason) if it cannot be."""
-    kw = {}
+    kw: dict[str, Any] = {}
     if getattr(args, 'current_bandwidth', None) is not None and \
             report['input_kind'] == 'voltage':
         kw['current_bandwidth_hz'] = args.current_bandwidth
@@ -137,10 +149,11 @@ def controller_design(report, args):
         return None, f'controller design not possible: {exc}'
 
 
-def ros_parameters(report, design, node_name='/**'):
+def ros_parameters(report: Mapping[str, Any], design: ControllerDesign | None,
+                   node_name: str = '/**') -> dict[str, dict[str, dict[str, Any]]]:
     """``{node: {'ros__parameters': {...}}}``: estimate.NAME, estimate.NAME_std (determined
     parameters only; ROS parameters have no null) and the controller gains."""
-    params = {}
+    params: dict[str, Any] = {}
     for name, p in report['parameters'].items():
         if p['value'] is None:
             continue
@@ -152,7 +165,7 @@ def ros_parameters(report, design, node_name='/**'):
     return {node_name: {'ros__parameters': params}}
 
 
-def write_yaml(data, path):
+def write_yaml(data: Any, path: str) -> None:
     """Write ``data`` with PyYAML's safe_dump."""
     try:
         with open(path, 'w') as fh:
@@ -161,7 +174,7 @@ def write_yaml(data, path):
         raise ConfigError(f'{path}: cannot write ({exc.strerror})') from None
 
 
-def _order_selection(rec, args, report):
+def _order_selection(rec: Recording, args: argparse.Namespace, report: dict[str, Any]) -> None:
     from motor_id.elman import FreeElmanOrderSelection
     sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.input, rec.speed)
     report['order_selection'] = sel.to_dict()
@@ -171,7 +184,9 @@ def _order_selection(rec, args, report):
               f'{e.validation_rmse:.4g}  AIC {e.aic:.1f}  BIC {e.bic:.1f}')
 
 
-def identify_and_report(rec, args, extra=None):
+def identify_and_report(rec: Recording, args: argparse.Namespace,
+                        extra: Mapping[str, Any] | None = None
+                        ) -> tuple[IdentificationResult, dict[str, Any]]:
     """Run the identification on a recording and print / write what the options ask."""
     est = build_identifier(rec, args)
     if not args.quiet:
@@ -212,11 +227,11 @@ def identify_and_report(rec, args, extra=None):
     return res, report
 
 
-def _paths(data):
+def _paths(data: str | list[str] | tuple[str, ...]) -> list[str] | tuple[str, ...]:
     return data if isinstance(data, (list, tuple)) else [data]
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Read the data, fit, print the table, write JSON / plots."""
     warm_up()   # load (or compile once) the simulation kernels before the GA's clock starts
     rec = load_runs(args)

@@ -1,5 +1,8 @@
 """`motor-id validate`: score a saved model on another recording (simulation from input)."""
 
+from __future__ import annotations
+
+import argparse
 import json
 import os
 
@@ -7,10 +10,10 @@ import numpy as np
 
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
-from motor_id.identify.validation import SavedModel, validate
+from motor_id.identify.validation import SavedModel, validate, Validation
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id validate`."""
     parser.add_argument('model', metavar='MODEL',
                         help='the JSON of `motor-id fit --json` or `motor-id analyze --json`')
@@ -27,7 +30,7 @@ def add_arguments(parser):
     add_data_arguments(parser)
 
 
-def load_model(path):
+def load_model(path: str) -> SavedModel:
     """A :class:`SavedModel` from a report file; one-line errors for a bad file."""
     try:
         with open(path) as fh:
@@ -39,7 +42,7 @@ def load_model(path):
     return SavedModel.from_report(report, source=str(path))
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Simulate the model on the recording(s), print and write the scores."""
     model = load_model(args.model)
     rec = load_runs(args)
@@ -65,7 +68,7 @@ def run(args):
     return 0
 
 
-def _plot(val, path, title):
+def _plot(val: Validation, path: str, title: str) -> None:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
