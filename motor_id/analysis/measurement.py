@@ -115,14 +115,15 @@ def _slope(y: np.ndarray) -> np.ndarray:
     return np.abs(np.diff(y, prepend=y[0]))
 
 
-def _moving(slope, q):
+def _moving(slope: np.ndarray, q: ArrayLike) -> np.ndarray:
     """Samples that move: the value changed by half a step or more since the previous
     sample (a value at rest sits on any grid)."""
     q = np.asarray(q, dtype=float)[..., None]
     return slope[None, :] >= 0.5 * q
 
 
-def _coherence(y, slope, qs):
+def _coherence(y: np.ndarray, slope: np.ndarray, qs: ArrayLike
+               ) -> tuple[np.ndarray, np.ndarray]:
     """Coherence and moving-sample count of each step in ``qs`` (arrays)."""
     qs = np.atleast_1d(np.asarray(qs, dtype=float))
     out_c = np.zeros(qs.size)
