@@ -145,8 +145,7 @@ def test_a_coarse_current_grid_credits_no_dynamic_effect():
     # model wins only by where its rounded current flips a level; a 0.017 V brush drop
     # was credited with a 22 % held-out gain (verdict brush_drop+current_quantization)
     from motor_id.analysis import DiscrepancyAnalysis
-    _independent_sim()
-    import discrepancy_rates as dr
+    from motor_id.testing import discrepancy as dr
     spec = dr.plan('independent', 0.01, 16, 7300, max_samples=4000)[9]
     assert spec.effect == 'current_quantization'
     rec, truth, r_known = dr.make_recording(spec)
