@@ -66,7 +66,7 @@ class FaultConfig:
     spike_every: float = 0.0
     spike_current: float = 50.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ('garbage', 'drop', 'bad_crc', 'duplicate', 'reorder'):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:

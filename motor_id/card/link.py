@@ -177,7 +177,7 @@ class CardLink:
         """The open ``serial`` port, or None (for tools and tests that write raw bytes)."""
         return self._port
 
-    def _open(self):
+    def _open(self) -> bool:
         try:
             port = open_transport(self.url, self.baudrate, self.read_timeout)
         except TransportError as exc:
@@ -202,12 +202,12 @@ class CardLink:
                 self.fault('command_failed', f'configuring the card failed: {exc}')
         return True
 
-    def _lose_device(self, text):
+    def _lose_device(self, text: str) -> None:
         self.state = 'disconnected'
         self.fault('lost_device', f'device lost: {text}; reopening with backoff')
         self._close_port()
 
-    def _close_port(self):
+    def _close_port(self) -> None:
         with self._lock:
             port, self._port = self._port, None
         if port is not None:
@@ -278,14 +278,14 @@ class CardLink:
         n = self.batch_size
         return [rows[k:k + n] for k in range(0, len(rows), n)]
 
-    def _check_garbled(self):
+    def _check_garbled(self) -> None:
         if self._bytes_since_frame < GARBLED_BYTES or self.state == 'garbled':
             return
         self.state = 'garbled'
         self.fault('garbled', f'no valid frame in {self._bytes_since_frame} bytes: check '
                    f'the baud rate (the driver uses {self.baudrate} bit/s) and the device')
 
-    def _handle(self, items):
+    def _handle(self, items: list[Sample | ProtocolError]) -> None:
         for item in items:
             if isinstance(item, ProtocolError):
                 self.fault(f'frame_{item.kind}', f'bad frame from the card: {item}')
@@ -321,7 +321,7 @@ class CardLink:
         """Most sample frames per second the line carries at :attr:`baudrate`."""
         return max_frame_rate(self.baudrate, SAMPLE_FRAME_BYTES[bool(with_current)])
 
-    def _check_capacity(self, with_current):
+    def _check_capacity(self, with_current: bool) -> None:
         if not self.sample_period:
             self.capacity_warning = 'not checked'
             return

@@ -27,6 +27,7 @@ Decoding never raises anything but :class:`motor_id.errors.ProtocolError`, whose
 logs, sleeps or touches a device: callers count and report.
 """
 
+from collections.abc import Callable
 from dataclasses import dataclass
 import math
 import struct
@@ -121,17 +122,17 @@ class Sample:
         """True when the sample carries a current value."""
         return not math.isnan(self.current)
 
-    def _key(self):
+    def _key(self) -> tuple[Any, ...]:
         return (self.seq, self.t_card, self.voltage, self.speed,
                 self.current if self.has_current else None, self.flags)
 
-    def __eq__(self, other):
+    def __eq__(self, other: object) -> bool:
         """Field-wise equality; two absent (nan) currents are equal."""
         if not isinstance(other, Sample):
             return NotImplemented
         return self._key() == other._key()
 
-    def __hash__(self):
+    def __hash__(self) -> int:
         return hash(self._key())
 
 
@@ -219,7 +220,7 @@ def crc(data: bytes) -> int:
     return zlib.crc32(data) & 0xFFFFFFFF
 
 
-def _f32(name, value, finite=True):
+def _f32(name: str, value: Any, finite: bool = True) -> float:
     """Check that ``value`` fits a float32 field (for encoding)."""
     try:
         v = float(value)
@@ -246,7 +247,7 @@ def check_uint(name: str, value: Any, limit: int) -> int:
     return value
 
 
-def _micros(name, seconds, limit, minimum=0):
+def _micros(name: str, seconds: float, limit: int, minimum: int = 0) -> int:
     s = _f32(name, seconds)
     us = round(s * 1e6)
     if not minimum <= us < limit:
@@ -255,7 +256,7 @@ def _micros(name, seconds, limit, minimum=0):
     return us
 
 
-def _finite(name, value):
+def _finite(name: str, value: float) -> float:
     if not math.isfinite(value):
         raise ProtocolError('bad_value', f'{name} is {value}')
     return value
@@ -272,7 +273,7 @@ _U = struct.Struct('<I')
 _PROFILE = struct.Struct('<ffIB')
 
 
-def _enc_sample(s):
+def _enc_sample(s: Sample) -> bytes:
     has_current = not math.isnan(_f32('current', s.current, finite=False))
     if has_current and math.isinf(s.current):
         raise ConfigError(f'current must be finite or nan, got {s.current}')
@@ -285,7 +286,7 @@ def _enc_sample(s):
     return _SAMPLE.pack(*head)
 
 
-def _dec_sample(p):
+def _dec_sample(p: bytes) -> Sample:
     if len(p) == _SAMPLE_I.size:
         seq, t_us, flags, v, w, i = _SAMPLE_I.unpack(p)
         if not flags & FLAG_CURRENT:
@@ -299,7 +300,7 @@ def _dec_sample(p):
     return Sample(seq, t_us / 1e6, _finite('voltage', v), _finite('speed', w), i, flags)
 
 
-def _enc_reply(r):
+def _enc_reply(r: Reply) -> bytes:
     command = _COMMAND_CODES.get(r.command)
     if command is None:
         raise ConfigError(f'reply to unknown command {r.command!r}; '
@@ -310,22 +311,22 @@ def _enc_reply(r):
     return _REPLY.pack(command, STATUS_NAMES[r.status], check_uint('value', r.value, _U32))
 
 
-def _dec_reply(p):
+def _dec_reply(p: bytes) -> Reply:
     command, status, value = _REPLY.unpack(p)
     if command not in _COMMAND_TYPES or status not in STATUS_CODES:
         raise ProtocolError('bad_value', f'reply to command {command:#04x} with status {status}')
     return Reply(_COMMAND_TYPES[command].name, STATUS_CODES[status], value)
 
 
-def _enc_set_voltage(c):
+def _enc_set_voltage(c: SetVoltage) -> bytes:
     return _F.pack(_f32('voltage', c.voltage))
 
 
-def _dec_set_voltage(p):
+def _dec_set_voltage(p: bytes) -> SetVoltage:
     return SetVoltage(_finite('voltage', _F.unpack(p)[0]))
 
 
-def _enc_start_profile(c):
+def _enc_start_profile(c: StartProfile) -> bytes:
     if not isinstance(c.name, str):
         raise ConfigError(f'profile name must be a string, got {c.name!r}')
     try:
@@ -338,7 +339,7 @@ def _enc_start_profile(c):
                          check_uint('seed', c.seed, _U32), len(name)) + name
 
 
-def _dec_start_profile(p):
+def _dec_start_profile(p: bytes) -> StartProfile:
     amplitude, duration, seed, n = _PROFILE.unpack_from(p)
     name = p[_PROFILE.size:]
     if len(name) != n:
@@ -349,11 +350,11 @@ def _dec_start_profile(p):
                         _finite('duration', duration))
 
 
-def _enc_set_period(c):
+def _enc_set_period(c: SetPeriod) -> bytes:
     return _U.pack(_micros('period', c.period, _U32, minimum=1))
 
 
-def _dec_set_period(p):
+def _dec_set_period(p: bytes) -> SetPeriod:
     us = _U.unpack(p)[0]
     if us == 0:
         raise ProtocolError('bad_value', 'sample period of 0 us')
@@ -367,9 +368,9 @@ class _Kind:
     code: int
     name: str
     cls: type
-    lengths: frozenset
-    encode: object
-    decode: object
+    lengths: frozenset[int]
+    encode: Callable[[Any], bytes]
+    decode: Callable[[bytes], Any]
 
 
 _CARD_KINDS = (
@@ -402,12 +403,12 @@ _COMMAND_CODES = {k.name: k.code for k in _HOST_KINDS}
 # frames
 
 
-def _frame(kind, payload):
+def _frame(kind: _Kind, payload: bytes) -> bytes:
     body = struct.pack('<BB', kind.code, len(payload)) + payload
     return SYNC + body + CRC.pack(crc(body))
 
 
-def _encode(message, allowed):
+def _encode(message: Any, allowed: dict[int, _Kind]) -> bytes:
     kind = _BY_CLASS.get(type(message))
     if kind is None or kind.code not in allowed:
         raise ConfigError(f'cannot encode {type(message).__name__} here; expected one of '
@@ -456,7 +457,7 @@ def encode_command(command: Command) -> bytes:
     return _encode(command, HOST_TYPES)
 
 
-def _split(frame):
+def _split(frame: bytes) -> tuple[int, bytes]:
     """Check framing and CRC of one complete frame; return (type, payload)."""
     frame = bytes(frame)
     if len(frame) < OVERHEAD:
@@ -477,7 +478,7 @@ def _split(frame):
     return ftype, frame[HEADER.size:-CRC.size]
 
 
-def _decode(ftype, payload, table):
+def _decode(ftype: int, payload: bytes, table: dict[int, _Kind]) -> Any:
     kind = table.get(ftype)
     if kind is None:
         raise ProtocolError('bad_type', f'frame type {ftype:#04x} is not one of '

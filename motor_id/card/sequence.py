@@ -63,21 +63,21 @@ class SequenceTracker:
         self.max_gap = int(max_gap)
         self.modulus = int(modulus)
         self.received = self.lost = self.duplicates = self.late = self.resets = 0
-        self.last = None
-        self._first = None
+        self.last: int | None = None
+        self._first = 0   # the first number since the last (re)start; set with last
         self._seen: deque[int] = deque()
         self._seen_set: set[int] = set()
 
-    def _signed(self, d):
-        return seq_step(0, d, self.modulus)
+    def _signed(self, d: int) -> int:
+        return int(seq_step(0, d, self.modulus))
 
-    def _remember(self, seq):
+    def _remember(self, seq: int) -> None:
         self._seen.append(seq)
         self._seen_set.add(seq)
         if len(self._seen) > self.window:
             self._seen_set.discard(self._seen.popleft())
 
-    def _restart(self, seq):
+    def _restart(self, seq: int) -> None:
         self.last = self._first = seq
         self._seen.clear()
         self._seen_set.clear()

@@ -12,7 +12,15 @@ from typing import Any
 
 from motor_id.card.link import CardLink, LogFn
 from motor_id.card.profile import profile_samples
-from motor_id.card.protocol import Reply, Sample, SetPeriod, SetVoltage, StartProfile, Stop
+from motor_id.card.protocol import (
+    Command,
+    Reply,
+    Sample,
+    SetPeriod,
+    SetVoltage,
+    StartProfile,
+    Stop,
+)
 from motor_id.card.supervisor import Limits, Supervisor
 from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import MotorIdError
@@ -229,11 +237,11 @@ class Session:
         self._send(SetVoltage(value))
 
     # ------------------------------------------------------------ helpers
-    def _play_on_host(self, cmd):
+    def _play_on_host(self, cmd: StartProfile) -> None:
         self.host_profile = HostProfile(cmd.name, cmd.amplitude, cmd.seed, cmd.duration,
                                         self.period)
 
-    def _send(self, command):
+    def _send(self, command: Command) -> None:
         try:
             self.link.send(command)
         except MotorIdError as exc:

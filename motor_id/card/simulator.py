@@ -130,7 +130,7 @@ class CardSimulator:
         return {**self.card.truth(), 'speedup': self.speedup,
                 'faults': asdict(self.faults), 'device': self.path}
 
-    def _open_pty(self):
+    def _open_pty(self) -> None:
         master, slave = os.openpty()
         tty.setraw(slave)
         os.set_blocking(master, False)
@@ -144,7 +144,7 @@ class CardSimulator:
             os.replace(tmp, self.link)
         self._connected_at = time.monotonic()
 
-    def _close_pty(self):
+    def _close_pty(self) -> None:
         if self.link and os.path.islink(self.link) and os.readlink(self.link) == self._device:
             os.unlink(self.link)
         for fd in (self._master, self._slave):
@@ -180,21 +180,21 @@ class CardSimulator:
         if self._master is not None:
             self._close_pty()
 
-    def __enter__(self):
+    def __enter__(self) -> 'CardSimulator':
         return self.start()
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
     # -- serving loop ---------------------------------------------------------------------
 
-    def _serve(self):
+    def _serve(self) -> None:
         try:
             self._loop()
         except Exception as exc:  # noqa: BLE001 - reported via .error; the thread lives on
             self.error = exc
 
-    def _emit(self, n):
+    def _emit(self, n: int) -> None:
         for _ in range(n):
             sample = self._injector.sample(self.card.step())
             if self._master is None:
@@ -207,7 +207,7 @@ class CardSimulator:
             self._pending += data
             self._stats['sent'] += 1
 
-    def _due(self, now):
+    def _due(self, now: float) -> tuple[int, float]:
         """Samples due by wall time ``now`` (real-time mode) or wanted (ASAP mode)."""
         if self.asap:
             if self._master is None or len(self._pending) >= self.ASAP_LOW_WATER:
@@ -219,7 +219,7 @@ class CardSimulator:
             return 0, min(0.05, -lag / self.speedup)
         return min(int(lag / self.card.period) + 1, 10_000), 0.0
 
-    def _loop(self):
+    def _loop(self) -> None:
         self._wall0 = time.monotonic()
         self._t0 = self.card.t_us / 1e6
         faults = self.faults
@@ -249,7 +249,9 @@ class CardSimulator:
                     sent = 0
                 del self._pending[:sent]
 
-    def _read_commands(self):
+    def _read_commands(self) -> None:
+        if self._master is None:
+            return
         try:
             data = os.read(self._master, 4096)
         except (BlockingIOError, InterruptedError):

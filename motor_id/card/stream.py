@@ -7,8 +7,10 @@ nothing and never touch a device.
 """
 
 from collections import Counter, deque
+from typing import Any
 
 from motor_id.card.protocol import (
+    _Kind,
     CARD_TYPES,
     Command,
     CRC,
@@ -26,26 +28,26 @@ from motor_id.errors import ProtocolError
 class _StreamSplitter:
     """Cut a byte stream into frames of one direction; resynchronise after garbage."""
 
-    def __init__(self, table):
+    def __init__(self, table: dict[int, _Kind]) -> None:
         self._table = table
         self._buf = bytearray()
         self.garbage_bytes = 0
         """Bytes skipped while looking for a frame (noise, torn or corrupted frames)."""
         self.frames = 0
         """Frames decoded successfully."""
-        self.errors = Counter()
+        self.errors: Counter[str] = Counter()
         """ProtocolError count by kind."""
 
     @property
-    def buffered(self):
+    def buffered(self) -> int:
         """Bytes held back waiting for the rest of a frame."""
         return len(self._buf)
 
-    def reset(self):
+    def reset(self) -> None:
         """Forget buffered bytes (after reopening the device); counters stay."""
         self._buf.clear()
 
-    def _items(self, data, final=False):
+    def _items(self, data: bytes, final: bool = False) -> list[Any]:
         buf = self._buf
         buf += data
         out = []
@@ -132,7 +134,7 @@ class FrameParser(_StreamSplitter):
         super().__init__(CARD_TYPES)
         self.replies: deque[Reply] = deque(maxlen=max_replies)
 
-    def _route(self, items):
+    def _route(self, items: list[Any]) -> list[Sample | ProtocolError]:
         out = []
         for item in items:
             if isinstance(item, Reply):

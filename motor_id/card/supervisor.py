@@ -54,7 +54,7 @@ class Limits:
     max_current: float = 0.0
     command_timeout: float = 0.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not (math.isfinite(self.max_voltage) and self.max_voltage > 0):
             raise ConfigError(f'max_voltage must be a finite value > 0 V, got '
                               f'{self.max_voltage}')
@@ -161,7 +161,7 @@ class Supervisor:
         """True while a limit or the watchdog forces the output to 0 V."""
         return self.trip is not None or self.watchdog_holding
 
-    def _try_send(self, command):
+    def _try_send(self, command: Command) -> bool:
         try:
             self._send(command)
         except MotorIdError:

@@ -23,6 +23,7 @@ the internal states of input delay, sensor lag and resistance drift (and the res
 load speed) restart there too (documented approximation; 200000 samples by default).
 """
 
+from collections.abc import Callable
 import math
 from typing import Any
 
@@ -51,7 +52,7 @@ MIN_PERIOD = 1e-4
 MAX_PERIOD = 10.0
 
 
-def _check_period(period):
+def _check_period(period: float) -> int:
     if not (isinstance(period, (int, float)) and MIN_PERIOD <= period <= MAX_PERIOD):
         raise ConfigError(f'sample period must be in [{MIN_PERIOD}, {MAX_PERIOD}] s, '
                           f'got {period!r}')
@@ -129,14 +130,18 @@ class VirtualCard:
         self.t_us = 0
         """Card time of the next sample [us]."""
         self._hold = 0.0
-        self._profile = None
+        self._profile: tuple[np.ndarray, int] | None = None
         self._startup = True
-        self._x0 = None
+        self._x0: np.ndarray | None = None
         self._hist_t = np.zeros(0, dtype=np.int64)
         self._hist_u = np.zeros(0)
         self._plan_t = np.zeros(0, dtype=np.int64)
         self._plan_u = np.zeros(0)
         self._pos = 0
+        self._plan_flags = np.zeros(0, dtype=np.int64)
+        self._plan_speed = np.zeros(0)
+        self._plan_current: np.ndarray | None = None
+        self._plan_x = np.zeros((0, 2))
         self._replan()
 
     @property
@@ -159,7 +164,7 @@ class VirtualCard:
 
     # -- planning -----------------------------------------------------------------------
 
-    def _inputs(self, seqs):
+    def _inputs(self, seqs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         u = np.full(seqs.size, self._hold)
         flags = np.zeros(seqs.size, dtype=np.int64)
         if self._profile is not None:
@@ -171,7 +176,7 @@ class VirtualCard:
             flags[idx == values.size - 1] |= FLAG_PROFILE_END
         return u, flags
 
-    def _replan(self, extend=False):
+    def _replan(self, extend: bool = False) -> None:
         done = self._pos
         hist_t = np.concatenate([self._hist_t, self._plan_t[:done]])
         hist_u = np.concatenate([self._hist_u, self._plan_u[:done]]) if done else self._hist_u
@@ -210,7 +215,7 @@ class VirtualCard:
         if self.speed_noise:
             speed += self.speed_noise * self._rng.standard_normal()
         current = float('nan')
-        if self.with_current:
+        if self.with_current and self._plan_current is not None:
             current = float(self._plan_current[k])
             if self.current_noise:
                 current += self.current_noise * self._rng.standard_normal()
@@ -245,10 +250,10 @@ class VirtualCard:
         status, value = method(self, command)
         return Reply(name, status, value % 2 ** 32)
 
-    def _input_ok(self, value):
+    def _input_ok(self, value: float) -> bool:
         return math.isfinite(value) and abs(value) <= self.max_input
 
-    def _set_voltage(self, cmd):
+    def _set_voltage(self, cmd: SetVoltage) -> tuple[str, int]:
         if not self._input_ok(cmd.voltage):
             return 'bad_value', self.seq
         self._hold = float(np.float32(cmd.voltage))
@@ -256,7 +261,7 @@ class VirtualCard:
         self._replan()
         return 'ok', self.seq
 
-    def _start_profile(self, cmd):
+    def _start_profile(self, cmd: StartProfile) -> tuple[str, int]:
         if not self.profiles:
             return 'unsupported', self.seq
         if cmd.name not in PROFILES:
@@ -270,13 +275,13 @@ class VirtualCard:
         self._replan()
         return 'ok', self.seq
 
-    def _stop(self, cmd):
+    def _stop(self, cmd: Stop) -> tuple[str, int]:
         self._profile = None
         self._hold = 0.0
         self._replan()
         return 'ok', self.seq
 
-    def _set_period(self, cmd):
+    def _set_period(self, cmd: SetPeriod) -> tuple[str, int]:
         if self.profile_running:
             return 'busy', self.seq
         if not (math.isfinite(cmd.period) and MIN_PERIOD <= cmd.period <= MAX_PERIOD):
@@ -290,10 +295,11 @@ class VirtualCard:
         self._replan()
         return 'ok', self.seq
 
-    def _ping(self, cmd):
+    def _ping(self, cmd: Ping) -> tuple[str, int]:
         return 'ok', cmd.token
 
-    _HANDLERS = {SetVoltage: ('set_voltage', _set_voltage),
-                 StartProfile: ('start_profile', _start_profile),
-                 Stop: ('stop', _stop), SetPeriod: ('set_period', _set_period),
-                 Ping: ('ping', _ping)}
+    _HANDLERS: dict[type, tuple[str, Callable[[Any, Any], tuple[str, int]]]] = {
+        SetVoltage: ('set_voltage', _set_voltage),
+        StartProfile: ('start_profile', _start_profile),
+        Stop: ('stop', _stop), SetPeriod: ('set_period', _set_period),
+        Ping: ('ping', _ping)}
