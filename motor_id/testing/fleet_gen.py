@@ -431,3 +431,71 @@ def write_robot_bag(path, start_ns, period, channels, storage='mcap', drop_comma
     files = sorted(Path(path).glob('*.mcap')) + sorted(Path(path).glob('*.db3'))
     return files[0]
 
+
+
+# --------------------------------------------------------------------------- scoring
+def drift_benchmark_spec(quick=False, seed=17):
+    """A fleet with one drift at the issue's smallest sizes per kind, and clean robots.
+
+    K_T -8 %, R_m +10 % and B +50 %, each as a step and as a 4-day ramp (``quick``: the
+    steps only), on a seeded day in the second half; 2 motors per robot; the robots past
+    the drifting ones are clean.
+    """
+    days = 14 if quick else 20
+    kinds = [('K_T', -0.08, 'step'), ('K_T', -0.08, 'ramp'), ('R_m', 0.10, 'step'),
+             ('R_m', 0.10, 'ramp'), ('B', 0.50, 'step'), ('B', 0.50, 'ramp')]
+    if quick:
+        kinds = kinds[::2]
+    rng = np.random.default_rng(seed)
+    drifts = []
+    for k, (param, size, kind) in enumerate(kinds):
+        onset = int(rng.integers(days // 2, days - 5 if kind == 'ramp' else days - 3))
+        drifts.append(Drift(f'robot_{k:02d}', 'wheel_left' if k % 2 == 0 else 'wheel_right',
+                            param, size, onset, kind, ramp_days=4))
+    return FleetSpec(robots=len(kinds) + (2 if quick else 4), days=days,
+                     drifts=tuple(drifts), seed=seed + 6)
+
+
+def score_detection(spec, drift_rows):
+    """How the drift rows (drift.json) match the generated drifts.
+
+    Returns
+    -------
+    rows : list of dict
+        Per drift: ``motor``, ``drift``, ``onset``, ``flagged``, ``change``, ``since``,
+        ``delay`` (recordings from the drift at full size to the flag, that recording
+        counting 1), ``delay_from_start``, ``other_flags`` (other parameters of that
+        motor flagged; K_b is K_T's twin in SI units and not counted).
+    false : list of str
+        Parameters flagged on motors without a drift.
+    clean_series : int
+        Histories of motors without a drift.
+    """
+    by = {}
+    for d in drift_rows:
+        by.setdefault((d['robot'], d['motor']), {})[d['parameter']] = d
+    start = dt.date.fromisoformat(spec.start)
+    rows = []
+    for dr in spec.drifts:
+        per = by.get((dr.robot, dr.motor), {})
+        d = per.get(dr.parameter, {})
+        flagged_day = None
+        if d.get('detected'):
+            flagged = dt.date.fromisoformat(d['change_points'][0]['flagged_at'][:10])
+            flagged_day = (flagged - start).days
+        others = sorted(p for p, x in per.items() if x['detected'] and p != dr.parameter
+                        and not (dr.parameter == 'K_T' and p == 'K_b'))
+        rows.append({
+            'motor': f'{dr.robot}/{dr.motor}',
+            'drift': f'{dr.parameter} {dr.size * 100:+.0f} % {dr.kind}',
+            'onset': (start + dt.timedelta(days=dr.onset)).isoformat(),
+            'flagged': bool(d.get('detected')), 'change': d.get('change'),
+            'since': d.get('since'),
+            'delay': None if flagged_day is None else flagged_day - dr.full_day() + 1,
+            'delay_from_start': None if flagged_day is None else flagged_day - dr.onset + 1,
+            'other_flags': ', '.join(others) or '-'})
+    drifting = {(dr.robot, dr.motor) for dr in spec.drifts}
+    false = sorted(f'{k[0]}/{k[1]} {p}' for k, per in by.items() if k not in drifting
+                   for p, x in per.items() if x['detected'])
+    clean_series = sum(len(per) for k, per in by.items() if k not in drifting)
+    return rows, false, clean_series

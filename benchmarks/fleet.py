@@ -1,0 +1,260 @@
+"""Fleet: throughput on Dask (1 vs 2 workers, overhead over a plain loop), worker memory
+over many recordings, and drift detection / false alarms on the fleet generator.
+
+    .venv/bin/python benchmarks/fleet.py [--quick] [--json OUT] [--memory N]
+
+Every recording comes from :mod:`motor_id.testing.fleet_gen` (the DC-motor physics written
+independently of motor_id.model): wheel motors J 0.01 kg m^2, K_T 0.3 N m/A, B 0.003,
+L_m 12 mH, R_m 1.2 Ohm with a 5 % unit spread, 20 s of ordinary driving at 100 Hz per
+recording; day to day the ambient temperature moves R_m +-2 %, K_T +-0.6 %, B +-5 %.
+Also a section of benchmarks/run.py style (``TITLE``, ``run(quick)``).
+"""
+
+import argparse
+import json
+import os
+from pathlib import Path
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+TITLE = 'Fleet: Dask throughput, worker memory, drift detection'
+
+
+def _tasks(root, robots=None):
+    from motor_id.fleet.discover import find_recordings
+    from motor_id.fleet.profile import load_fleet_profile
+    from motor_id.fleet.run import plan
+    prof = load_fleet_profile(str(Path(root) / 'fleet.yaml'))
+    return plan(find_recordings([str(root)]), prof), prof
+
+
+def throughput(root, quick):
+    """Plain loop vs Dask with 1 and 2 workers on the same tasks."""
+    from motor_id.fleet.engine import DaskEngine
+    from motor_id.fleet.task import run_task
+    tasks, _ = _tasks(root)
+    t0 = time.perf_counter()
+    loop_s = [run_task(t)['seconds'] for t in tasks]
+    loop = time.perf_counter() - t0
+    runs = {}
+    for n in (1, 2):
+        t0 = time.perf_counter()
+        with DaskEngine(workers=n) as eng:
+            t1 = time.perf_counter()
+            secs = [r['seconds'] for _, r, _ in eng.map(run_task, tasks)]
+            t2 = time.perf_counter()
+        runs[n] = {'total': time.perf_counter() - t0, 'start': t1 - t0, 'work': t2 - t1,
+                   'task_seconds': float(np.sum(secs))}
+    n_rec = len({t.path for t in tasks})
+    rows = [{'engine': 'plain loop (this process)', 'tasks': len(tasks), 'wall_s': loop,
+             'start_s': 0.0, 'rec_min_core': n_rec / loop * 60},
+            *({'engine': f'Dask LocalCluster, {n} worker(s)', 'tasks': len(tasks),
+               'wall_s': r['total'], 'start_s': r['start'],
+               'rec_min_core': n_rec / r['total'] * 60 / n} for n, r in runs.items())]
+    return {
+        'rows': rows, 'loop_s': loop, 'loop_task_s': float(np.sum(loop_s)), 'runs': runs,
+        'recordings': n_rec, 'tasks': len(tasks),
+        'ratio_2_1': runs[2]['total'] / runs[1]['total'],
+        'overhead': runs[1]['total'] / loop - 1.0,
+        'overhead_steady': runs[1]['work'] / loop - 1.0,
+    }
+
+
+def memory(root, n_tasks, quick):
+    """Worker RSS while 2 workers fit ``n_tasks`` (symlinked copies of a few recordings)."""
+    from dataclasses import replace
+
+    from motor_id.fleet.engine import DaskEngine
+    from motor_id.fleet.task import run_task
+    base, _ = _tasks(root)
+    links = Path(root) / 'links'
+    links.mkdir(exist_ok=True)
+    tasks = []
+    for k in range(n_tasks):
+        t = base[k % len(base)]
+        link = links / f'r{k:05d}_{Path(t.path).name}'
+        if not link.exists():
+            os.symlink(t.path, link)
+        tasks.append(replace(t, path=str(link)))
+    samples = []
+    every = max(10, n_tasks // 20)
+    t0 = time.perf_counter()
+    with DaskEngine(workers=2) as eng:
+        for k, (_, r, err) in enumerate(eng.map(run_task, tasks), 1):
+            if err or r.get('status') != 'ok':
+                raise RuntimeError(f'task failed: {err or r.get("reason")}')
+            if k % every == 0 or k == n_tasks:
+                rss = eng.worker_memory()
+                samples.append({'tasks': k, 'rss_mib': [v / 2 ** 20 for v in
+                                                        sorted(rss.values())]})
+    wall = time.perf_counter() - t0
+    warm = samples[min(1, len(samples) - 1)]
+    last = samples[-1]
+    growth = max(b - a for a, b in zip(warm['rss_mib'], last['rss_mib'], strict=True))
+    rows = [{'tasks': s['tasks'], 'w1': s['rss_mib'][0], 'w2': s['rss_mib'][-1]}
+            for s in samples]
+    return {'rows': rows, 'growth_mib': growth, 'warm_at': warm['tasks'], 'wall_s': wall,
+            'tasks': n_tasks}
+
+
+def estimate_level_false_alarms(spec, drift_rows, fleet_rows, n_motors, seed=5):
+    """The rule's false-alarm rate on many generated histories, without bags: the
+    generator's true parameters per day (temperature, jitter, unit spread) plus each
+    parameter's median relative fit error measured in the fleet run."""
+    from dataclasses import replace
+
+    from motor_id.fleet.drift import DriftRule
+    from motor_id.testing.fleet_gen import motor_truths
+    rel = {}
+    for p in ('J', 'K_T', 'B', 'L_m', 'R_m'):
+        v = [r[f'{p}_std'] / r[p] for r in fleet_rows if r.get(p) and r.get(f'{p}_std')]
+        rel[p] = float(np.median(v)) if v else 0.0
+    big = replace(spec, robots=n_motors // len(spec.motors), drifts=(), days=spec.days)
+    rng = np.random.default_rng(seed)
+    truths = motor_truths(big, rng)
+    rule = DriftRule()
+    alarms = tests = 0
+    days = [f'2026-01-{d + 1:02d}' if d < 31 else f'2026-02-{d - 30:02d}'
+            for d in range(spec.days)]
+    for hist in truths.values():
+        for p, s in rel.items():
+            x = np.array([getattr(m, p) for m in hist])
+            x = x * (1 + rng.normal(0, s, x.size))
+            f = rule.scan(days, x, x * s)
+            alarms += f.detected
+            tests += sum(z is not None for z in f.scores)
+    return {'series': len(truths) * len(rel), 'alarms': alarms, 'tests': tests,
+            'rel_std': rel}
+
+
+def run(quick=False, memory_tasks=None, stream=sys.stdout):
+    """Run everything; returns the section record (benchmarks/run.py form)."""
+    from common import target
+
+    from motor_id.fleet.profile import load_fleet_profile
+    from motor_id.fleet.run import run_fleet
+    from motor_id.testing.fleet_gen import (
+        drift_benchmark_spec,
+        FleetSpec,
+        generate_fleet,
+        score_detection,
+    )
+
+    def say(msg):
+        print(msg, file=stream, flush=True)
+    work = Path(tempfile.mkdtemp(prefix='motor-id-fleet-bench-'))
+    thr_spec = FleetSpec(robots=2 if quick else 6, days=3 if quick else 10, seed=3)
+    generate_fleet(thr_spec, work / 'thr')
+    say(f'throughput: {thr_spec.robots * thr_spec.days} recordings x 2 motors ...')
+    thr = throughput(work / 'thr', quick)
+    n_mem = memory_tasks or (60 if quick else 1000)
+    say(f'memory: {n_mem} tasks on 2 workers ...')
+    mem = memory(work / 'thr', n_mem, quick)
+    spec = drift_benchmark_spec(quick)
+    say(f'detection: {spec.robots} robots x 2 motors x {spec.days} days ...')
+    t0 = time.perf_counter()
+    generate_fleet(spec, work / 'drift')
+    gen_s = time.perf_counter() - t0
+    prof = load_fleet_profile(str(work / 'drift' / 'fleet.yaml'))
+    res = run_fleet([str(work / 'drift')], prof, str(work / 'out'), workers=2)
+    import pyarrow.parquet as pq
+    fleet_rows = pq.read_table(work / 'out' / 'estimates.parquet').to_pylist()
+    det, false, n_series = score_detection(spec, res.drift)
+    n_clean = spec.robots * len(spec.motors) - len(spec.drifts)
+    mc = estimate_level_false_alarms(spec, res.drift, fleet_rows, 400 if quick else 4000)
+    within = [r for r in det if r['flagged'] and r['delay'] is not None and r['delay'] <= 3
+              and r['other_flags'] == '-']
+    targets = [
+        target('2 workers / 1 worker wall time', thr['ratio_2_1'], '<= 0.7',
+               thr['ratio_2_1'] <= 0.7 if not quick else None),
+        target('engine overhead over a plain loop (cluster start included)',
+               thr['overhead'] * 100, '<= 10 %',
+               thr['overhead'] <= 0.10 if not quick else None, '%'),
+        target('worker memory growth after warm-up', mem['growth_mib'], '<= 16 MiB (flat)',
+               mem['growth_mib'] <= 16 if not quick else None, 'MiB'),
+        target('drifts flagged on the right parameter within 3 recordings', len(within),
+               f'{len(det)} of {len(det)}', len(within) == len(det)),
+        target('clean motors flagged', len(false), '0', not false),
+    ]
+    return {
+        'title': TITLE, 'status': 'ok',
+        'settings': {'throughput_fleet': f'{thr_spec.robots} robots x 2 motors x '
+                     f'{thr_spec.days} days, {thr_spec.duration_s:g} s at '
+                     f'{1 / thr_spec.period_s:g} Hz', 'memory_tasks': n_mem,
+                     'drift_fleet': f'{spec.robots} robots x 2 motors x {spec.days} days',
+                     'cores': os.cpu_count(), 'load_average': os.getloadavg()},
+        'tables': [
+            {'title': 'throughput (the same tasks; recordings hold 2 motors)',
+             'columns': [('engine', 'engine', 's'), ('tasks', 'tasks', 'd'),
+                         ('wall_s', 'wall s', '.1f'), ('start_s', 'cluster start s', '.1f'),
+                         ('rec_min_core', 'recordings/min/core', '.0f')],
+             'rows': thr['rows']},
+            {'title': f'worker memory over {n_mem} tasks (2 workers, RSS MiB)',
+             'columns': [('tasks', 'tasks done', 'd'), ('w1', 'worker 1', '.1f'),
+                         ('w2', 'worker 2', '.1f')], 'rows': mem['rows']},
+            {'title': 'drift detection (delay: recordings from the drift at full size to '
+                      'the flag, the onset recording counting 1)',
+             'columns': [('motor', 'motor', 's'), ('drift', 'drift', 's'),
+                         ('onset', 'onset', 's'), ('flagged', 'flagged', 's'),
+                         ('change', 'change', '+.3f'), ('since', 'since', 's'),
+                         ('delay', 'delay', 'd'), ('delay_from_start', 'from start', 'd'),
+                         ('other_flags', 'other parameters flagged', 's')],
+             'rows': det},
+            {'title': 'false alarms',
+             'columns': [('what', 'what', 's'), ('series', 'series', 'd'),
+                         ('tests', 'tests', 'd'), ('alarms', 'alarms', 'd')],
+             'rows': [{'what': f'fleet run: {n_clean} clean motors', 'series': n_series,
+                       'tests': None, 'alarms': len(false)},
+                      {'what': 'generator histories, no bags (estimate level)',
+                       'series': mc['series'], 'tests': mc['tests'],
+                       'alarms': mc['alarms']}]},
+        ],
+        'throughput': thr, 'memory': mem, 'false_flags': false, 'estimate_level': mc,
+        'fleet_run': {'tasks': res.tasks, 'failed': res.failed, 'seconds': res.seconds,
+                      'generate_seconds': gen_s},
+        'targets': targets,
+        'notes': [f'results in {work}',
+                  'overhead without the cluster start: '
+                  f'{thr["overhead_steady"] * 100:+.1f} %'],
+    }
+
+
+def _print(rec, stream=sys.stdout):
+    from common import render_table
+    print(f'== {rec["title"]}', file=stream)
+    for k, v in rec['settings'].items():
+        print(f'  {k}: {v}', file=stream)
+    for t in rec['tables']:
+        print(f'\n{t["title"]}', file=stream)
+        print(render_table(t['columns'], t['rows']), file=stream)
+    print('\ntargets:', file=stream)
+    for t in rec['targets']:
+        mark = {True: 'PASS', False: 'FAIL', None: '-'}[t['pass']]
+        print(f'  [{mark}] {t["name"]}: {t["value"]:.3g} {t["unit"]} ({t["threshold"]})',
+              file=stream)
+    for n in rec['notes']:
+        print(f'note: {n}', file=stream)
+
+
+def main(argv=None):
+    """Command line: run, print the tables and targets, write JSON."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument('--quick', action='store_true', help='a small smoke run')
+    p.add_argument('--memory', type=int, metavar='N', help='tasks of the memory run')
+    p.add_argument('--json', metavar='OUT', help='write the record as JSON')
+    args = p.parse_args(argv)
+    rec = run(quick=args.quick, memory_tasks=args.memory)
+    _print(rec)
+    if args.json:
+        from motor_id.report import to_jsonable
+        with open(args.json, 'w', encoding='utf-8') as fh:
+            json.dump(to_jsonable(rec), fh, indent=1)
+    return 0 if all(t['pass'] is not False for t in rec['targets']) else 1
+
+
+if __name__ == '__main__':
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    sys.exit(main())
