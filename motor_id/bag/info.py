@@ -52,7 +52,7 @@ def bag_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     }
 
 
-def _ros_distro(metadata):
+def _ros_distro(metadata: list[Any]) -> str:
     """``ros_distro`` of the ``rosbag2`` metadata record ('' when absent)."""
     for name, values in metadata:
         if name == METADATA_RECORD:

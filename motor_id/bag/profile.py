@@ -114,7 +114,7 @@ def rosbag2_metadata(file_name: str, topics: Iterable[Any], start_ns: int | None
     return _yaml(info)
 
 
-def _yaml(value):
+def _yaml(value: Any) -> str:
     """Block-style YAML (the form yaml-cpp writes for rosbag2), keys in insertion order."""
     return yaml.safe_dump(value, default_flow_style=False, sort_keys=False)
 

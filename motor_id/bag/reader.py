@@ -9,6 +9,7 @@ through rosbags (:func:`read_any_recording`); both paths share :func:`sorted_sam
 and :func:`samples_recording`.
 """
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 import json
 import os
@@ -53,7 +54,7 @@ class _Contents:
     data_end: bool = False
     note: str = ''
 
-    def take(self, record):
+    def take(self, record: Any) -> None:
         if isinstance(record, Message):
             self.messages.setdefault(record.channel_id, []).append(record)
         elif isinstance(record, Channel):
@@ -63,12 +64,12 @@ class _Contents:
         elif isinstance(record, DataEnd):
             self.data_end = True
 
-    def on_topic(self, topic):
+    def on_topic(self, topic: str) -> list[Channel]:
         """The channels named ``topic`` (relative or absolute)."""
         name = topic_name(topic)
         return [ch for ch in self.channels.values() if topic_name(ch.topic) == name]
 
-    def topic_list(self):
+    def topic_list(self) -> str:
         """``topics present: /a (type, n msgs), ...`` for an error message."""
         if not self.channels:
             return 'the file has no topics'
@@ -80,7 +81,7 @@ class _Contents:
         return 'topics present: ' + ', '.join(sorted(items))
 
 
-def _read(path):
+def _read(path: str | os.PathLike[str]) -> _Contents:
     """Every record of the data section; BagError (one line) if it cannot all be read."""
     fh, _ = open_mcap(path)
     contents = _Contents(str(path))
@@ -95,14 +96,14 @@ def _read(path):
     return contents
 
 
-def _damaged(path, exc):
+def _damaged(path: str | os.PathLike[str], exc: BaseException) -> BagError:
     scan = scan_file(path)
     problem = scan.problem() or ' '.join(f'{type(exc).__name__}: {exc}'.split())
     return BagError(f'{scan.path}: truncated or corrupt MCAP ({problem}); '
                     + scan.recover_hint())
 
 
-def _typed_channels(contents, topic, msgtype):
+def _typed_channels(contents: _Contents, topic: str, msgtype: str) -> list[Channel]:
     """Channels of ``topic``, checked to be CDR-encoded ``msgtype``."""
     chans = contents.on_topic(topic)
     for ch in chans:
@@ -119,7 +120,8 @@ def _typed_channels(contents, topic, msgtype):
     return chans
 
 
-def _batches(contents, topic):
+def _batches(contents: _Contents,
+             topic: str) -> Iterator[tuple[NDArray[np.float64], int]]:
     """(rows, log time [ns]) of every sample message of ``topic``, in file order."""
     chans = _typed_channels(contents, topic, FLOAT64_MULTI_ARRAY)
     if not chans:
@@ -139,7 +141,7 @@ def _batches(contents, topic):
         yield rows, msg.log_time
 
 
-def _samples(contents, topic=BAG_SAMPLES_TOPIC):
+def _samples(contents: _Contents, topic: str = BAG_SAMPLES_TOPIC) -> dict[str, Any]:
     blocks, log_times = [], []
     for rows, log_time in _batches(contents, topic):
         blocks.append(rows)
@@ -182,7 +184,7 @@ def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict
     return out
 
 
-def _meta(contents):
+def _meta(contents: _Contents) -> dict[str, Any]:
     meta = {}
     for ch in _typed_channels(contents, BAG_META_TOPIC, STRING):
         for msg in contents.messages.get(ch.id, []):
@@ -301,7 +303,7 @@ def read_any_recording(path: str | os.PathLike[str]) -> Recording:
         reader.close()
 
 
-def _rosbag2_recording(reader, path):
+def _rosbag2_recording(reader: Any, path: str | os.PathLike[str]) -> Recording:
     """The ``/samples`` rows (and ``/motor_id/meta``) of an open rosbags reader."""
     conns = [c for c in reader.connections if c.topic in (BAG_SAMPLES_TOPIC, BAG_META_TOPIC)]
     rows, log_times, meta = [], [], {}

@@ -8,9 +8,11 @@ reader gives up, reads the 9-byte record frame (opcode, length) to tell a cut fi
 a damaged record and to resume after a damaged one.
 """
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 import os
 import struct
+from typing import Any, BinaryIO
 
 from mcap.exceptions import McapError
 from mcap.records import (
@@ -135,7 +137,7 @@ def scan_file(path: str | os.PathLike[str]) -> Scan:
     return scan
 
 
-def _take_records(scan, fh, records):
+def _take_records(scan: Scan, fh: BinaryIO, records: Iterator[Any]) -> bool:
     """Consume records until the end or an error; True to resume after a damaged record."""
     while True:
         start = fh.tell()
@@ -152,7 +154,7 @@ def _take_records(scan, fh, records):
             scan.footer = True
 
 
-def _damaged_at(scan, fh, start, exc):
+def _damaged_at(scan: Scan, fh: BinaryIO, start: int, exc: BaseException) -> bool:
     """Note why reading stopped at ``start``; seek past the record if its frame is whole."""
     scan.stop_offset = start
     if scan.footer:
@@ -176,12 +178,12 @@ def _damaged_at(scan, fh, start, exc):
     return True
 
 
-def _why(exc):
+def _why(exc: BaseException) -> str:
     """An exception as one line of text."""
     return ' '.join(str(exc).split()) or type(exc).__name__
 
 
-def _take(scan, record, offset):
+def _take(scan: Scan, record: Any, offset: int) -> None:
     if isinstance(record, Header):
         scan.profile, scan.library = record.profile, record.library
     elif isinstance(record, Chunk):

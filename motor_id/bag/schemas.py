@@ -34,7 +34,7 @@ def typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def _known(msgtype):
+def _known(msgtype: str) -> str:
     if msgtype not in typestore().fielddefs:
         raise ConfigError(f'unknown message type {msgtype!r}; a motor_id bag holds '
                           f'{", ".join(MESSAGE_TYPES)}')
@@ -92,7 +92,7 @@ def build(msgtype: str, fields: Any) -> Any:
     return typestore().types[msgtype](**values)
 
 
-def _field_value(desc, value):
+def _field_value(desc: Any, value: Any) -> Any:
     kind, arg = desc
     if kind == Nodetype.NAME:
         return build(arg, {} if value is None else value)

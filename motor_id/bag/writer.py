@@ -65,23 +65,23 @@ class _DirectFile:
     buffered file that chunk could wait in this process and die with it.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str) -> None:
         self._raw = open(path, 'wb', buffering=0)
 
-    def write(self, data):
+    def write(self, data: bytes) -> int:
         view = memoryview(data)
         done = 0
         while done < len(view):
             done += self._raw.write(view[done:])
         return done
 
-    def tell(self):
+    def tell(self) -> int:
         return self._raw.tell()
 
-    def flush(self):
+    def flush(self) -> None:
         """Nothing is buffered."""
 
-    def close(self):
+    def close(self) -> None:
         self._raw.close()
 
 
@@ -146,8 +146,8 @@ class BagWriter:
         self._writer.start(profile='ros2', library=library_string())
         self._schemas: dict[tuple[str, str, bytes], int] = {}
         self._topics: dict[str, _Topic] = {}
-        self._start_ns = None
-        self._end_ns = None
+        self._start_ns: int | None = None
+        self._end_ns: int | None = None
         self._last_flush = clock()
         self._closed = False
         self._lock = threading.RLock()
@@ -194,7 +194,7 @@ class BagWriter:
             self._topics[name] = entry
             return entry
 
-    def _schema_id(self, name, encoding, data):
+    def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
         key = (name, encoding, data)
         if key not in self._schemas:
             self._schemas[key] = self._writer.register_schema(name, encoding, data)
@@ -225,7 +225,8 @@ class BagWriter:
                 raise BagError(f'{entry.name}: {exc}') from None
             self._add(entry, data, log_time_ns, publish_time_ns, sequence)
 
-    def _add(self, entry, data, log_time_ns, publish_time_ns, sequence):
+    def _add(self, entry: _Topic, data: bytes, log_time_ns: int, publish_time_ns: int | None,
+             sequence: int) -> None:
         log_time = int(log_time_ns)
         if log_time < 0:
             raise ConfigError(f'log time must be >= 0 ns, got {log_time}')
@@ -346,7 +347,7 @@ class BagWriter:
                 self._topics[name] = entry
             self._add(entry, data, log_time_ns, publish_time_ns, sequence)
 
-    def _check_open(self):
+    def _check_open(self) -> None:
         if self._closed:
             raise BagError(f'{self.path}: bag writer is closed')
 
@@ -365,7 +366,7 @@ class BagWriter:
                 self._file.close()
 
 
-def _kv_text(value):
+def _kv_text(value: Any) -> str:
     if isinstance(value, (bool, np.bool_)):
         return 'true' if value else 'false'
     if isinstance(value, (float, np.floating)):
@@ -379,7 +380,7 @@ def library_string() -> str:
             f'rosbags {_version("rosbags")}')
 
 
-def _version(dist):
+def _version(dist: str) -> str:
     try:
         return version(dist)
     except PackageNotFoundError:
