@@ -12,16 +12,15 @@ from typing import Any, TextIO, TYPE_CHECKING
 
 import yaml
 
+from motor_id import pipeline
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
-from motor_id.controller import from_identification, to_ros_parameters
-from motor_id.errors import ConfigError, MotorIdError
+from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import EFFECTS, parse_effect_args
-from motor_id.report import plot_fit, to_jsonable, write_json
+from motor_id.report import plot_fit, write_json
 from motor_id.simulate import warm_up
 
 if TYPE_CHECKING:
-    from motor_id.controller import ControllerDesign
     from motor_id.identify import IdentificationResult
     from motor_id.recording import Recording
 
@@ -133,36 +132,14 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
                       effects=effects or None, free_effects=free or None)
 
 
-def controller_design(report: Mapping[str, Any], args: argparse.Namespace
-                      ) -> tuple[ControllerDesign | None, str | None]:
-    """The controller block for a fit report, or None (with the reason) if it cannot be."""
+def controller_options(args: argparse.Namespace, input_kind: str) -> dict[str, Any]:
+    """The controller design's loop bandwidths the options ask for."""
     kw: dict[str, Any] = {}
-    if getattr(args, 'current_bandwidth', None) is not None and \
-            report['input_kind'] == 'voltage':
+    if getattr(args, 'current_bandwidth', None) is not None and input_kind == 'voltage':
         kw['current_bandwidth_hz'] = args.current_bandwidth
     if getattr(args, 'speed_bandwidth', None) is not None:
         kw['speed_bandwidth_hz'] = args.speed_bandwidth
-    kw['sample_period'] = report['data']['sample_period']
-    try:
-        return from_identification(to_jsonable(report), **kw), None
-    except MotorIdError as exc:  # the fit stands; say why there is no design
-        return None, f'controller design not possible: {exc}'
-
-
-def ros_parameters(report: Mapping[str, Any], design: ControllerDesign | None,
-                   node_name: str = '/**') -> dict[str, dict[str, dict[str, Any]]]:
-    """``{node: {'ros__parameters': {...}}}``: estimate.NAME, estimate.NAME_std (determined
-    parameters only; ROS parameters have no null) and the controller gains."""
-    params: dict[str, Any] = {}
-    for name, p in report['parameters'].items():
-        if p['value'] is None:
-            continue
-        params[f'estimate.{name}'] = float(p['value'])
-        if p['std'] is not None:
-            params[f'estimate.{name}_std'] = float(p['std'])
-    if design is not None:
-        params.update(to_ros_parameters(design, node_name)[node_name]['ros__parameters'])
-    return {node_name: {'ros__parameters': params}}
+    return kw
 
 
 def write_yaml(data: Any, path: str) -> None:
@@ -193,32 +170,22 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
         print(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
               f'{"regular" if rec.is_regular else "irregular"} sampling '
               f'(median {rec.sample_period * 1e3:.3g} ms)', file=sys.stderr)
-    est.fit(rec, progress=progress_printer(args.quiet))
-    res = est.result_
-    report = res.to_dict()
-    report['data'] = {'source': rec.meta.get('source'), 'samples': len(rec),
-                      'sample_period': rec.sample_period, 'regular': rec.is_regular,
-                      'channels': list(rec.channels()), 'input_kind': rec.input_kind,
-                      'runs': len(rec.segment_ranges)}
-    if not res.adequate:
+    fit = pipeline.identify(rec, est, progress=progress_printer(args.quiet),
+                            controller_options=controller_options(args, rec.input_kind),
+                            extra=extra)
+    res = fit.result
+    if not fit.adequate:
         print(f'motor-id fit: the model is inadequate for this record: {res.warnings[0]}',
               file=sys.stderr)
-    if extra:
-        report.update(extra)
-    print(res.summary())
-    design, why = controller_design(report, args)
-    if design is not None:
-        report['controller'] = design.to_dict()
-        print(design.summary())
-    else:
-        print(why)
+    print(fit.summary())
+    report = fit.to_dict()
     if getattr(args, 'order_selection', False):
         _order_selection(rec, args, report)
     if args.json:
         write_json(report, args.json)
         print(f'wrote {args.json}')
     if getattr(args, 'yaml', None):
-        write_yaml(ros_parameters(report, design), args.yaml)
+        write_yaml(fit.to_ros_parameters(), args.yaml)
         print(f'wrote {args.yaml}')
     if args.plot:
         names = ', '.join(os.path.basename(str(p)) for p in _paths(args.data))

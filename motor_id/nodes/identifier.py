@@ -15,6 +15,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
+from motor_id import pipeline
 from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
@@ -313,7 +314,15 @@ class IdentifierNode(Node):
             self.get_logger().info(
                 f'fitting {len(rec)} samples ({rec.time[-1] - rec.time[0]:.2f} s of card '
                 f'time, seq {rec.meta["seq_first"]}..{rec.meta["seq_last"]})')
-            est.fit(rec, progress=self._progress)
+            source = ('samples topic' if self.topic_input is None else
+                      'joint_states and input topics')
+            fit = pipeline.identify(
+                rec, est, progress=self._progress,
+                data={'source': source, 'seq_first': rec.meta['seq_first'],
+                      'seq_last': rec.meta['seq_last'], 't_first': float(rec.time[0]),
+                      't_last': float(rec.time[-1]), 'gaps_skipped': len(snap.gaps)},
+                extra={'hardware_id': self.hardware_id,
+                       'units': messages.units_of(rec.input_kind)})
         except MotorIdError as exc:
             return self._failed(str(exc))
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
@@ -321,23 +330,13 @@ class IdentifierNode(Node):
             return self._failed(f'identification failed: {type(exc).__name__}: {exc}')
         if self._stopping.is_set():
             return self._failed('cancelled: the node is shutting down')
-        res = est.result_
-        report = res.to_dict()
-        source = ('samples topic' if self.topic_input is None else
-                  'joint_states and input topics')
-        report['data'] = {'source': source, 'samples': len(rec),
-                          'sample_period': rec.sample_period, 'regular': rec.is_regular,
-                          'channels': list(rec.channels()), 'input_kind': rec.input_kind,
-                          'seq_first': rec.meta['seq_first'],
-                          'seq_last': rec.meta['seq_last'],
-                          't_first': float(rec.time[0]), 't_last': float(rec.time[-1]),
-                          'gaps_skipped': len(snap.gaps)}
-        report['hardware_id'] = self.hardware_id
-        report['units'] = messages.units_of(rec.input_kind)
-        report['controller'] = self._controller(report, rec)
+        res = fit.result
+        report = fit.to_dict()
+        if fit.controller_error:
+            self.get_logger().warning(f'no controller design: {fit.controller_error}')
         summary = res.summary()
         stamp = self.get_clock().now().to_msg()
-        self._set_outputs(report)
+        self._set_outputs(fit)
         self._publish(self.estimate_pub, messages.estimate_to_msg(
             stamp, report, summary, hardware_id=self.hardware_id))
         self._publish(self.report_pub, messages.report_msg(report))
@@ -349,30 +348,17 @@ class IdentifierNode(Node):
         self.get_logger().info(head + '\n' + summary)
         return True, head + '\n' + summary
 
-    def _controller(self, report, rec):
-        """The controller design from the fit (the report's "controller" block)."""
-        from motor_id.controller import from_identification
-        try:
-            kw = {'sample_period': rec.sample_period} if rec.is_regular else {}
-            return from_identification(report, **kw).to_dict()
-        except MotorIdError as exc:
-            self.get_logger().warning(f'no controller design: {exc}')
-            return {'error': str(exc)}
-
-    def _set_outputs(self, report):
+    def _set_outputs(self, fit):
         """Set ``estimate.*`` and ``controller.*`` parameters (NaN: unknown)."""
-        from motor_id.controller import to_ros_parameters
-        units = report['units']
+        units = fit.extra['units']
+        flat = fit.to_ros_parameters('x', unknown='nan')['x']['ros__parameters']
         values = {}
-        for name, p in report.get('parameters', {}).items():
-            for key, v in ((name, p.get('value')), (f'{name}_std', p.get('std'))):
-                values[f'estimate.{key}'] = (float('nan') if v is None else float(v),
-                                             f'{name} estimate [{units.get(name, "")}]')
-        design = report['controller']
-        flat = {}
-        if 'error' not in design:
-            flat = next(iter(to_ros_parameters(design, 'x').values()))['ros__parameters']
-        for name in {n for n in self._outputs if n.startswith('controller.')} | set(flat):
+        for name, value in flat.items():
+            if name.startswith('estimate.'):
+                sym = name[len('estimate.'):].removesuffix('_std')
+                values[name] = (value, f'{sym} estimate [{units.get(sym, "")}]')
+        for name in {n for n in self._outputs if n.startswith('controller.')} | \
+                {n for n in flat if n.startswith('controller.')}:
             values[name] = (float(flat.get(name, float('nan'))),
                             'controller design from the latest estimate (NaN: unknown)')
         self._setting_outputs.active = True
