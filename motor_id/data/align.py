@@ -15,7 +15,7 @@ force when it was measured). ``next``: the last command before the next sample's
 publish the command just after reading the state."""
 
 
-def _check_rule(align):
+def _check_rule(align: str) -> None:
     if align not in ALIGN_RULES:
         raise ConfigError(f'align must be one of {", ".join(ALIGN_RULES)}, got {align!r}')
 
@@ -90,13 +90,13 @@ class StreamAligner:
         self._last_meas_t = t
         self._meas.append((float(t), float(speed), float(current)))
 
-    def _decided_at(self, k):
+    def _decided_at(self, k: int) -> float | None:
         """The time that decides measurement ``k``'s command (None: not known yet)."""
         if self.align == 'hold':
             return self._meas[k][0]
         return self._meas[k + 1][0] if k + 1 < len(self._meas) else None
 
-    def _command_at(self, t_ref):
+    def _command_at(self, t_ref: float) -> float | None:
         """The held command for deciding time ``t_ref``, or None before the first."""
         value = None
         strict = self.align == 'next'

@@ -275,7 +275,7 @@ class SampleBuffer:
                 stored += 1
         return stored
 
-    def _classify(self, row):
+    def _classify(self, row: NDArray[np.float64]) -> str:
         """'' (continues), 'duplicate', or the gap kind; consumes a pending mark."""
         last = self._last
         if last is None:

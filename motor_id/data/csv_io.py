@@ -101,11 +101,12 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
     header_line, header = int(linenos[0]), body[0]
     names = [c.strip().lower() for c in next(csv.reader([header]))]
     cols, input_name = _find_columns(path, header_line, header, names, columns)
-    kind = input_kind or meta.pop('input_kind', None) or INPUT_NAMES.get(input_name, 'voltage')
+    kind = (input_kind or meta.pop('input_kind', None)
+            or INPUT_NAMES.get(input_name or '', 'voltage'))
     meta.pop('input_kind', None)
     if kind not in INPUT_KINDS:
         raise DataError(f'{path}: input_kind must be voltage or torque, got {kind!r}')
-    if kind == 'voltage' and INPUT_NAMES.get(input_name) == 'torque':
+    if kind == 'voltage' and INPUT_NAMES.get(input_name or '') == 'torque':
         raise DataError(f'{path}: the input column {input_name!r} is a {input_name}, not a '
                         'voltage; drop the voltage input kind')
     data = _parse_body(path, linenos[1:], body[1:], names, cols)
@@ -119,14 +120,17 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
                         f'{time[k - 1]:g})')
     if columns:
         meta['columns'] = {role: names[j] for role, j in cols.items()}
-    rec = Recording(time, data['input'], data['speed'], data.get('current'), kind, meta)
+    if 'current' in data:
+        rec = Recording(time, data['input'], data['speed'], data['current'], kind, meta)
+    else:
+        rec = Recording(time, data['input'], data['speed'], input_kind=kind, meta=meta)
     try:
         return rec.validate(min_samples)
     except DataError as exc:
         raise DataError(f'{path}: {exc}') from None
 
 
-def _split_lines(path):
+def _split_lines(path: str | os.PathLike[str]) -> tuple[dict[str, Any], list[str], np.ndarray]:
     """Comment metadata, the non-comment lines of a text file and their line numbers."""
     try:
         with open(path, encoding='utf-8-sig', newline='') as fh:
@@ -135,7 +139,7 @@ def _split_lines(path):
         raise DataError(f'{path}: cannot read ({exc.strerror})') from exc
     except UnicodeDecodeError as exc:
         raise DataError(f'{path}: not a text CSV file (expected UTF-8)') from exc
-    meta = {'source': path}
+    meta: dict[str, Any] = {'source': path}
     # only blank, comment or indented lines need a closer look (one cheap pass)
     special = [i for i, line in enumerate(lines) if not line or line[0] in '# \t']
     drop = []
@@ -158,9 +162,10 @@ def _split_lines(path):
     return meta, lines, linenos
 
 
-def _find_columns(path, header_line, header, names, columns):
+def _find_columns(path: str | os.PathLike[str], header_line: int, header: str,
+                  names: list[str], columns: dict[str, str]) -> tuple[dict[str, int], str | None]:
     """Header index of each role present, and the name of the input column."""
-    wanted = {}
+    wanted: dict[str, str | None] = {}
     for role in ROLES:
         if role in columns:
             wanted[role] = columns[role]
@@ -199,7 +204,8 @@ def _find_columns(path, header_line, header, names, columns):
     return cols, wanted['input']
 
 
-def _parse_body(path, linenos, lines, names, cols):
+def _parse_body(path: str | os.PathLike[str], linenos: np.ndarray, lines: list[str],
+                names: list[str], cols: dict[str, int]) -> dict[str, np.ndarray]:
     """Numeric columns of the data lines (vectorised; a slow pass only to name an error)."""
     width = len(names)
     n = len(lines)
@@ -274,7 +280,7 @@ def write_csv(rec: Recording, path: str | os.PathLike[str],
         fh.writelines(','.join(map(repr, row)) + '\n' for row in arr.tolist())
 
 
-def _first_non_number(cells, block=4096):
+def _first_non_number(cells: list[str], block: int = 4096) -> int:
     """Index of the first cell float() refuses (block-wise: one C pass, one short scan)."""
     for start in range(0, len(cells), block):
         chunk = cells[start:start + block]
@@ -285,7 +291,7 @@ def _first_non_number(cells, block=4096):
     return next(k for k, cell in enumerate(cells) if not _is_number(cell))
 
 
-def _is_number(text):
+def _is_number(text: str) -> bool:
     try:
         float(text)
     except ValueError:

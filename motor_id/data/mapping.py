@@ -192,7 +192,7 @@ def resolve(mapping: Mapping, topics: dict[str, Any],
     return specs, kind, effort_is
 
 
-def _check_settings(m):
+def _check_settings(m: Mapping) -> None:
     if m.effort_is is not None and m.effort_is not in EFFORT_KINDS:
         raise ConfigError(f'--effort-is must be current or torque, got {m.effort_is!r}')
     if m.input_kind is not None and m.input_kind not in INPUT_KINDS:
@@ -201,7 +201,8 @@ def _check_settings(m):
         raise ConfigError(f'--align must be one of {", ".join(ALIGN_RULES)}, got {m.align!r}')
 
 
-def _field_specs(m, topics, path):
+def _field_specs(m: Mapping, topics: dict[str, Any],
+                 path: str | os.PathLike[str]) -> dict[str, FieldSpec]:
     """The mapped specs, each on a topic of the bag; the speed defaults to a JointState's."""
     specs = {r: parse_field_spec(getattr(m, r), '--' + r) for r in ROLES if getattr(m, r)}
     for role, spec in specs.items():
@@ -217,15 +218,16 @@ def _field_specs(m, topics, path):
     return specs
 
 
-def _is_joint(spec, topics):
+def _is_joint(spec: FieldSpec, topics: dict[str, Any]) -> bool:
     return topics[spec.topic].msgtype == JOINT_STATE
 
 
-def _is_effort(spec, role, topics):
+def _is_effort(spec: FieldSpec, role: str, topics: dict[str, Any]) -> bool:
     return _is_joint(spec, topics) and (spec.first or _DEFAULT_JOINT_FIELD[role]) == 'effort'
 
 
-def _effort_roles(m, specs, topics, path):
+def _effort_roles(m: Mapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+                  path: str | os.PathLike[str]) -> tuple[bool, bool]:
     """Map the speed topic's effort by ``effort_is``; whether the input / current is an effort."""
     speed = specs['speed']
     effort = FieldSpec(speed.topic, (('effort', ()),), speed.topic + ':effort')
@@ -242,7 +244,8 @@ def _effort_roles(m, specs, topics, path):
     return input_effort, current_effort
 
 
-def _plant_kind(m, specs, topics, input_effort, current_effort):
+def _plant_kind(m: Mapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+                input_effort: bool, current_effort: bool) -> tuple[str, str | None]:
     """``(input_kind, effort_is)`` after checking that the settings agree."""
     effort_is = m.effort_is
     if effort_is == 'torque' and current_effort:
@@ -279,12 +282,12 @@ def kind_note(kind: str, effort_is: str | None) -> str:
     return 'voltage plant: the input is a voltage command'
 
 
-def _fields(obj):
+def _fields(obj: Any) -> list[str]:
     names = getattr(type(obj), '__dataclass_fields__', None)
     return [n for n in (names or ()) if not n.startswith('_')]
 
 
-def _typename(obj):
+def _typename(obj: Any) -> str:
     return getattr(type(obj), '__msgtype__', type(obj).__name__)
 
 
@@ -307,7 +310,7 @@ def field_getter(topic: str, msgtype: str, spec: FieldSpec, role: str, joint: st
     steps = spec.path or _default_steps(where, topic, msgtype, msg)
     _check_steps(where, steps, msg)
 
-    def get(m):
+    def get(m: Any) -> float:
         for name, indices in steps:
             m = getattr(m, name)
             for i in indices:
@@ -316,7 +319,8 @@ def field_getter(topic: str, msgtype: str, spec: FieldSpec, role: str, joint: st
     return get
 
 
-def _default_steps(where, topic, msgtype, msg):
+def _default_steps(where: str, topic: str, msgtype: str,
+                   msg: Any) -> tuple[tuple[str, tuple[int, ...]], ...]:
     """The ``data`` field (its one element for an array) of a message mapped without FIELD."""
     if 'data' not in _fields(msg):
         raise BagError(f'{where}: {topic} is {msgtype}; name the field, e.g. '
@@ -328,7 +332,8 @@ def _default_steps(where, topic, msgtype, msg):
     return (('data', (0,) if np.ndim(data) == 1 else ()),)
 
 
-def _check_steps(where, steps, msg):
+def _check_steps(where: str, steps: tuple[tuple[str, tuple[int, ...]], ...],
+                 msg: Any) -> None:
     """Walk ``steps`` on ``msg``; BagError unless they end on one number."""
     obj, parent = msg, None
     for name, indices in steps:
@@ -354,7 +359,8 @@ def _check_steps(where, steps, msg):
                        f'(fields: {", ".join(_fields(msg))})')
 
 
-def _joint_getter(where, topic, spec, role, joint, msg):
+def _joint_getter(where: str, topic: str, spec: FieldSpec, role: str, joint: str | None,
+                  msg: Any) -> Callable[[Any], float]:
     field = spec.first or _DEFAULT_JOINT_FIELD[role]
     if field not in JOINT_FIELDS or len(spec.path) > 1 or (spec.path and spec.path[0][1]):
         raise BagError(f'{where}: {topic} is a JointState; the field is one of '
@@ -377,9 +383,9 @@ def _joint_getter(where, topic, spec, role, joint, msg):
         raise BagError(f'{where}: {topic} carries no {field} for joint {joint or index} '
                        f'(it has {", ".join(have) or "no values"})')
     by_name = joint is not None and joint in names
-    cache = {'names': names, 'index': index}
+    cache: dict[str, Any] = {'names': names, 'index': index}
 
-    def get(m):
+    def get(m: Any) -> float:
         if by_name and m.name != cache['names']:
             cache['names'] = list(m.name)
             cache['index'] = cache['names'].index(joint)

@@ -11,8 +11,10 @@ Times: the header stamp where the message has a (non-zero) header, else the rece
 interpolated linearly. Samples outside a stream's span are dropped at the ends.
 """
 
+from collections.abc import Callable
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,6 +24,7 @@ from motor_id.contracts import BAG_SAMPLES_TOPIC
 from motor_id.data.align import held_command_index
 from motor_id.data.mapping import (
     field_getter,
+    FieldSpec,
     kind_note,
     load_profile,
     Mapping,
@@ -88,10 +91,10 @@ def read_bag(path: str | os.PathLike[str], mapping: Mapping | None = None) -> Re
         reader.close()
 
 
-def _read_mapped(reader, path, mapping):
+def _read_mapped(reader: Any, path: str | os.PathLike[str], mapping: Mapping) -> Recording:
     topics = reader.topics
     specs, kind, effort_is = resolve(mapping, topics, path)
-    by_topic = {}
+    by_topic: dict[str, list[str]] = {}
     for role, spec in specs.items():
         by_topic.setdefault(spec.topic, []).append(role)
     conns = [c for c in reader.connections if c.topic in by_topic]
@@ -148,43 +151,49 @@ def _read_mapped(reader, path, mapping):
         meta['effort_is'] = effort_is
     if base.duplicates:
         meta['duplicate_stamps_dropped'] = base.duplicates
-    cur = chans.get('current')
-    return Recording(t[lo:hi] - t[lo], chans['input'][lo:hi], chans['speed'][lo:hi],
-                     None if cur is None else cur[lo:hi], kind, meta)
+    window = slice(lo, hi)
+    time, u, w = t[window] - t[lo], chans['input'][window], chans['speed'][window]
+    if 'current' not in chans:
+        return Recording(time, u, w, input_kind=kind, meta=meta)
+    return Recording(time, u, w, chans['current'][window], kind, meta)
 
 
 class _Stream:
     """Stamps and the mapped values of one topic, gathered message by message."""
 
-    def __init__(self, topic, msgtype, roles, joint, path):
+    def __init__(self, topic: str, msgtype: str, roles: list[tuple[str, FieldSpec]],
+                 joint: str | None, path: str | os.PathLike[str]) -> None:
         self.topic, self.msgtype, self.path = topic, msgtype, path
         self.roles = roles
         self.joint = joint
-        self.getters = None
-        self.time_source = None
-        self._stamps = []
-        self._values = {r: [] for r, _ in roles}
+        self.getters: list[tuple[str, Callable[[Any], float]]] | None = None
+        self.time_source: str | None = None
+        self._stamps: list[int] = []
+        self._values: dict[str, list[float]] = {r: [] for r, _ in roles}
         self.count = 0
-        self.stamps = self.values = None
+        self.stamps = np.zeros(0, dtype=np.int64)
+        """Sorted stamps [ns] (after :meth:`finish`)."""
+        self.values: dict[str, np.ndarray] = {}
+        """The values of each role at :attr:`stamps` (after :meth:`finish`)."""
         self.duplicates = 0
 
-    def _setup(self, msg):
+    def _setup(self, msg: Any) -> list[tuple[str, Callable[[Any], float]]]:
         header = getattr(msg, 'header', None)
         stamp = getattr(header, 'stamp', None)
         has_stamp = stamp is not None and (stamp.sec or stamp.nanosec)
         self.time_source = 'header' if has_stamp else 'receive'
         self.getters = [(r, field_getter(self.topic, self.msgtype, spec, r, self.joint,
                                          msg, self.path)) for r, spec in self.roles]
+        return self.getters
 
-    def add(self, msg, log_ns):
-        if self.getters is None:
-            self._setup(msg)
+    def add(self, msg: Any, log_ns: int) -> None:
+        getters = self.getters if self.getters is not None else self._setup(msg)
         if self.time_source == 'header':
             st = msg.header.stamp
             self._stamps.append(st.sec * 1_000_000_000 + st.nanosec)
         else:
             self._stamps.append(log_ns)
-        for role, get in self.getters:
+        for role, get in getters:
             try:
                 self._values[role].append(get(msg))
             except (AttributeError, IndexError, KeyError, TypeError, ValueError) as exc:
@@ -192,7 +201,7 @@ class _Stream:
                                f'the {role} ({exc})') from exc
         self.count += 1
 
-    def finish(self):
+    def finish(self) -> None:
         stamps = np.asarray(self._stamps, dtype=np.int64)
         order = np.argsort(stamps, kind='stable')
         stamps = stamps[order]

@@ -118,7 +118,7 @@ def detect_shift(rec: Recording, max_shift: int = 3, min_gain: float = 0.5,
     use_current = rec.has_current and rec.input_kind == 'voltage'
     channel = 'current' if use_current else 'speed'
 
-    def norm(x):
+    def norm(x: np.ndarray) -> np.ndarray:
         x = np.asarray(x[:n], dtype=float)
         sd = np.std(x)
         return (x - np.mean(x)) / (sd if sd > 0 else 1.0)
