@@ -59,7 +59,7 @@ def canonical_weights(a: Sequence[float] | NDArray[np.float64], b: ArrayLike) ->
     return ElmanWeights(W_xc, np.asarray(b, dtype=float), np.eye(n)[0])
 
 
-def _simulate_free(theta, u, n, y0):
+def _simulate_free(theta: ArrayLike, u: np.ndarray, n: int, y0: float) -> np.ndarray:
     """Outputs of free nets; theta (P, 2n) = [a_1..a_n, b_1..b_n]."""
     from scipy.signal import lfilter  # lazy: scipy.signal costs ~0.5 s to import
 
@@ -74,7 +74,7 @@ def _simulate_free(theta, u, n, y0):
     return out
 
 
-def _arx(u, y, n):
+def _arx(u: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
     """Equation-error (ARX) start for the output-error fit."""
     N = y.size
     rows = [y[n - i - 1:N - i - 1] for i in range(n)] + [u[n - i - 1:N - i - 1]
@@ -166,7 +166,7 @@ class FreeElmanOrderSelection:
                             tuple(start - 2 * half), tuple(start + 2 * half),
                             (False,) * (2 * n))
 
-            def cost(X, n=n):
+            def cost(X: np.ndarray, n: int = n) -> np.ndarray:
                 with np.errstate(all='ignore'):
                     e = _simulate_free(X, u[:n_tr], n, y0) - y[:n_tr]
                     c = np.mean(e * e, axis=1) / scale ** 2
@@ -175,7 +175,7 @@ class FreeElmanOrderSelection:
             ga = GeneticAlgorithm(bounds, self.population, self.generations, x0=start,
                                   random_state=rng).run(cost)
 
-            def resid(th, n=n):
+            def resid(th: np.ndarray, n: int = n) -> np.ndarray:
                 r = (_simulate_free(th, u[:n_tr], n, y0)[0] - y[:n_tr]) / scale
                 return np.where(np.isfinite(r), r, 1e6)
 

@@ -42,7 +42,7 @@ class Bounds:
     high: tuple
     log: tuple
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         n = len(self.names)
         if not (len(self.low) == len(self.high) == len(self.log) == n):
             raise ConfigError('bounds: names, low, high and log must have the same length')
@@ -59,7 +59,7 @@ class Bounds:
         """Number of parameters."""
         return len(self.names)
 
-    def _edges(self):
+    def _edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         lo = np.array(self.low, dtype=float)
         hi = np.array(self.high, dtype=float)
         lg = np.array(self.log, dtype=bool)
@@ -202,7 +202,7 @@ class GeneticAlgorithm:
         self.generation_ += 1
         self.genes_ = self._breed(self.genes_[order])
 
-    def _select(self, k):
+    def _select(self, k: int) -> np.ndarray:
         """Indices (into the rank-sorted population) of k parents."""
         P = self.population
         if self.selection == 'tournament':
@@ -213,7 +213,7 @@ class GeneticAlgorithm:
         w = 2.0 * (P - np.arange(P)) / (P * (P + 1))
         return self.rng_.choice(P, size=k, p=w / w.sum())
 
-    def _breed(self, ranked):
+    def _breed(self, ranked: np.ndarray) -> np.ndarray:
         P, d = ranked.shape
         children = np.empty_like(ranked)
         children[:self.elite] = ranked[:self.elite]

@@ -84,15 +84,15 @@ class ControllerDesign:
         return '\n'.join(lines)
 
 
-def _fmt(x):
+def _fmt(x: float | None) -> str:
     return '-' if x is None else f'{x:.4g}'
 
 
-def _row(name, entry, unit):
+def _row(name: str, entry: Mapping[str, Any], unit: str) -> str:
     return f'{name:<14}{_fmt(entry["value"]):>13}{_fmt(entry["std"]):>12}  {unit}'
 
 
-def _entry(value, std=None):
+def _entry(value: float | None, std: float | None = None) -> dict[str, float | None]:
     """``{'value', 'std'}`` with NaN (unknown) mapped to None and numpy scalars to float."""
     if value is None or not np.isfinite(value):
         return {'value': None, 'std': None}
@@ -108,7 +108,7 @@ def check_input_kind(input_kind: str) -> tuple[str, ...]:
     return VOLTAGE_NAMES if input_kind == 'voltage' else TORQUE_NAMES
 
 
-def _check_values(values, input_kind):
+def _check_values(values: Mapping[str, float | None], input_kind: str) -> dict[str, float]:
     """Return ``{name: float}`` with NaN for an unknown (None) parameter."""
     names = check_input_kind(input_kind)
     if not isinstance(values, dict):
@@ -137,7 +137,8 @@ def _check_values(values, input_kind):
     return out
 
 
-def _check_covariance(covariance, values):
+def _check_covariance(covariance: Mapping[str, Any] | None,
+                      values: Mapping[str, float]) -> tuple[list[str], np.ndarray | None]:
     """Return ``(names, matrix)`` or ``([], None)``; only known parameters may appear."""
     if covariance is None:
         return [], None
@@ -170,7 +171,8 @@ def _check_covariance(covariance, values):
     return names, m
 
 
-def _check_kS(kS):  # noqa: N802 - kS is the symbol of the WPILib feedforward
+def _check_kS(  # noqa: N802 - kS is the symbol of the WPILib feedforward
+        kS: Mapping[str, Any] | None) -> tuple[float, float | None, str | None]:
     """Return ``(value, std, source)``; the default is 0 V with no error bar."""
     if kS is None:
         return 0.0, None, None
@@ -189,9 +191,11 @@ def _check_kS(kS):  # noqa: N802 - kS is the symbol of the WPILib feedforward
     return float(v), None if s is None else float(s), source
 
 
-def _check_positive(x, name, allow_none=True):
-    if x is None and allow_none:
-        return None
+def _positive_or_none(x: Any, name: str) -> float | None:
+    return None if x is None else _positive(x, name)
+
+
+def _positive(x: Any, name: str) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float, np.floating)) \
             or not math.isfinite(x) or x <= 0:
         raise ConfigError(f'{name} must be a finite number > 0, got {x!r}')
@@ -225,7 +229,7 @@ def time_constants(values: Mapping[str, Any],
 
 
 def controller_constants(values: Mapping[str, Any], input_kind: str,
-                         current_bandwidth_hz: float,
+                         current_bandwidth_hz: float | None,
                          speed_bandwidth_hz: float) -> dict[str, Any]:
     """Feedforward constants, time constants and PI gains (element-wise on arrays).
 
@@ -260,6 +264,8 @@ def controller_constants(values: Mapping[str, Any], input_kind: str,
     tau_e, tau_m = time_constants(v, input_kind)
     ws = 2 * np.pi * speed_bandwidth_hz
     if input_kind == 'voltage':
+        if current_bandwidth_hz is None:
+            raise ConfigError('a voltage plant needs current_bandwidth_hz')
         wi = 2 * np.pi * current_bandwidth_hz
         kV = v['K_b'] + v['R_m'] * v['B'] / v['K_T']
         kA = v['R_m'] * v['J'] / v['K_T']
@@ -276,7 +282,9 @@ def controller_constants(values: Mapping[str, Any], input_kind: str,
             'speed_kp': speed_kp, 'speed_ki': speed_kp * zero}
 
 
-def _choose_bandwidths(vals, input_kind, current_hz, speed_hz, sample_period, notes):
+def _choose_bandwidths(vals: Mapping[str, float], input_kind: str, current_hz: float | None,
+                       speed_hz: float | None, sample_period: float | None,
+                       notes: list[str]) -> tuple[float | None, float]:
     """Default (or check) the loop bandwidths [Hz] from the nominal parameters."""
     cap = None if sample_period is None else SAMPLE_FRACTION / sample_period
     nyquist = None if sample_period is None else 0.5 / sample_period
@@ -290,6 +298,7 @@ def _choose_bandwidths(vals, input_kind, current_hz, speed_hz, sample_period, no
                      'pass current_bandwidth_hz to choose it')
     if speed_hz is None:
         if input_kind == 'voltage':
+            assert current_hz is not None   # a voltage plant's is set above
             speed_hz = current_hz / BANDWIDTH_RATIO
             rule = 'a decade below the current loop'
         else:
@@ -306,14 +315,16 @@ def _choose_bandwidths(vals, input_kind, current_hz, speed_hz, sample_period, no
             raise ConfigError(f'{name} {f:.4g} Hz is at or above the Nyquist frequency '
                               f'{nyquist:.4g} Hz of sample_period {sample_period:g} s: '
                               f'choose at most f_s/{1 / SAMPLE_FRACTION:g} = {cap:.4g} Hz')
-    if input_kind == 'voltage' and speed_hz >= current_hz:
+    if input_kind == 'voltage' and current_hz is not None and speed_hz >= current_hz:
         raise ConfigError(f'speed bandwidth {speed_hz:.4g} Hz must be below the current '
                           f'bandwidth {current_hz:.4g} Hz (a cascade needs a faster inner '
                           'loop; a decade below is the default)')
     return current_hz, speed_hz
 
 
-def _propagate(vals, input_kind, bandwidths, names, cov):
+def _propagate(vals: Mapping[str, float], input_kind: str,
+               bandwidths: tuple[float | None, float],
+               names: list[str], cov: np.ndarray | None) -> dict[str, float | None]:
     """Delta-method std of every output: sqrt(g' C g), g by central differences."""
     if cov is None:
         return {k: None for k in _OUTPUTS}
@@ -331,7 +342,9 @@ def _propagate(vals, input_kind, bandwidths, names, cov):
     return {k: math.sqrt(max(var[i], 0.0)) for i, k in enumerate(_OUTPUTS)}
 
 
-def _verify(vals, input_kind, nominal, sample_period, pm_min, notes):
+def _verify(vals: Mapping[str, float], input_kind: str, nominal: Mapping[str, Any],
+            sample_period: float | None, pm_min: float,
+            notes: list[str]) -> dict[str, dict[str, Any]]:
     """Margins of each loop on the full model; notes for low margins or instability."""
     known = all(np.isfinite(nominal[k]) for k in ('speed_kp', 'speed_ki')) and \
         all(np.isfinite(x) for x in vals.values())
@@ -434,10 +447,10 @@ def design_controller(values: Mapping[str, float | None],
     vals = _check_values(values, input_kind)
     names, cov = _check_covariance(covariance, vals)
     kS_value, kS_std, kS_source = _check_kS(kS)
-    current_hz = _check_positive(current_bandwidth_hz, 'current_bandwidth_hz')
-    speed_hz = _check_positive(speed_bandwidth_hz, 'speed_bandwidth_hz')
-    sample_period = _check_positive(sample_period, 'sample_period')
-    pm_min = _check_positive(phase_margin_min_deg, 'phase_margin_min_deg', False)
+    current_hz = _positive_or_none(current_bandwidth_hz, 'current_bandwidth_hz')
+    speed_hz = _positive_or_none(speed_bandwidth_hz, 'speed_bandwidth_hz')
+    sample_period = _positive_or_none(sample_period, 'sample_period')
+    pm_min = _positive(phase_margin_min_deg, 'phase_margin_min_deg')
     if pm_min >= 90:
         raise ConfigError(f'phase_margin_min_deg must be below 90 deg, got {pm_min}')
     if input_kind == 'torque' and current_hz is not None:
@@ -459,7 +472,11 @@ def design_controller(values: Mapping[str, float | None],
                      checks, cov is not None, notes)
 
 
-def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
+def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, float | None],
+              kS: tuple[float, float | None, str | None],
+              bandwidths: tuple[float | None, float],
+              checks: Mapping[str, dict[str, Any]], has_cov: bool,
+              notes: list[str]) -> ControllerDesign:
     """Build the ControllerDesign in the contract's shape."""
     e = {k: _entry(nominal[k], std[k]) for k in _OUTPUTS}
     kS_value, kS_std, kS_source = kS
@@ -472,6 +489,7 @@ def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
     if input_kind == 'voltage':
         units = {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
         speed_units = {'kp': 'A s/rad', 'ki': 'A/rad'}
+        assert bandwidths[0] is not None   # a voltage plant has a current loop
         zero_ratio = bandwidths[0] / bandwidths[1]
     else:
         units = {'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'}
@@ -480,7 +498,7 @@ def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
         notes.append('torque plant: kV = B and kA = J in input units per rad/s and per '
                      'rad/s^2 (N per m/s and per m/s^2 for a linear axis); no current loop '
                      'and no tau_e (the drive closes the current loop): both null')
-    pi = {'current': None, 'speed': None}
+    pi: dict[str, dict[str, Any] | None] = {'current': None, 'speed': None}
     if input_kind == 'voltage':
         pi['current'] = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],
                                     checks.get('current', {}), {'kp': 'V/A', 'ki': 'V/(A s)'},
@@ -496,8 +514,9 @@ def _assemble(input_kind, nominal, std, kS, bandwidths, checks, has_cov, notes):
         pi=pi, notes=notes)
 
 
-def _loop_entry(kp, ki, bandwidth_hz, check, units, design):
-    if kp['value'] is None or not np.isfinite(bandwidth_hz):
+def _loop_entry(kp: dict[str, Any], ki: dict[str, Any], bandwidth_hz: float | None,
+                check: Mapping[str, Any], units: dict[str, str], design: str) -> dict[str, Any]:
+    if kp['value'] is None or bandwidth_hz is None or not np.isfinite(bandwidth_hz):
         bandwidth_hz = None
     out = {'kp': kp, 'ki': ki,
            'bandwidth_hz': None if bandwidth_hz is None else float(bandwidth_hz),

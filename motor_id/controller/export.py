@@ -10,12 +10,14 @@ from motor_id.controller.design import check_input_kind, ControllerDesign, desig
 from motor_id.errors import ConfigError
 
 
-def _kS_from_effects(effects, vals, input_kind):  # noqa: N802 - kS: WPILib's symbol
+def _kS_from_effects(  # noqa: N802 - kS: WPILib's symbol
+        effects: Mapping[str, Any], vals: Mapping[str, float],
+        input_kind: str) -> dict[str, Any] | None:
     """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
 
     The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.
     """
-    def val_std(entry):
+    def val_std(entry: Any) -> tuple[Any, float]:
         if isinstance(entry, dict):
             return entry.get('value'), entry.get('std') or 0.0
         return entry, 0.0
@@ -43,7 +45,9 @@ def _kS_from_effects(effects, vals, input_kind):  # noqa: N802 - kS: WPILib's sy
     return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
 
 
-def _covariance_from_fit(result_dict, params, values, notes):
+def _covariance_from_fit(result_dict: Mapping[str, Any], params: Mapping[str, Any],
+                         values: Mapping[str, float | None],
+                         notes: list[str]) -> dict[str, Any] | None:
     """The fit's parameter_covariance over the known parameters, else a diagonal one."""
     covariance = result_dict.get('parameter_covariance')
     if covariance is not None:

@@ -6,12 +6,12 @@ margins, crossovers and closed-loop bandwidth are found on a log frequency grid 
 by brentq. numpy polynomials only; the tests hold the results to python-control.
 """
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 # With a sample period T a loop sees about 1.5 T of delay: half a sample of ZOH plus one
 # sample of computation.
@@ -26,7 +26,7 @@ GRID_POINTS_PER_DECADE = 50
 GRID_MARGIN_DECADES = 3
 
 
-def _trim(p):
+def _trim(p: ArrayLike) -> NDArray[np.float64]:
     """Drop a polynomial's leading exact zeros (keeps ``[0.]`` for the zero polynomial)."""
     p = np.atleast_1d(np.asarray(p, dtype=float))
     nz = np.flatnonzero(p)
@@ -57,7 +57,8 @@ def pade_delay(delay: float,
     return _trim((sign * c)[::-1]), _trim(c[::-1])
 
 
-def _state_transfer_functions(F, g):
+def _state_transfer_functions(F: np.ndarray,
+                              g: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     """Input -> each state of ``dx/dt = F x + g u``: ``([num_row, ...], den)`` in s.
 
     Faddeev-LeVerrier: ``adj(sI - F) = sum_k M_k s^(n-k)`` and the characteristic
@@ -124,7 +125,7 @@ def loop_transfer_functions(
                       _trim(np.polymul(cs_den, inner_den)))}
 
 
-def _grid(*polys):
+def _grid(*polys: np.ndarray) -> np.ndarray:
     """Log-spaced frequencies [rad/s] covering every pole and zero by some decades."""
     mags = np.concatenate([np.abs(np.roots(p)) for p in polys if len(p) > 1] + [[]])
     mags = mags[(mags > 0) & np.isfinite(mags)]
@@ -135,7 +136,8 @@ def _grid(*polys):
     return np.logspace(lo, hi, (hi - lo) * GRID_POINTS_PER_DECADE + 1)
 
 
-def _extend(w, response, target, num, den):
+def _extend(w: np.ndarray, response: Callable[[np.ndarray], np.ndarray], target: float,
+            num: np.ndarray, den: np.ndarray) -> np.ndarray:
     """Extend the grid by decades until ``|response|`` has crossed ``target`` at its ends.
 
     Upwards while it is still above ``target`` (strictly proper: it falls as w grows),
@@ -153,7 +155,7 @@ def _extend(w, response, target, num, den):
     return w
 
 
-def _roots_on_grid(fun, w):
+def _roots_on_grid(fun: Callable[[np.ndarray], np.ndarray], w: np.ndarray) -> np.ndarray:
     """Every root of ``fun`` between sign changes on the grid ``w``, refined by brentq."""
     from scipy.optimize import brentq  # lazy: a fit has imported it already
 
@@ -168,7 +170,7 @@ def _roots_on_grid(fun, w):
     return np.unique(roots)
 
 
-def _response(num, den, w):
+def _response(num: np.ndarray, den: np.ndarray, w: ArrayLike) -> np.ndarray:
     """``num / den`` at ``s = j w`` (an infinite or undefined value where ``den`` is 0)."""
     s = 1j * np.asarray(w)
     with np.errstate(divide='ignore', invalid='ignore'):
@@ -185,7 +187,7 @@ def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> dict[str, Any
     the open left half plane, and its bandwidth is the first frequency where its gain
     falls 3 dB below the DC gain.
     """
-    def loop(w):
+    def loop(w: ArrayLike) -> np.ndarray:
         return _response(num, den, w)
 
     w = _extend(_grid(num, den), loop, 1.0, num, den)
@@ -214,14 +216,14 @@ def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> dict[str, Any
     return out
 
 
-def _bandwidth(num, den, drop_db=-3.0):
+def _bandwidth(num: np.ndarray, den: np.ndarray, drop_db: float = -3.0) -> float | None:
     """First frequency [rad/s] where ``|num/den (jw)|`` falls ``drop_db`` below DC; or None."""
     dc = abs(np.polyval(num, 0.0) / np.polyval(den, 0.0))
     if not np.isfinite(dc) or dc == 0:
         return None
-    level = dc * 10 ** (drop_db / 20)
+    level = float(dc * 10 ** (drop_db / 20))
 
-    def excess(w):
+    def excess(w: ArrayLike) -> np.ndarray:
         return np.abs(_response(num, den, w)) - level
 
     w = _extend(_grid(num, den), lambda x: excess(x) + level, level, num, den)
