@@ -4,6 +4,7 @@ import argparse
 import json
 import signal
 import threading
+from typing import Any
 
 from motor_id.card.simulator import CardSimulator, FaultConfig
 from motor_id.cli.common import parse_noise, plant_from_args
@@ -61,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     sim = simulator_from_args(args)
     done = threading.Event()
 
-    def _handler(signum, frame):
+    def _handler(signum: int, frame: Any) -> None:
         done.set()
 
     previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -5,10 +5,15 @@ import json
 import os
 import random
 import time
+from typing import Any, TYPE_CHECKING
 
 from motor_id.contracts import profile_span
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.model import MotorParams, PARAM_NAMES, Plant
+
+if TYPE_CHECKING:  # ROS loads only when the demo runs
+    from motor_id.testing.demo_client import DemoClient
+    from motor_id.testing.procs import Processes
 
 DEMO_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)
 """The paper's motor with K_b = K_T = 0.66 (SI units; the paper lists K_b = 0.64)."""
@@ -30,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--domain', type=int, help='ROS_DOMAIN_ID (default: random 1..101)')
 
 
-def _say(text):
+def _say(text: str) -> None:
     print(text, flush=True)
 
 
@@ -113,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _wait_for_profile_end(client, kids, limit):
+def _wait_for_profile_end(client: 'DemoClient', kids: 'Processes', limit: float) -> None:
     """Print the sample count while the profile runs; MotorIdError after ``limit`` [s]."""
     t0 = time.monotonic()
     client.samples = 0
@@ -128,7 +133,7 @@ def _wait_for_profile_end(client, kids, limit):
     _say(f'  {client.samples:5d} / 4000 samples: profile done')
 
 
-def _finish(report, truth, bag, out):
+def _finish(report: dict[str, Any], truth: MotorParams, bag: str, out: str) -> None:
     """Print estimates next to the truth, check the bag, write JSON and plots."""
     from motor_id.bag import read_recording, read_samples
     from motor_id.identify import Identifier

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _flags(path):
+def _flags(path: str) -> np.ndarray | None:
     """The /samples flags of a single-MCAP motor_id bag, or None."""
     from motor_id.bag import read_samples
     from motor_id.bag.files import is_single_mcap
@@ -69,7 +69,7 @@ def _flags(path):
     return read_samples(path)['flags']
 
 
-def _republish(args):
+def _republish(args: argparse.Namespace) -> int:
     from motor_id.nodes.replayer import replay
     if not args.rate > 0:
         raise ConfigError(f'--rate must be > 0, got {args.rate}')

@@ -135,7 +135,7 @@ def declare_parameters(node: Node, specs: Iterable[ParamSpec]) -> dict[str, Any]
         values[spec.name] = param.value
     by_name = {s.name: s for s in specs}
 
-    def on_set(params):
+    def on_set(params: list[Any]) -> SetParametersResult:
         for p in params:
             spec = by_name.get(p.name)
             if spec is None:
@@ -236,7 +236,7 @@ class StopSignal:
             executor.spin_once()
 
 
-def _no_op():
+def _no_op() -> None:
     """Guard-condition callback: waking the executor is all it is for."""
 
 
@@ -296,7 +296,7 @@ class TopicWatch:
         return True
 
 
-def _ignore_handler(signum, frame):
+def _ignore_handler(signum: int, frame: Any) -> None:
     """Python-level handler: a no-op; the signal number reaches the wakeup fd."""
 
 
@@ -335,15 +335,18 @@ class SignalWatcher:
             signal.signal(sig, _ignore_handler)
         threading.Thread(target=self._wait, name='signals', daemon=True).start()
 
-    def _next_signal(self):
+    def _next_signal(self) -> int | None:
+        sock = self._read
+        if sock is None:
+            return None
         while True:
-            data = self._read.recv(1)
+            data = sock.recv(1)
             if not data:
                 return None
             if data[0] in self.SIGNALS:
                 return data[0]
 
-    def _wait(self):
+    def _wait(self) -> None:
         self.received = self._next_signal()
         if self.received is None:
             return

@@ -1,10 +1,12 @@
 """The driver node: a card link in a reader thread, samples and joint states out."""
 
+from collections.abc import Mapping
 import json
 import math
 import sys
 import threading
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -14,8 +16,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
+from motor_id.bag import BagWriter
 from motor_id.card.link import CardLink, SampleClock
-from motor_id.card.protocol import Stop
+from motor_id.card.protocol import Sample, Stop
 from motor_id.card.session import EXTERNAL, Session
 from motor_id.card.supervisor import Limits
 from motor_id.contracts import JOINT_STATES_TOPIC
@@ -73,7 +76,7 @@ PARAMETERS = (
 )
 
 
-def _check_settings(s):
+def _check_settings(s: Mapping[str, Any]) -> None:
     """Cross-parameter checks (one line naming the parameter)."""
     if not s['device']:
         raise ConfigError('parameter device: got an empty string; allowed: a device '
@@ -146,7 +149,7 @@ class DriverNode(Node):
             f'period {s["sample_period"]:g} s, max_voltage {s["max_voltage"]:g} V'
             + (f', recording to {s["record_path"]}' if self.writer else ''))
 
-    def _log(self, level, text):
+    def _log(self, level: str, text: str) -> None:
         log = self.get_logger()   # rclpy wants one severity per call site
         if level == 'info':
             log.info(text)
@@ -156,7 +159,7 @@ class DriverNode(Node):
             log.warning(text)
 
     # ------------------------------------------------------------ recording
-    def _open_writer(self, path):
+    def _open_writer(self, path: str) -> BagWriter:
         from motor_id.bag import BagWriter
         s = self.settings
         meta = {
@@ -191,7 +194,7 @@ class DriverNode(Node):
         return writer
 
     # ------------------------------------------------------------ the reader thread
-    def _run(self):
+    def _run(self) -> None:
         """Thread body: poll the link, publish batches; restarted after a bug."""
         while not self._stop_event.is_set():
             try:
@@ -206,7 +209,7 @@ class DriverNode(Node):
         for batch in self.link.flush():
             self._emit(batch)
 
-    def _emit(self, batch):
+    def _emit(self, batch: list[Sample]) -> None:
         rows = np.array([(x.seq, x.t_card, x.voltage, x.speed, x.current, x.flags)
                          for x in batch], dtype=float)
         now_ns = self.get_clock().now().nanoseconds
@@ -227,7 +230,7 @@ class DriverNode(Node):
                 self._publish(self.joint_pub, self._joint_state(x, stamp))
         self._published += rows.shape[0]
 
-    def _joint_state(self, sample, stamp_ns):
+    def _joint_state(self, sample: Sample, stamp_ns: int) -> JointState:
         msg = JointState()
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 10 ** 9)
         msg.name = [self.settings['joint_name']]
@@ -237,7 +240,7 @@ class DriverNode(Node):
         msg.effort = [sample.voltage if torque else sample.current]
         return msg
 
-    def _publish(self, pub, msg):
+    def _publish(self, pub: Any, msg: Any) -> None:
         try:
             pub.publish(msg)
         except RCLError:
@@ -246,10 +249,11 @@ class DriverNode(Node):
             self._stop_event.set()   # the context shut down under us: leave quietly
 
     # ------------------------------------------------------------ commands
-    def _on_voltage_command(self, msg):
+    def _on_voltage_command(self, msg: Float64) -> None:
         self.session.command(msg.data)
 
-    def _on_start(self, request, response):
+    def _on_start(self, request: Trigger.Request,
+                  response: Trigger.Response) -> Trigger.Response:
         try:
             text = self.session.start()
         except MotorIdError as exc:
@@ -260,7 +264,8 @@ class DriverNode(Node):
                                 'subscriber(s) on samples)')
         return response
 
-    def _on_stop(self, request, response):
+    def _on_stop(self, request: Trigger.Request,
+                 response: Trigger.Response) -> Trigger.Response:
         try:
             self.session.stop()
         except MotorIdError as exc:
@@ -269,7 +274,8 @@ class DriverNode(Node):
             response.success, response.message = True, 'card holds 0 V'
         return response
 
-    def _on_reset(self, request, response):
+    def _on_reset(self, request: Trigger.Request,
+                  response: Trigger.Response) -> Trigger.Response:
         try:
             text = self.session.reset()
         except MotorIdError as exc:
@@ -279,7 +285,7 @@ class DriverNode(Node):
         return response
 
     # ------------------------------------------------------------ diagnostics
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self) -> None:
         now = time.monotonic()
         t0, n0, _ = self._rate
         n = self._published
@@ -296,7 +302,7 @@ class DriverNode(Node):
         self._publish(self.diag_pub,
                       messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
 
-    def _status(self, values):
+    def _status(self, values: Mapping[str, Any]) -> tuple[int, str]:
         supervisor = self.session.supervisor
         trip = supervisor.trip
         if trip is not None:

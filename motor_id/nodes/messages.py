@@ -140,7 +140,7 @@ def string_msg(text: str) -> String:
     return String(data=str(text))
 
 
-def _fmt(value):
+def _fmt(value: Any) -> str:
     if value is None:
         return ''
     if isinstance(value, bool):

@@ -38,23 +38,24 @@ class Replayer(Node):
         self.pub = self.create_publisher(messages.Float64MultiArray, messages.SAMPLES_TOPIC,
                                          messages.SAMPLES_QOS)
         self.next = 0
-        self.t0_wall = None
+        self.t0_wall: float | None = None
         self.done = StopSignal()
         self.done.attach(self)
         self.subscribers = subscribers or 1
         self._wait_until = time.monotonic() + (5.0 if subscribers is None else 30.0)
         self.timer = self.create_timer(0.005, self._tick)
 
-    def _tick(self):
+    def _tick(self) -> None:
         if self.done.is_set():
             return
-        if self.t0_wall is None:
+        t0 = self.t0_wall
+        if t0 is None:
             if self.pub.get_subscription_count() < self.subscribers and \
                     time.monotonic() < self._wait_until:
                 return  # give subscribers time to match before the first rows
-            self.t0_wall = time.monotonic()
+            t0 = self.t0_wall = time.monotonic()
         t_card = self.rows[:, 1]
-        elapsed = (time.monotonic() - self.t0_wall) * self.rate
+        elapsed = (time.monotonic() - t0) * self.rate
         due = int(((t_card - t_card[0]) <= elapsed).sum())
         while self.next < due:
             end = min(self.next + self.batch, due)

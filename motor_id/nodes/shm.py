@@ -17,7 +17,7 @@ SHM_DIR = '/dev/shm'
 _LOCK_FILE = re.compile(r'^fastrtps_(?:port\d{1,5}|[0-9a-z]{16})_(?:el|sl)$')
 
 
-def _held(path):
+def _held(path: str) -> bool:
     """Whether some process holds ``path`` locked (True when that cannot be told)."""
     try:
         fd = os.open(path, os.O_RDONLY)

@@ -2,7 +2,7 @@
 
 from collections.abc import Mapping
 import math
-from typing import Any
+from typing import Any, cast
 
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -60,23 +60,25 @@ class TopicInput:
             self.input_topic = settings['input_topic']
             node.create_timer(FLUSH_S, self._flush)
 
-    def _subscribe(self, kind, endpoints):
+    def _subscribe(self, kind: str, endpoints: list[Any]) -> None:
         reliable = messages.all_reliable(endpoints)
         topic, msg_type, callback = (
             (messages.JOINT_STATES_TOPIC, JointState, self._on_joint) if kind == 'joint'
             else (self.input_topic, Float64, self._on_command))
+        # rclpy passes the MessageInfo too to a two-argument callback (its annotation
+        # names the one-argument form only)
         self.subscriptions[kind] = self.node.create_subscription(
-            msg_type, topic, callback, messages.robot_qos(reliable))
+            msg_type, topic, cast(Any, callback), messages.robot_qos(reliable))
         self.node.get_logger().info(
             f'subscribed {self.node.resolve_topic_name(topic)} '
             f'({"reliable" if reliable else "best effort"}, as its publishers)')
 
-    def _warn_once(self, key, text):
+    def _warn_once(self, key: str, text: str) -> None:
         if key not in self._warned:
             self._warned.add(key)
             self.node.get_logger().warning(text)
 
-    def _joint_index(self, msg):
+    def _joint_index(self, msg: JointState) -> int | None:
         if self.index is not None and self.index < len(msg.name) and \
                 msg.name[self.index] == self.joint:
             return self.index
@@ -90,12 +92,12 @@ class TopicInput:
                                  f'{", ".join(msg.name) or "none"}); set joint_name')
         return None
 
-    def _time(self, t):
+    def _time(self, t: float) -> float:
         if self.origin is None:
             self.origin = math.floor(t)
         return t - self.origin
 
-    def _on_joint(self, msg, info):
+    def _on_joint(self, msg: JointState, info: Any) -> None:
         k = self._joint_index(msg)
         if k is None:
             return
@@ -114,10 +116,10 @@ class TopicInput:
         else:
             self.aligner.add_measurement(self._time(t), speed, other)
 
-    def _on_command(self, msg, info):
+    def _on_command(self, msg: Float64, info: Any) -> None:
         self.aligner.add_command(self._time(info['source_timestamp'] * 1e-9), msg.data)
 
-    def _flush(self):
+    def _flush(self) -> None:
         if self.origin is None:
             return
         now = self.node.get_clock().now().nanoseconds * 1e-9 - self.origin
