@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 from pathlib import Path
+import subprocess
 import sys
 import tempfile
 import time
@@ -21,6 +22,7 @@ import time
 import numpy as np
 
 TITLE = 'Fleet: Dask throughput, worker memory, drift detection'
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _tasks(root, robots=None):
@@ -36,9 +38,12 @@ def throughput(root, quick):
     from motor_id.fleet.engine import DaskEngine
     from motor_id.fleet.task import run_task
     tasks, _ = _tasks(root)
-    t0 = time.perf_counter()
-    loop_s = [run_task(t)['seconds'] for t in tasks]
-    loop = time.perf_counter() - t0
+    env = dict(os.environ, OMP_NUM_THREADS='1', OPENBLAS_NUM_THREADS='1',
+               MKL_NUM_THREADS='1')
+    env['PYTHONPATH'] = os.pathsep.join(filter(None, [REPO, env.get('PYTHONPATH')]))
+    child = subprocess.run([sys.executable, os.path.abspath(__file__), '--loop', str(root)],
+                           env=env, capture_output=True, text=True, check=True)
+    loop_s, loop = json.loads(child.stdout.splitlines()[-1])
     runs = {}
     for n in (1, 2):
         t0 = time.perf_counter()
@@ -49,8 +54,8 @@ def throughput(root, quick):
         runs[n] = {'total': time.perf_counter() - t0, 'start': t1 - t0, 'work': t2 - t1,
                    'task_seconds': float(np.sum(secs))}
     n_rec = len({t.path for t in tasks})
-    rows = [{'engine': 'plain loop (this process)', 'tasks': len(tasks), 'wall_s': loop,
-             'start_s': 0.0, 'rec_min_core': n_rec / loop * 60},
+    rows = [{'engine': 'plain loop (fresh process, 1 BLAS thread)', 'tasks': len(tasks),
+             'wall_s': loop, 'start_s': 0.0, 'rec_min_core': n_rec / loop * 60},
             *({'engine': f'Dask LocalCluster, {n} worker(s)', 'tasks': len(tasks),
                'wall_s': r['total'], 'start_s': r['start'],
                'rec_min_core': n_rec / r['total'] * 60 / n} for n, r in runs.items())]
@@ -61,6 +66,15 @@ def throughput(root, quick):
         'overhead': runs[1]['total'] / loop - 1.0,
         'overhead_steady': runs[1]['work'] / loop - 1.0,
     }
+
+
+def plain_loop(root):
+    """The tasks one after another in this process: (task seconds, wall seconds)."""
+    from motor_id.fleet.task import run_task
+    tasks, _ = _tasks(root)
+    t0 = time.perf_counter()
+    secs = [run_task(t)['seconds'] for t in tasks]
+    return secs, time.perf_counter() - t0
 
 
 def memory(root, n_tasks, quick):
@@ -245,7 +259,11 @@ def main(argv=None):
     p.add_argument('--quick', action='store_true', help='a small smoke run')
     p.add_argument('--memory', type=int, metavar='N', help='tasks of the memory run')
     p.add_argument('--json', metavar='OUT', help='write the record as JSON')
+    p.add_argument('--loop', metavar='DIR', help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.loop:     # the plain-loop reference, run in a fresh process
+        print(json.dumps(plain_loop(args.loop)))
+        return 0
     rec = run(quick=args.quick, memory_tasks=args.memory)
     _print(rec)
     if args.json:

@@ -136,6 +136,20 @@ def test_generated_bags_read_back_through_the_profile(tmp_path):
     assert rec.meta['time_origin_ns'] == truth.recordings[0]['start_ns']
 
 
+def test_task_with_analysis_names_the_generators_friction(tmp_path):
+    """--analyze: the discrepancy analysis runs in the task; Coulomb friction written by
+    the generator (not by motor_id.model) is named in the verdict."""
+    from motor_id.fleet.run import plan
+    from motor_id.fleet.task import run_task
+    truth = generate_fleet(FleetSpec(robots=1, days=1, motors=('m',), duration_s=8.0,
+                                     nominal=MotorTruth(T_c=0.05)), tmp_path)
+    task = plan(find_recordings([str(tmp_path)]), parse_fleet_profile(truth.profile),
+                analyze=True)[0]
+    row = run_task(task)
+    assert row['status'] == 'ok', row.get('reason')
+    assert 'coulomb_friction' in row['verdict'] and row['unexplained'] is False
+
+
 # ------------------------------------------------------------------------- discovery
 def test_recordings_found_in_folders_files_and_globs(tmp_path):
     spec = FleetSpec(robots=2, days=2, duration_s=0.5, motors=('m',))
