@@ -36,7 +36,7 @@ class RosClient:
         self._thread = threading.Thread(target=self._spin, name=f'{name}-spin', daemon=True)
         self._thread.start()
 
-    def _spin(self):
+    def _spin(self) -> None:
         try:
             self.executor.spin()
         except ExternalShutdownException:

@@ -37,17 +37,17 @@ class DemoClient(RosClient):
         self.subscribe(DiagnosticArray, messages.DIAGNOSTICS_TOPIC, messages.DIAGNOSTICS_QOS,
                        self._on_diagnostics)
 
-    def _on_samples(self, msg):
+    def _on_samples(self, msg: Float64MultiArray) -> None:
         rows = messages.msg_to_rows(msg)
         self.samples += rows.shape[0]
         if np.any(rows[:, FLAGS].astype(int) & FLAG_PROFILE_END):
             self.profile_end.set()
 
-    def _on_diagnostics(self, msg):
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         for st in msg.status:
             self.status[st.name] = {kv.key: kv.value for kv in st.values}
 
-    def _received(self):
+    def _received(self) -> int:
         try:
             return int(float(self.status.get('motor_id: identifier', {}).get('received', 0)))
         except ValueError:

@@ -164,7 +164,7 @@ def make_recording(spec: CaseSpec) -> tuple[Recording, dict[str, Any], float]:
     return rec, truth, r_known
 
 
-def _value(v):
+def _value(v: Any) -> float | None:
     if isinstance(v, dict):
         v = v.get('value')
     try:
@@ -174,7 +174,7 @@ def _value(v):
     return v if math.isfinite(v) else None
 
 
-def _lookup(params, effect, name):
+def _lookup(params: Mapping[str, Any] | None, effect: str, name: str) -> float | None:
     """``effect.name`` (or ``name``) from a parameter mapping, as a float or None."""
     if not params:
         return None
@@ -203,7 +203,7 @@ def found_parameter(rep: Any, effect: str, found: Sequence[str]) -> float | None
     return None
 
 
-def _compact(params, limit=4):
+def _compact(params: Mapping[str, Any] | None, limit: int = 4) -> dict[str, float | None]:
     out = {}
     for k, v in list((params or {}).items())[:limit]:
         x = _value(v)
@@ -211,7 +211,7 @@ def _compact(params, limit=4):
     return out
 
 
-def _candidate(d):
+def _candidate(d: Mapping[str, Any]) -> dict[str, Any]:
     ev = d.get('evidence', {})
     return {'name': d['name'], 'gain': _value(d.get('gain')),
             'significant': bool(ev.get('significant')),
@@ -240,7 +240,7 @@ def top_candidates(rep: Any, k: int = 3, effect: str | None = None,
     return top, own
 
 
-def _measurement_notes(rep):
+def _measurement_notes(rep: Any) -> dict[str, str]:
     """Per channel: grid found or the reason why not (the lattice evidence)."""
     out = {}
     for ch, m in (getattr(rep, 'measurement', None) or {}).items():
@@ -250,7 +250,7 @@ def _measurement_notes(rep):
     return out
 
 
-def _names(entries):
+def _names(entries: Iterable[Any] | None) -> list[str]:
     return [a['name'] if isinstance(a, dict) else str(a) for a in entries or []]
 
 
@@ -307,7 +307,7 @@ def analyse(spec: CaseSpec, candidates: Sequence[str] | None = None) -> dict[str
     return row
 
 
-def _analyse_job(job):
+def _analyse_job(job: tuple[CaseSpec, Sequence[str] | None]) -> dict[str, Any]:
     spec, candidates = job
     return analyse(spec, candidates)
 
@@ -348,20 +348,22 @@ def rates(rows: Iterable[dict[str, Any]]) -> dict[str, Any]:
     cpus = [r['cpu_seconds'] for r in rows if r.get('cpu_seconds') is not None]
     errs = [abs(r['param_error']) for r in eff if r['param_error'] is not None]
 
-    def frac(rs, key):
+    def frac(rs: list[dict[str, Any]], key: str) -> tuple[int, int]:
         return (sum(bool(r[key]) for r in rs), len(rs))
 
-    out = {'cases': len(rows), 'effect_cases': len(eff), 'clean_cases': len(clean),
-           'named': frac(eff, 'named'), 'exact': frac(eff, 'exact'),
-           'false_alarm': frac(clean, 'false_alarm'), 'spurious': frac(eff, 'spurious'),
-           'grid_named': frac(grid, 'named'),
-           'errors': (sum(bool(r['error']) for r in rows), len(rows)),
-           'median_s': float(np.median(secs)) if secs else None,
-           'median_cpu_s': float(np.median(cpus)) if cpus else None,
-           'median_length': (float(np.median([r['length'] for r in rows if r.get('length')]))
-                             if any(r.get('length') for r in rows) else None),
-           'max_s': float(np.max(secs)) if secs else None,
-           'median_param_error': float(np.median(errs)) if errs else None}
+    out: dict[str, Any] = {
+        'cases': len(rows), 'effect_cases': len(eff), 'clean_cases': len(clean),
+        'named': frac(eff, 'named'), 'exact': frac(eff, 'exact'),
+        'false_alarm': frac(clean, 'false_alarm'), 'spurious': frac(eff, 'spurious'),
+        'grid_named': frac(grid, 'named'),
+        'errors': (sum(bool(r['error']) for r in rows), len(rows)),
+        'median_s': float(np.median(secs)) if secs else None,
+        'median_cpu_s': float(np.median(cpus)) if cpus else None,
+        'median_length': (float(np.median([r['length'] for r in rows if r.get('length')]))
+                          if any(r.get('length') for r in rows) else None),
+        'max_s': float(np.max(secs)) if secs else None,
+        'median_param_error': float(np.median(errs)) if errs else None,
+    }
     for key in ('named', 'exact', 'false_alarm', 'spurious', 'grid_named', 'errors'):
         k, n = out[key]
         out[key + '_rate'] = k / n if n else None
@@ -385,12 +387,12 @@ def is_failure(row: Mapping[str, Any]) -> str:
     return ''
 
 
-def _fmt_params(params):
+def _fmt_params(params: Mapping[str, Any] | None) -> str:
     return ', '.join(f'{k}={v:.4g}' if isinstance(v, (int, float)) else f'{k}={v}'
                      for k, v in (params or {}).items()) or '-'
 
 
-def _candidate_line(c, label=''):
+def _candidate_line(c: Mapping[str, Any], label: str = '') -> str:
     flags = [f for f, on in (('significant', c['significant']),
                              (f'failed: {c["failed"]}', c['failed']),
                              (f'implausible: {c["implausible"]}', c['implausible']),
@@ -402,7 +404,7 @@ def _candidate_line(c, label=''):
             + f' {_fmt_params(c["parameters"])}')
 
 
-def _case_head(r, why):
+def _case_head(r: Mapping[str, Any], why: str) -> str:
     t = r['truth'] or {}
     head = (f'- **{why}** [{r["generator"]} seed {r["seed"]}, noise {100 * r["noise"]:g} %] '
             f'truth `{r["effect"]}`')

@@ -84,7 +84,7 @@ class HiddenCase:
         return asdict(self)
 
 
-def _loguniform(rng, lo, hi):
+def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
@@ -95,7 +95,7 @@ def perturbed_motor(rng: np.random.Generator, spread: float = 0.25) -> MotorPara
     """
     p = PAPER_MOTOR
 
-    def f(s=spread):
+    def f(s: float = spread) -> float:
         return float(np.exp(rng.uniform(-s, s)))
 
     k = 0.65 * f(0.8 * spread)
@@ -213,15 +213,17 @@ def make_case(seed: int, effect: str | None = None, excitation: str | None = Non
     speed, current = _measure(plant, t, u, noise, rng)
     if r_m_error is None:
         r_m_error = float(rng.choice([-1.0, 1.0]) * rng.uniform(0.02, 0.05))
-    rec = Recording(t, u, speed, current, 'voltage',
-                    {'source': 'motor_id.testing.hidden', 'seed': int(seed)})
+    meta = {'source': 'motor_id.testing.hidden', 'seed': int(seed)}
+    rec = (Recording(t, u, speed, input_kind='voltage', meta=meta) if current is None
+           else Recording(t, u, speed, current, 'voltage', meta))
     case = HiddenCase(int(seed), effect, params, motor.to_dict(), excitation, amplitude,
                       sample_period, n_samples, {'speed': noise[0], 'current': noise[1]},
                       {'R_m': motor.R_m * (1.0 + r_m_error), 'R_m_error': r_m_error})
     return rec, case
 
 
-def _measure(plant, t, u, noise, rng):
+def _measure(plant: Plant, t: np.ndarray, u: np.ndarray, noise: tuple[float, float],
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
     """Simulated speed and current with white noise, then the sensors' grids."""
     dynamic = {e: v for e, v in plant.effects.items() if EFFECTS[e].category == 'dynamic'}
     out = simulate_batch(plant.params.to_dict(), t, u, 'voltage', 'zoh', dynamic)

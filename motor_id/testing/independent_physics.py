@@ -140,7 +140,8 @@ def amplifier(command: ArrayLike, effects: Mapping[str, Any] | None = None) -> n
 # ---------------------------------------------------------------------------- integrator
 
 @_jit
-def _deriv(x, v, w_stuck, sw, i_stuck, si, p, dx):
+def _deriv(x: np.ndarray, v: float, w_stuck: bool, sw: float, i_stuck: bool, si: float,
+           p: np.ndarray, dx: np.ndarray) -> None:
     w = x[_W]
     i = x[_I]
     R = p[_P_R0] * (1.0 + p[_P_ALPHA] * x[_DT])
@@ -174,7 +175,9 @@ def _deriv(x, v, w_stuck, sw, i_stuck, si, p, dx):
 
 
 @_jit
-def _rk4(x, v, h, w_stuck, sw, i_stuck, si, p, out, k1, k2, k3, k4, xt):
+def _rk4(x: np.ndarray, v: float, h: float, w_stuck: bool, sw: float, i_stuck: bool,
+         si: float, p: np.ndarray, out: np.ndarray, k1: np.ndarray, k2: np.ndarray,
+         k3: np.ndarray, k4: np.ndarray, xt: np.ndarray) -> None:
     _deriv(x, v, w_stuck, sw, i_stuck, si, p, k1)
     for j in range(_NX):
         xt[j] = x[j] + 0.5 * h * k1[j]
@@ -192,12 +195,12 @@ def _rk4(x, v, h, w_stuck, sw, i_stuck, si, p, out, k1, k2, k3, k4, xt):
 
 
 @_jit
-def _sign(a):
+def _sign(a: float) -> float:
     return 1.0 if a > 0.0 else (-1.0 if a < 0.0 else 0.0)
 
 
 @_jit
-def _shaft_drive(x, p):
+def _shaft_drive(x: np.ndarray, p: np.ndarray) -> float:
     """Torque that would accelerate the motor at w = 0, friction excluded [N m]."""
     if p[_P_RES] > 0.0:
         load = p[_P_KS] * x[_PHI] - p[_P_CS] * x[_WL]
@@ -207,7 +210,8 @@ def _shaft_drive(x, p):
 
 
 @_jit
-def _event_value(kind, x, v, sw, si, p):
+def _event_value(kind: int, x: np.ndarray, v: float, sw: float, si: float,
+                 p: np.ndarray) -> float:
     """Positive before the event, negative after: 0 w crosses zero, 1 i crosses zero,
     2 the stuck shaft breaks away, 3 the blocked brushes start to conduct."""
     if kind == 0:
@@ -220,7 +224,8 @@ def _event_value(kind, x, v, sw, si, p):
 
 
 @_jit
-def _modes(x, v, p, force_w, force_i):
+def _modes(x: np.ndarray, v: float, p: np.ndarray, force_w: float,
+           force_i: float) -> tuple[bool, float, bool, float]:
     """Modes of the next piece: (w stuck, sign of w's motion, i stuck, sign of i)."""
     w_stuck = False
     sw = _sign(x[_W])
@@ -248,7 +253,8 @@ def _modes(x, v, p, force_w, force_i):
 
 
 @_jit
-def _first_event(x, xn, v, w_stuck, sw, i_stuck, si, p):
+def _first_event(x: np.ndarray, xn: np.ndarray, v: float, w_stuck: bool, sw: float,
+                 i_stuck: bool, si: float, p: np.ndarray) -> tuple[float, int]:
     """The earliest event between x and xn: (linear estimate of its fraction, kind or -1)."""
     armed = ((p[_P_TS] > 0.0 or p[_P_TC] > 0.0) and not w_stuck,
              p[_P_VB] > 0.0 and not i_stuck, w_stuck, i_stuck)
@@ -268,7 +274,9 @@ def _first_event(x, xn, v, w_stuck, sw, i_stuck, si, p):
 
 
 @_jit
-def _substep(x, v, h, p, xn, k1, k2, k3, k4, xt):
+def _substep(x: np.ndarray, v: float, h: float, p: np.ndarray, xn: np.ndarray,
+             k1: np.ndarray, k2: np.ndarray, k3: np.ndarray, k4: np.ndarray,
+             xt: np.ndarray) -> None:
     """Advance x by h in place, locating the events of friction and brushes inside it.
 
     Each piece runs with fixed modes up to the earliest event (regula falsi on the event
@@ -319,7 +327,8 @@ def _substep(x, v, h, p, xn, k1, k2, k3, k4, xt):
 
 
 @_jit
-def _integrate(v, dt, n_sub, p, x0):
+def _integrate(v: np.ndarray, dt: float, n_sub: int, p: np.ndarray,
+               x0: np.ndarray) -> np.ndarray:
     n = v.shape[0]
     out = np.empty((n, _NX))
     x = x0.copy()
@@ -338,7 +347,8 @@ def _integrate(v, dt, n_sub, p, x0):
     return out
 
 
-def _resonance_masses(J, r, f_r, zeta):
+def _resonance_masses(J: float, r: float, f_r: float,
+                      zeta: float) -> tuple[float, float, float, float]:
     """Motor and load inertia, shaft stiffness and damping of the two-mass shaft."""
     J_m = J / (1.0 + r)
     J_l = J * r / (1.0 + r)
@@ -347,7 +357,7 @@ def _resonance_masses(J, r, f_r, zeta):
     return J_m, J_l, k_s, c_s
 
 
-def _param_vector(motor, effects):
+def _param_vector(motor: Motor, effects: Mapping[str, Any]) -> np.ndarray:
     p = np.zeros(_NP)
     p[_P_JM] = motor.J
     res = effects.get('resonance')
@@ -392,7 +402,7 @@ def default_n_sub(motor: Motor, sample_period: float,
     return max(2, int(math.ceil(sample_period / (0.7 * min(scales)))))
 
 
-def _check_effects(effects):
+def _check_effects(effects: Mapping[str, Any]) -> None:
     unknown = set(effects) - set(EFFECTS)
     if unknown:
         raise ValueError(f'unknown effect(s) {sorted(unknown)}; choose from {EFFECTS}')

@@ -106,7 +106,7 @@ class CaseTruth:
         return asdict(self)
 
 
-def _loguniform(rng, lo, hi):
+def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
     return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
 
 
@@ -140,7 +140,7 @@ def draw_motor(rng: np.random.Generator, motor_class: str) -> Motor:
 
 # ---------------------------------------------------------------------------- excitations
 
-def _prbs_bits(n_bits, rng):
+def _prbs_bits(n_bits: int, rng: np.random.Generator) -> np.ndarray:
     """Maximal-length 9-bit LFSR sequence (x^9 + x^5 + 1) from a random non-zero state."""
     reg = int(rng.integers(1, 512))
     bits = np.empty(n_bits)
@@ -211,7 +211,9 @@ def make_excitation(kind: str, n_samples: int, sample_period: float, amplitude: 
 
 # --------------------------------------------------------------------------- case drawing
 
-def _draw_effect(name, rng, motor, amplitude, command, T, n_sub):
+def _draw_effect(name: str, rng: np.random.Generator, motor: Motor, amplitude: float,
+                 command: np.ndarray, T: float,
+                 n_sub: int) -> tuple[dict[str, Any], dict[str, Any]]:
     """Return (simulator parameters, analysis parameters) of effect ``name``."""
     stall = motor.K * amplitude / motor.R
     w_nl = motor.no_load_speed(amplitude)
@@ -261,7 +263,8 @@ def _draw_effect(name, rng, motor, amplitude, command, T, n_sub):
     raise ValueError(f'unknown effect {name!r}; choose from {EFFECTS}')
 
 
-def _draw_heating(rng, motor, command, T, n_sub):
+def _draw_heating(rng: np.random.Generator, motor: Motor, command: np.ndarray, T: float,
+                  n_sub: int) -> tuple[dict[str, Any], dict[str, Any]]:
     """Thermal R_th, C_th giving a drawn resistance rise over the record (two passes)."""
     rise = float(rng.uniform(0.10, 0.40))
     n_sub = default_n_sub(motor, T, {'resistance_drift': {}})  # the final run's sub-steps
@@ -346,7 +349,8 @@ def make_case(seed: int, effect: str | None = None, motor_class: str | None = No
     command = make_excitation(excitation, n_samples, sample_period, amplitude, motor.tau_m,
                               rng)
     n_sub = default_n_sub(motor, sample_period)
-    sim_effects, effect_params = {}, {}
+    sim_effects: dict[str, Any] = {}
+    effect_params: dict[str, Any] = {}
     if effect != 'none':
         sim_params, effect_params = _draw_effect(effect, rng, motor, amplitude, command,
                                                  sample_period, n_sub)

@@ -19,7 +19,7 @@ _LIVE: set['Process'] = set()
 
 
 @atexit.register
-def _kill_leftovers():
+def _kill_leftovers() -> None:
     """Never leave node processes behind, even when the parent dies of an error."""
     for proc in list(_LIVE):
         proc.kill()
