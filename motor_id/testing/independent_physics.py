@@ -43,7 +43,7 @@ try:  # numba is a dependency of the project; the plain-Python path is only a fa
     import numba
     _jit = numba.njit(cache=False, nogil=True)
 except ImportError:  # pragma: no cover
-    def _jit(f):
+    def _jit(f: Any) -> Any:
         return f
 
 ALPHA_COPPER = 0.0039
