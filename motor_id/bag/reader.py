@@ -272,9 +272,10 @@ def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str |
         meta['flagged_rows'] = nonzero
     if note:
         meta['bag_note'] = note
-    # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
-    return Recording(samples['t'], samples['voltage'], samples['speed'],
-                     current, kind, meta)  # type: ignore[arg-type]
+    if current is None:
+        return Recording(samples['t'], samples['voltage'], samples['speed'], input_kind=kind,
+                         meta=meta)
+    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)
 
 
 def read_any_recording(path: str | os.PathLike[str]) -> Recording:

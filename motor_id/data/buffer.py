@@ -136,10 +136,10 @@ class Snapshot:
         if len(self):
             info.update(seq_first=int(r[0, SEQ]), seq_last=int(r[-1, SEQ]))
         info.update(meta or {})
-        # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
-        return Recording(r[:, T].copy(), r[:, INPUT].copy(), r[:, SPEED].copy(),
-                         None if current is None else current.copy(),  # type: ignore[arg-type]
-                         input_kind, info)
+        t, u, w = r[:, T].copy(), r[:, INPUT].copy(), r[:, SPEED].copy()
+        if current is None:
+            return Recording(t, u, w, input_kind=input_kind, meta=info)
+        return Recording(t, u, w, current.copy(), input_kind, info)
 
     def recording(self, min_samples: int = MIN_SAMPLES, allow_gaps: bool = False,
                   input_kind: str = 'voltage', meta: dict[str, Any] | None = None) -> Recording:
