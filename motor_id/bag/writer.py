@@ -440,7 +440,7 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
                 for k in range(k0, k1):
                     bag.write_channel('voltage', rec.input[k], int(log_ns[k]))
                     bag.write_channel('speed', rec.speed[k], int(log_ns[k]))
-                    if rec.has_current:
+                    if rec.current is not None:
                         bag.write_channel('current', rec.current[k], int(log_ns[k]))
         count = bag.message_count
     return {'path': str(path), 'samples': n, 'messages': count}

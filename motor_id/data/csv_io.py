@@ -268,9 +268,9 @@ def write_csv(rec: Recording, path: str | os.PathLike[str],
         Written as ``# key: value`` lines before the header.
     """
     name = 'voltage' if rec.input_kind == 'voltage' else 'torque'
-    cols = ['time', name, 'speed'] + (['current'] if rec.has_current else [])
-    arr = np.column_stack([rec.time, rec.input, rec.speed]
-                          + ([rec.current] if rec.has_current else []))
+    current = [] if rec.current is None else [rec.current]
+    cols = ['time', name, 'speed'] + (['current'] if current else [])
+    arr = np.column_stack([rec.time, rec.input, rec.speed] + current)
     with open(path, 'w', newline='') as fh:
         if rec.input_kind != 'voltage':
             fh.write(f'# input_kind: {rec.input_kind}\n')

@@ -124,7 +124,7 @@ def detect_shift(rec: Recording, max_shift: int = 3, min_gain: float = 0.5,
         return (x - np.mean(x)) / (sd if sd > 0 else 1.0)
 
     u, w = norm(rec.input), norm(rec.speed)
-    i = norm(rec.current) if use_current else None
+    i = norm(rec.current) if use_current and rec.current is not None else None
     k = np.arange(max_shift + 1, n - max_shift - 1)
     ones = np.ones(k.size)
     rss = {}
