@@ -22,24 +22,9 @@ from motor_id.bag import read_any_recording
 from motor_id.bag.anyreader import open_reader, reading
 from motor_id.contracts import BAG_SAMPLES_TOPIC
 from motor_id.data.align import held_command_index
-from motor_id.data.mapping import (
-    field_getter,
-    FieldSpec,
-    kind_note,
-    load_profile,
-    Mapping,
-    parse_field_spec,
-    PROFILE_KEYS,
-    resolve,
-)
+from motor_id.data.mapping import field_getter, FieldSpec, kind_note, Mapping, resolve
 from motor_id.errors import BagError
 from motor_id.recording import Recording
-
-# The mapping names live in motor_id.data.mapping; load_profile, parse_field_spec and
-# PROFILE_KEYS stay importable from here until motor_id.fleet imports them from there
-# (TODO(owner: fleet helper)).
-__all__ = ['is_rosbag', 'load_profile', 'Mapping', 'parse_field_spec', 'PROFILE_KEYS',
-           'read_bag']
 
 
 def is_rosbag(path: str | os.PathLike[str]) -> bool:
