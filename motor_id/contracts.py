@@ -62,6 +62,10 @@ CHANNEL_DEPTH = 100
 DIAGNOSTICS_DEPTH = 10
 LATCHED_DEPTH = 1
 
+INPUT_KINDS = ('voltage', 'torque')
+"""What drives a plant: the armature voltage, or a torque (force) from a current-controlled
+drive."""
+
 UNITS = {
     'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad', 'L_m': 'H',
     'R_m': 'Ohm', 'time': 's', 'input': 'V', 'speed': 'rad/s', 'current': 'A',

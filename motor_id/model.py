@@ -27,17 +27,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motor_id.contracts import INPUT_KINDS, UNITS
 from motor_id.errors import ConfigError
 from motor_id.linalg import expm
 
 PARAM_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
-PARAM_UNITS = {
-    'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad',
-    'L_m': 'H', 'R_m': 'Ohm',
-}
+PARAM_UNITS = {name: UNITS[name] for name in PARAM_NAMES}
 MECHANICAL_PARAMS = ('J', 'B')
-INPUT_KINDS = ('voltage', 'torque')
-METHODS = ('zoh', 'euler')
+DISCRETISATIONS = ('zoh', 'euler')
+"""How the continuous model becomes a discrete one (the fit's methods add 'paper')."""
 
 
 @dataclass(frozen=True)
@@ -435,8 +433,8 @@ def discretize(F: np.ndarray, G: np.ndarray, dt: ArrayLike, method: str = 'zoh'
     A : ndarray, shape (P, K, n, n)
     Bd : ndarray, shape (P, K, n, m)
     """
-    if method not in METHODS:
-        raise ConfigError(f'discretisation must be one of {METHODS}, got {method!r}')
+    if method not in DISCRETISATIONS:
+        raise ConfigError(f'discretisation must be one of {DISCRETISATIONS}, got {method!r}')
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
     n = F.shape[1]
     if method == 'euler':

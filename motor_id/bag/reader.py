@@ -36,7 +36,9 @@ from motor_id.contracts import (
     BAG_META_TOPIC,
     BAG_SAMPLES_TOPIC,
     batch_rows,
+    INPUT_KINDS,
     SAMPLE_COLUMNS,
+    SEQ,
     seq_step,
 )
 from motor_id.errors import BagError
@@ -170,12 +172,12 @@ def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict
         The columns by name, ``log_time_ns``, ``gaps`` (``{after_seq, missing, t_before,
         t_after}``) and ``duplicates``.
     """
-    order = np.argsort(rows[:, 0], kind='stable')
+    order = np.argsort(rows[:, SEQ], kind='stable')
     rows, log_ns = rows[order], log_ns[order]
     keep = np.ones(rows.shape[0], dtype=bool)
-    keep[1:] = np.diff(rows[:, 0]) != 0
+    keep[1:] = np.diff(rows[:, SEQ]) != 0
     rows, log_ns = rows[keep], log_ns[keep]
-    seq = rows[:, 0]
+    seq = rows[:, SEQ]
     gaps = [{'after_seq': int(seq[k]), 'missing': int(seq[k + 1] - seq[k] - 1),
              't_before': float(rows[k, 1]), 't_after': float(rows[k + 1, 1])}
             for k in np.flatnonzero(seq_step(seq[:-1], seq[1:]) > 1)]
@@ -258,7 +260,7 @@ def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str |
     """
     meta = dict(meta)
     kind = meta.pop('input_kind', 'voltage')
-    if kind not in ('voltage', 'torque'):
+    if kind not in INPUT_KINDS:
         raise BagError(f'{path}: {BAG_META_TOPIC} input_kind must be voltage or '
                        f'torque, got {kind!r}')
     current = samples['current']

@@ -45,7 +45,7 @@ from motor_id.card.protocol import (
 )
 from motor_id.errors import ConfigError
 from motor_id.excitation import PROFILES
-from motor_id.model import METHODS, Plant
+from motor_id.model import DISCRETISATIONS, Plant
 from motor_id.simulate import simulate_batch
 
 MIN_PERIOD = 1e-4
@@ -105,8 +105,8 @@ class VirtualCard:
         self.plant = Plant() if plant is None else plant
         if not isinstance(self.plant, Plant):
             raise ConfigError(f'plant must be a motor_id.model.Plant, got {plant!r}')
-        if method not in METHODS:
-            raise ConfigError(f'method must be one of {METHODS}, got {method!r}')
+        if method not in DISCRETISATIONS:
+            raise ConfigError(f'method must be one of {DISCRETISATIONS}, got {method!r}')
         for name, value in (('speed_noise', speed_noise), ('current_noise', current_noise)):
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f'{name} must be a finite std >= 0, got {value}')

@@ -9,7 +9,7 @@ from typing import Any
 from motor_id.card.simulator import CardSimulator, FaultConfig
 from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.errors import ConfigError
-from motor_id.model import METHODS
+from motor_id.model import DISCRETISATIONS
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='card seconds per wall second; 0 = as fast as read')
     parser.add_argument('--link', metavar='PATH',
                         help='keep a symlink to the pty here (stable across disconnects)')
-    parser.add_argument('--method', choices=METHODS, default='zoh',
+    parser.add_argument('--method', choices=DISCRETISATIONS, default='zoh',
                         help='discretisation of the true plant')
     parser.add_argument('--seed', type=int, default=0, help='seed of noise and faults')
     parser.add_argument('--truth-out', metavar='FILE',

@@ -5,6 +5,7 @@ from collections.abc import Iterable
 import sys
 from typing import Any, TextIO
 
+from motor_id.contracts import INPUT_KINDS
 from motor_id.data.csv_io import parse_columns
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import load_profile, Mapping
@@ -30,7 +31,7 @@ def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) ->
     g = parser.add_argument_group('data source (CSV columns, bag topics)')
     g.add_argument('--columns', metavar='ROLE=NAME,...',
                    help='CSV: map columns, e.g. time=t,input=u_cmd,speed=omega,current=i_a')
-    g.add_argument('--input-kind', choices=('voltage', 'torque'),
+    g.add_argument('--input-kind', choices=INPUT_KINDS,
                    help='plant kind when the input name cannot tell (torque: also force)')
     g.add_argument('--input', metavar='TOPIC[:FIELD]',
                    help='bag: plant input, e.g. /motor_voltage_cmd or /cmd:data[2]')

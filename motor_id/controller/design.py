@@ -13,12 +13,12 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.contracts import INPUT_KINDS
 from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
 from motor_id.errors import ConfigError
 
 VOLTAGE_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
 TORQUE_NAMES = ('J', 'B')
-INPUT_KINDS = ('voltage', 'torque')
 CONVENTION = 'WPILib SysId: V = kS sgn(w) + kV w + kA dw/dt'
 KS_SOURCES = ('coulomb_friction', 'brush_drop', 'coulomb_friction+brush_drop', 'measured',
               'user')

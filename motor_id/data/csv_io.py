@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import bad_magnitude, MIN_SAMPLES, Recording
 
@@ -14,7 +15,6 @@ ROLES = ('time', 'input', 'speed', 'current')
 """Channels a column can be mapped to (``--columns ROLE=NAME,...``)."""
 INPUT_NAMES = {'voltage': 'voltage', 'torque': 'torque', 'force': 'torque'}
 """Input column names recognised without a mapping, and the plant kind each one sets."""
-INPUT_KINDS = ('voltage', 'torque')
 
 
 def parse_columns(text: str | dict[str, str] | None) -> dict[str, str]:

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from motor_id.bag.anyreader import topic_table
+from motor_id.contracts import INPUT_KINDS
 from motor_id.data.align import ALIGN_RULES
 from motor_id.errors import BagError, ConfigError
 
@@ -41,7 +42,6 @@ JOINT_STATE = 'sensor_msgs/msg/JointState'
 JOINT_FIELDS = ('position', 'velocity', 'effort')
 ROLES = ('input', 'speed', 'current')
 EFFORT_KINDS = ('current', 'torque')
-INPUT_KINDS = ('voltage', 'torque')
 PROFILE_KEYS = ('input', 'speed', 'current', 'joint', 'effort_is', 'align', 'input_kind',
                 'shift', 'columns')
 """Keys of a YAML mapping profile (one per robot); flags override them."""

@@ -6,10 +6,9 @@ measurement of the motor).
 """
 
 from motor_id.fleet.drift import DriftRule
-from motor_id.model import PARAM_NAMES
+from motor_id.model import PARAM_NAMES, PARAM_UNITS
 
-UNITS = {'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad', 'L_m': 'H',
-         'R_m': 'Ohm'}
+UNITS = PARAM_UNITS
 
 
 def histories(rows, parameters=PARAM_NAMES):

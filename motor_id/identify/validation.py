@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS, PARAM_NAMES
@@ -50,7 +51,7 @@ class SavedModel:
             raise ConfigError(f'{source or "the model"}: not a motor-id fit or analyze '
                               'report (no "parameters")')
         kind = report.get('input_kind') or report.get('data', {}).get('input_kind')
-        if kind not in ('voltage', 'torque'):
+        if kind not in INPUT_KINDS:
             raise ConfigError(f'{source or "the model"}: the report names no plant kind '
                               '("input_kind": voltage or torque)')
         names = PARAM_NAMES if kind == 'voltage' else TORQUE_PARAMS

@@ -21,7 +21,7 @@ from motor_id.card.link import CardLink, SampleClock
 from motor_id.card.protocol import Sample, Stop
 from motor_id.card.session import EXTERNAL, Session
 from motor_id.card.supervisor import Limits
-from motor_id.contracts import JOINT_STATES_TOPIC
+from motor_id.contracts import INPUT_KINDS, JOINT_STATES_TOPIC
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.excitation import PROFILES
 from motor_id.nodes import messages
@@ -55,7 +55,7 @@ PARAMETERS = (
               'without a voltage_command [s]; 0: off', low=0.0, high=3600.0),
     ParamSpec('input_kind', 'voltage', 'what the voltage column carries (bag metadata; '
               'joint_states effort is the torque for a torque card)',
-              choices=('voltage', 'torque')),
+              choices=INPUT_KINDS),
     ParamSpec('joint_name', 'motor', 'name of the joint in joint_states'),
     ParamSpec('publish_joint_states', True, 'publish sensor_msgs/JointState on '
               'joint_states, one per sample: stamp = card time + a fixed offset to ROS '

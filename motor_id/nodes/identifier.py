@@ -16,6 +16,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from motor_id import pipeline
+from motor_id.contracts import INPUT_KINDS
 from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
@@ -66,7 +67,7 @@ PARAMETERS = (
     ParamSpec('tie_kt_kb', 'auto', 'impose K_T = K_b (auto: when current is measured)',
               choices=('auto', True, False), dynamic=True),
     ParamSpec('input_kind', 'voltage', 'plant input on the voltage column',
-              choices=('voltage', 'torque')),
+              choices=INPUT_KINDS),
     ParamSpec('select', 'window', 'what to fit: window (the last window_s seconds) or '
               'profile (the latest complete excitation profile run in the window)',
               choices=('window', 'profile')),

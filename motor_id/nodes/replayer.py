@@ -9,6 +9,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from motor_id.contracts import T
 from motor_id.nodes import messages
 from motor_id.nodes.common import SignalWatcher, StopSignal
 
@@ -54,7 +55,7 @@ class Replayer(Node):
                     time.monotonic() < self._wait_until:
                 return  # give subscribers time to match before the first rows
             t0 = self.t0_wall = time.monotonic()
-        t_card = self.rows[:, 1]
+        t_card = self.rows[:, T]
         elapsed = (time.monotonic() - t0) * self.rate
         due = int(((t_card - t_card[0]) <= elapsed).sum())
         while self.next < due:
