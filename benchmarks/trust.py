@@ -25,8 +25,7 @@ import numpy as np
 
 from motor_id.data.csv_io import write_csv
 from motor_id.data.importers import load_dunker, load_emps
-from motor_id.identify import Identifier
-from motor_id.identify import uncertainty
+from motor_id.identify import Identifier, uncertainty
 
 DATA = Path(__file__).resolve().parents[2] / 'shared' / 'data'
 DUNKER = DATA / 'dunker_gr42x25'
