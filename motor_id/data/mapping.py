@@ -125,6 +125,20 @@ def parse_field_spec(text: str, option: str = '--input') -> FieldSpec:
     return FieldSpec(topic, tuple(path), text)
 
 
+def read_yaml(path: str | os.PathLike[str], option: str = '--profile') -> Any:
+    """The YAML document of a profile file; one-line errors naming the file and line."""
+    import yaml
+    try:
+        with open(path, encoding='utf-8') as fh:
+            return yaml.safe_load(fh)
+    except OSError as exc:
+        raise ConfigError(f'{option} {path}: cannot read ({exc.strerror})') from exc
+    except yaml.YAMLError as exc:
+        where = getattr(exc, 'problem_mark', None)
+        line = f' line {where.line + 1}' if where is not None else ''
+        raise ConfigError(f'{option} {path}:{line} not valid YAML') from exc
+
+
 def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a YAML mapping profile (keys :data:`PROFILE_KEYS`).
 
@@ -137,16 +151,7 @@ def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     ConfigError
         Unreadable file, YAML error, not a mapping, unknown key.
     """
-    import yaml
-    try:
-        with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
-    except OSError as exc:
-        raise ConfigError(f'--profile {path}: cannot read ({exc.strerror})') from exc
-    except yaml.YAMLError as exc:
-        where = getattr(exc, 'problem_mark', None)
-        line = f' line {where.line + 1}' if where is not None else ''
-        raise ConfigError(f'--profile {path}:{line} not valid YAML') from exc
+    data = read_yaml(path)
     if data is None:
         return {}
     if not isinstance(data, dict):

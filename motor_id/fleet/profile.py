@@ -22,7 +22,7 @@ import hashlib
 import json
 import math
 
-from motor_id.data.mapping import Mapping, PROFILE_KEYS
+from motor_id.data.mapping import Mapping, PROFILE_KEYS, read_yaml
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 
@@ -101,17 +101,7 @@ def load_fleet_profile(path):
         Unreadable file, bad YAML, unknown keys, bad values; the message names the file,
         the motor and the key.
     """
-    import yaml
-    try:
-        with open(path, encoding='utf-8') as fh:
-            data = yaml.safe_load(fh)
-    except OSError as exc:
-        raise ConfigError(f'--profile {path}: cannot read ({exc.strerror})') from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, 'problem_mark', None)
-        line = f' line {mark.line + 1}' if mark is not None else ''
-        raise ConfigError(f'--profile {path}:{line} not valid YAML') from None
-    return parse_fleet_profile(data, str(path))
+    return parse_fleet_profile(read_yaml(path), str(path))
 
 
 def parse_fleet_profile(data, where='profile'):
