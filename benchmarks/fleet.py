@@ -45,14 +45,17 @@ def throughput(root, quick):
                            env=env, capture_output=True, text=True, check=True)
     loop_s, loop = json.loads(child.stdout.splitlines()[-1])
     runs = {}
-    for n in (1, 2):
-        t0 = time.perf_counter()
-        with DaskEngine(workers=n) as eng:
-            t1 = time.perf_counter()
-            secs = [r['seconds'] for _, r, _ in eng.map(run_task, tasks)]
-            t2 = time.perf_counter()
-        runs[n] = {'total': time.perf_counter() - t0, 'start': t1 - t0, 'work': t2 - t1,
+    for _ in range(1 if quick else 2):     # best of 2: the machine is shared
+        for n in (1, 2):
+            t0 = time.perf_counter()
+            with DaskEngine(workers=n) as eng:
+                t1 = time.perf_counter()
+                secs = [r['seconds'] for _, r, _ in eng.map(run_task, tasks)]
+                t2 = time.perf_counter()
+            run = {'total': time.perf_counter() - t0, 'start': t1 - t0, 'work': t2 - t1,
                    'task_seconds': float(np.sum(secs))}
+            if n not in runs or run['total'] < runs[n]['total']:
+                runs[n] = run
     n_rec = len({t.path for t in tasks})
     rows = [{'engine': 'plain loop (fresh process, 1 BLAS thread)', 'tasks': len(tasks),
              'wall_s': loop, 'start_s': 0.0, 'rec_min_core': n_rec / loop * 60},
