@@ -352,6 +352,6 @@ def test_fleet_meets_the_detection_targets_on_the_generator(tmp_path):
                     str(tmp_path / 'out'), workers=2, report=False)
     assert res.failed == 0
     rows, false, clean_series = score_detection(spec, res.drift)
-    assert clean_series == 4 * 2 * 6 and false == []
+    assert clean_series == (spec.robots * 2 - len(spec.drifts)) * 6 and false == []
     for r in rows:
         assert r['flagged'] and r['delay'] <= 3 and r['other_flags'] == '-', r
