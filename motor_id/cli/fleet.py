@@ -1,13 +1,18 @@
 """`motor-id fleet`: every motor of every recording on Dask, histories, drift, a report."""
 
+from __future__ import annotations
+
+import argparse
 import sys
 import time
+from typing import Any, TextIO
 
 from motor_id.fleet.discover import ROBOT_RULES
 from motor_id.fleet.profile import load_fleet_profile
+from motor_id.fleet.run import Progress
 
 
-def add_arguments(parser):
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     """CLI arguments of `motor-id fleet`."""
     parser.add_argument('recordings', nargs='*', metavar='RECORDING',
                         help='rosbag2 recordings: bag folders, .mcap / .db3 files, folders '
@@ -32,13 +37,13 @@ def add_arguments(parser):
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress line')
 
 
-def progress_line(quiet, stream=None):
+def progress_line(quiet: bool, stream: TextIO | None = None) -> Progress:
     """A progress callback: tasks done / failed / left and the rate, on stderr."""
     stream = stream or sys.stderr
     tty = stream.isatty()
     state = {'start': time.perf_counter(), 'last': 0.0}
 
-    def progress(done, failed, left, result):
+    def progress(done: int, failed: int, left: int, result: dict[str, Any] | None) -> None:
         if quiet:
             return
         now = time.perf_counter()
@@ -60,7 +65,7 @@ def progress_line(quiet, stream=None):
     return progress
 
 
-def run(args):
+def run(args: argparse.Namespace) -> int:
     """Run the fleet, print the drifting motors and where the files are."""
     from motor_id.fleet.run import run_fleet
     profile = load_fleet_profile(args.profile)

@@ -7,6 +7,9 @@ resolved path with its size and modification time [ns] (of the folder's files, f
 bag folder): a recording that is written again is fitted again.
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 import glob
 import os
@@ -29,12 +32,12 @@ class RecordingRef:
     mtime_ns: int
 
     @property
-    def key(self):
+    def key(self) -> str:
         """Identity of this recording's content on disk."""
         return f'{self.path}|{self.size}|{self.mtime_ns}'
 
 
-def find_recordings(args, robot_from='parent'):
+def find_recordings(args: Sequence[str], robot_from: str = 'parent') -> list[RecordingRef]:
     """Expand file, folder and glob arguments into recordings, sorted by path.
 
     Parameters
@@ -78,11 +81,11 @@ def find_recordings(args, robot_from='parent'):
     return out
 
 
-def _is_bag_folder(p):
+def _is_bag_folder(p: Path) -> bool:
     return p.is_dir() and (p / 'metadata.yaml').is_file()
 
 
-def _expand(p):
+def _expand(p: Path) -> Iterator[Path]:
     p = p.resolve()
     if p.is_file():
         if _is_bag_folder(p.parent):
@@ -105,7 +108,7 @@ def _expand(p):
                 yield here / name
 
 
-def _stat(path):
+def _stat(path: Path) -> tuple[int, int]:
     """Size [bytes] and newest mtime [ns] of a file or of a bag folder's files."""
     if path.is_file():
         st = path.stat()
@@ -119,7 +122,7 @@ def _stat(path):
     return size, mtime
 
 
-def robot_rule(text):
+def robot_rule(text: str) -> Callable[[str | Path], str]:
     """A function from a recording's path to its robot's name.
 
     Parameters
@@ -144,7 +147,7 @@ def robot_rule(text):
             if levels < 1:
                 raise ConfigError(f'--robot-from {text}: want parent:N with N >= 1')
 
-        def parent(path):
+        def parent(path: str | Path) -> str:
             p = Path(path)
             for _ in range(levels):
                 p = p.parent
@@ -156,7 +159,7 @@ def robot_rule(text):
         except re.error as exc:
             raise ConfigError(f'--robot-from {text}: bad pattern ({exc})') from None
 
-        def by_regex(path):
+        def by_regex(path: str | Path) -> str:
             m = pattern.search(str(path))
             if m is None:
                 raise ConfigError(f'--robot-from {text}: no match in {path}')

@@ -28,8 +28,12 @@ mean, minus 1. The false-alarm rate of the defaults, measured on the fleet gener
 (:mod:`motor_id.testing.fleet_gen`, R_m +-2 % from day to day), is in docs/fleet.md.
 """
 
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 import math
+from typing import Any
 
 import numpy as np
 
@@ -66,7 +70,7 @@ class DriftRule:
     floor: float = 0.002
     outlier: float = 5.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name, low in (('min_base', 3), ('guard', 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < low:
@@ -78,7 +82,7 @@ class DriftRule:
                 raise ConfigError(f'drift: {name} must be a number > 0, got {v!r}')
 
     @classmethod
-    def from_dict(cls, d):
+    def from_dict(cls, d: Mapping[str, Any] | None) -> DriftRule:
         """A rule from a profile's ``drift:`` mapping (unknown keys refused)."""
         d = dict(d or {})
         known = set(cls.__dataclass_fields__)
@@ -88,11 +92,12 @@ class DriftRule:
                               f'{", ".join(sorted(known))})')
         return cls(**d)
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """The settings, for the outputs."""
         return asdict(self)
 
-    def scan(self, times, values, stds=None):
+    def scan(self, times: Sequence[Any], values: Sequence[float | None],
+             stds: Sequence[float | None] | None = None) -> DriftFinding:
         """Run the rule over one history.
 
         Parameters
@@ -243,7 +248,7 @@ class DriftFinding:
     scores: list = field(default_factory=list)
     reason: str | None = None
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
         """JSON-ready (``scores`` left out)."""
         d = asdict(self)
         d.pop('scores')

@@ -9,10 +9,16 @@ which is what the progress line and the incremental result files need; and
 thread each (the fit is numpy/numba work under the GIL), so N workers use N cores.
 """
 
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator
 import logging
 import os
+from typing import Any, TypeVar
 
 from motor_id.errors import ConfigError
+
+T = TypeVar('T')
 
 WORKER_CONFIG = {'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
                  'distributed.worker.profile.enabled': False}
@@ -50,16 +56,17 @@ class DaskEngine:
     Use as a context manager; :meth:`map` yields ``(item, result, error)``.
     """
 
-    def __init__(self, workers=None, scheduler=None, in_flight=None):
+    def __init__(self, workers: int | None = None, scheduler: str | None = None,
+                 in_flight: int | None = None) -> None:
         if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
             raise ConfigError(f'--workers must be >= 1, got {workers}')
         self.workers = workers
         self.scheduler = scheduler
         self.in_flight = in_flight
-        self.client = None
-        self.cluster = None
+        self.client: Any = None
+        self.cluster: Any = None
 
-    def __enter__(self):
+    def __enter__(self) -> DaskEngine:
         dist = _distributed()
         if self.scheduler:
             try:
@@ -77,21 +84,21 @@ class DaskEngine:
             self.client = dist.Client(self.cluster)
         return self
 
-    def __exit__(self, *exc):
+    def __exit__(self, *exc: object) -> None:
         if self.client is not None:
             self.client.close()
         if self.cluster is not None:
             self.cluster.close()
         self.client = self.cluster = None
-        return False
 
     @property
-    def threads(self):
+    def threads(self) -> int:
         """Worker threads the scheduler knows now."""
         info = self.client.scheduler_info()
         return sum(w.get('nthreads', 1) for w in info.get('workers', {}).values()) or 1
 
-    def map(self, fn, items):
+    def map(self, fn: Callable[[T], Any], items: Iterable[T]
+            ) -> Iterator[tuple[T, Any, str | None]]:
         """Run ``fn(item)`` for every item on the workers.
 
         Yields
@@ -126,7 +133,7 @@ class DaskEngine:
             submit()
             yield item, result, error
 
-    def worker_memory(self):
+    def worker_memory(self) -> dict[str, int]:
         """``{worker address: resident memory [bytes]}`` of every worker process."""
         return self.client.run(_rss)
 

@@ -5,16 +5,25 @@ inadequate fit says the model does not explain that recording; its numbers are n
 measurement of the motor).
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
 from motor_id.fleet.drift import DriftRule
 from motor_id.model import PARAM_NAMES, PARAM_UNITS
 
 UNITS = PARAM_UNITS
 
+Row = dict[str, Any]
+"""A result row (motor_id.fleet.store.COLUMNS) or a drift row."""
 
-def histories(rows, parameters=PARAM_NAMES):
+
+def histories(rows: Iterable[Row], parameters: Sequence[str] = PARAM_NAMES
+              ) -> dict[tuple[str, str], dict[str, list[tuple[Any, ...]]]]:
     """``{(robot, motor): {parameter: [(start_time, value, std, recording), ...]}}`` in
     time order, from result rows (adequate fits, determined parameters)."""
-    out = {}
+    out: dict[tuple[str, str], dict[str, list[tuple[Any, ...]]]] = {}
     for r in sorted(rows, key=lambda r: (r['start_time'] or '', r['recording'])):
         per = out.setdefault((r['robot'], r['motor']), {p: [] for p in parameters})
         if r.get('adequate') is False:
@@ -27,7 +36,8 @@ def histories(rows, parameters=PARAM_NAMES):
     return out
 
 
-def drift_table(rows, rule=None, parameters=PARAM_NAMES):
+def drift_table(rows: Iterable[Row], rule: DriftRule | None = None,
+                parameters: Sequence[str] = PARAM_NAMES) -> list[Row]:
     """The rows of drift.json: one per robot, motor and parameter.
 
     Parameters

@@ -6,8 +6,12 @@ parameters drift: the same histories and rule as ``motor-id fleet``
 (:func:`motor_id.fleet.history.drift_table`), so a live WARN and a fleet report agree.
 """
 
+from __future__ import annotations
+
+from collections.abc import Iterable
 import json
 import os
+from typing import Any
 
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
@@ -28,14 +32,15 @@ class EstimateHistory:
         Names for the drift rows.
     """
 
-    def __init__(self, path, rule=None, robot='', motor=''):
+    def __init__(self, path: str, rule: DriftRule | None = None, robot: str = '',
+                 motor: str = '') -> None:
         self.path = str(path)
         self.rule = rule or DriftRule()
         self.robot = robot
         self.motor = motor
         self.skipped_ = 0
 
-    def append(self, report, time_iso):
+    def append(self, report: dict[str, Any], time_iso: str) -> None:
         """Add a fit report's parameters as one line.
 
         Parameters
@@ -62,9 +67,9 @@ class EstimateHistory:
             raise ConfigError(f'history_file {self.path}: cannot write ({exc.strerror})') \
                 from None
 
-    def rows(self):
+    def rows(self) -> list[dict[str, Any]]:
         """The history as result rows (the shape :mod:`motor_id.fleet.history` reads)."""
-        out = []
+        out: list[dict[str, Any]] = []
         self.skipped_ = 0
         try:
             fh = open(self.path, encoding='utf-8')
@@ -90,12 +95,12 @@ class EstimateHistory:
                 out.append(row)
         return out
 
-    def check(self):
+    def check(self) -> list[dict[str, Any]]:
         """Drift rows (:func:`motor_id.fleet.history.drift_table`) of this history."""
         return drift_table(self.rows(), self.rule)
 
 
-def drift_message(rows):
+def drift_message(rows: Iterable[dict[str, Any]]) -> str:
     """One line naming every drifting parameter and its change ('' when none)."""
     parts = [f'{d["parameter"]} {d["change"] * 100:+.1f} % since {d["since"]} '
              f'(z {d["z"]:.1f})' for d in rows if d['detected']]

@@ -17,10 +17,13 @@ plant), ``resistance_tolerance`` [%], ``fix`` and ``bounds`` (mappings as ``--fi
 ``--bounds`` take them).
 """
 
+from __future__ import annotations
+
 from dataclasses import asdict, dataclass, field
 import hashlib
 import json
 import math
+from typing import Any
 
 from motor_id.data.mapping import Mapping, PROFILE_KEYS, read_yaml
 from motor_id.errors import ConfigError
@@ -50,7 +53,7 @@ class MotorSpec:
     fix: dict = field(default_factory=dict)
     bounds: dict = field(default_factory=dict)
 
-    def mapping(self):
+    def mapping(self) -> Mapping:
         """The bag mapping of :mod:`motor_id.data.rosbag`."""
         return Mapping(input=self.input, speed=self.speed, current=self.current,
                        joint=self.joint, effort_is=self.effort_is, align=self.align,
@@ -76,7 +79,7 @@ class FleetProfile:
     fit: FitSettings
     drift: DriftRule
 
-    def settings_hash(self, motor, analyze):
+    def settings_hash(self, motor: MotorSpec, analyze: bool) -> str:
         """A short hash of everything that decides a motor's result (a changed profile
         fits the recordings again)."""
         text = json.dumps({'motor': asdict(motor), 'fit': asdict(self.fit),
@@ -84,7 +87,7 @@ class FleetProfile:
         return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-def load_fleet_profile(path):
+def load_fleet_profile(path: str) -> FleetProfile:
     """Read and check a fleet profile.
 
     Parameters
@@ -104,7 +107,7 @@ def load_fleet_profile(path):
     return parse_fleet_profile(read_yaml(path), str(path))
 
 
-def parse_fleet_profile(data, where='profile'):
+def parse_fleet_profile(data: Any, where: str = 'profile') -> FleetProfile:
     """A :class:`FleetProfile` from the profile's parsed YAML (see :func:`load_fleet_profile`)."""
     if not isinstance(data, dict) or not isinstance(data.get('motors'), dict) \
             or not data['motors']:

@@ -1,12 +1,17 @@
 """report.html: the fleet at a glance, per-motor histories with error bars and change points,
 and the failed tasks, in one self-contained file (inline SVG and CSS; nothing fetched)."""
 
+from __future__ import annotations
+
+from collections.abc import Iterable
 import datetime as dt
 import html
 import math
 import os
+from typing import Any
 
-from motor_id.fleet.history import histories, UNITS
+from motor_id.fleet.drift import DriftRule
+from motor_id.fleet.history import histories, Row, UNITS
 from motor_id.model import PARAM_NAMES
 
 _CSS = """
@@ -54,9 +59,10 @@ def _epoch(iso):
     return dt.datetime.fromisoformat(str(iso).replace('Z', '+00:00')).timestamp()
 
 
-def motor_status(drift_rows, failures):
+def motor_status(drift_rows: Iterable[Row], failures: Iterable[Row]
+                 ) -> dict[tuple[str, str], dict[str, Any]]:
     """Per (robot, motor): the worst drift row (or None) and the failure count."""
-    out = {}
+    out: dict[tuple[str, str], dict[str, Any]] = {}
     for d in drift_rows:
         key = (d['robot'], d['motor'])
         cur = out.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
@@ -70,7 +76,8 @@ def motor_status(drift_rows, failures):
     return out
 
 
-def render(rows, failures, drift_rows, rule=None, title='motor_id fleet report'):
+def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
+           rule: DriftRule | None = None, title: str = 'motor_id fleet report') -> str:
     """The report as one HTML text.
 
     Parameters
@@ -85,7 +92,7 @@ def render(rows, failures, drift_rows, rule=None, title='motor_id fleet report')
     """
     status = motor_status(drift_rows, failures)
     hist = histories(rows)
-    counts = {}
+    counts: dict[tuple[str, str], list[Row]] = {}
     for r in rows:
         counts.setdefault((r['robot'], r['motor']), []).append(r)
     for key in counts:
@@ -263,7 +270,8 @@ def _failures_table(failures):
     return ''.join(out)
 
 
-def write_report(path, rows, failures, drift_rows, rule=None):
+def write_report(path: str | os.PathLike[str], rows: list[Row], failures: list[Row],
+                 drift_rows: list[Row], rule: DriftRule | None = None) -> None:
     """Write :func:`render`'s page to ``path``."""
     text = render(rows, failures, drift_rows, rule)
     tmp = f'{path}.tmp'

@@ -1,14 +1,22 @@
 """A fleet run from recordings to estimates, drift.json and report.html: the one path."""
 
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 import time
+from typing import Any
 
-from motor_id.fleet.discover import find_recordings
+from motor_id.fleet.discover import find_recordings, RecordingRef
 from motor_id.fleet.engine import DaskEngine
 from motor_id.fleet.history import drift_table
+from motor_id.fleet.profile import FleetProfile
 from motor_id.fleet.store import ResultStore
 from motor_id.fleet.task import run_task, Task
+
+Progress = Callable[[int, int, int, 'dict[str, Any] | None'], None]
+"""``progress(done, failed, left, result)`` after each task (result None at the start)."""
 
 
 @dataclass
@@ -23,21 +31,24 @@ class FleetRun:
     drift: list = field(default_factory=list)
     files: dict = field(default_factory=dict)
 
-    def drifting(self):
+    def drifting(self) -> list[dict[str, Any]]:
         """The drift rows that flagged a change."""
         return [d for d in self.drift if d['detected']]
 
 
-def plan(recordings, profile, analyze=False):
+def plan(recordings: Sequence[RecordingRef], profile: FleetProfile,
+         analyze: bool = False) -> list[Task]:
     """One :class:`Task` per recording and motor of the profile."""
     return [Task(path=r.path, robot=r.robot, size=r.size, mtime_ns=r.mtime_ns, motor=m,
                  fit=profile.fit, analyze=analyze, settings=profile.settings_hash(m, analyze))
             for r in recordings for m in profile.motors]
 
 
-def run_fleet(paths, profile, out_dir, workers=None, scheduler=None, analyze=False,
-              robot_from='parent', retry_failed=False, progress=None, engine=None,
-              report=True):
+def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
+              workers: int | None = None, scheduler: str | None = None,
+              analyze: bool = False, robot_from: str = 'parent', retry_failed: bool = False,
+              progress: Progress | None = None, engine: DaskEngine | None = None,
+              report: bool = True) -> FleetRun:
     """Fit every motor of every new recording on the engine; write the results.
 
     Parameters

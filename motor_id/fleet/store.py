@@ -6,15 +6,21 @@ same recording key (path, size, mtime) and the same settings hash; failures of t
 engine (a worker that died) are always tried again.
 """
 
+from __future__ import annotations
+
 import csv
 import datetime as dt
 import json
 import os
 from pathlib import Path
 import time
+from typing import Any, TYPE_CHECKING
 
 from motor_id.errors import ConfigError
 from motor_id.model import PARAM_NAMES
+
+if TYPE_CHECKING:
+    from motor_id.fleet.task import Task
 
 ID_COLUMNS = ('robot', 'motor', 'recording', 'start_time')
 COLUMNS = ID_COLUMNS + ('size', 'mtime_ns', 'settings', 'samples', 'duration_s') + tuple(
@@ -39,7 +45,7 @@ def _pa():
     return pyarrow
 
 
-def schema():
+def schema() -> Any:
     """The Parquet schema of the estimates."""
     pa = _pa()
     fields = []
@@ -82,29 +88,29 @@ class ResultStore:
         Smallest time between two rewrites of the files while results arrive [s].
     """
 
-    def __init__(self, out_dir, flush_every=2.0):
+    def __init__(self, out_dir: str | Path, flush_every: float = 2.0) -> None:
         self.out = Path(out_dir)
         try:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ConfigError(f'--out {out_dir}: cannot create ({exc.strerror})') from None
         self.flush_every = flush_every
-        self.rows = {}
-        self.failures = {}
+        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
+        self.failures: dict[tuple[str, str], dict[str, Any]] = {}
         self._dirty = False
         self._flushed = time.monotonic()
         self._load()
 
     @property
-    def parquet_path(self):
+    def parquet_path(self) -> Path:
         return self.out / 'estimates.parquet'
 
     @property
-    def csv_path(self):
+    def csv_path(self) -> Path:
         return self.out / 'estimates.csv'
 
     @property
-    def failed_path(self):
+    def failed_path(self) -> Path:
         return self.out / 'failed.json'
 
     def _load(self):
@@ -128,17 +134,17 @@ class ResultStore:
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 raise ConfigError(f'{self.failed_path}: unreadable ({exc})') from None
 
-    def is_done(self, task, retry_failed=False):
+    def is_done(self, task: Task, retry_failed: bool = False) -> bool:
         """True when ``task`` has a result (or a data/fit failure) for the same key."""
-        def same(r):
+        def same(r: dict[str, Any] | None) -> bool:
             return (r is not None and r.get('size') == task.size and
                     r.get('mtime_ns') == task.mtime_ns and r.get('settings') == task.settings)
         if same(self.rows.get(task.ident)):
             return True
         f = self.failures.get(task.ident)
-        return same(f) and not retry_failed and f.get('stage') != 'engine'
+        return f is not None and same(f) and not retry_failed and f.get('stage') != 'engine'
 
-    def add(self, result):
+    def add(self, result: dict[str, Any]) -> None:
         """Keep one task's result row or failure; rewrite the files when due."""
         ident = (result['recording'], result['motor'])
         if result.get('status') == 'ok':
@@ -151,13 +157,13 @@ class ResultStore:
         if time.monotonic() - self._flushed >= self.flush_every:
             self.flush()
 
-    def sorted_rows(self):
+    def sorted_rows(self) -> list[dict[str, Any]]:
         """The rows by robot, motor, start time."""
         return sorted(self.rows.values(), key=lambda r: (r['robot'], r['motor'],
                                                          r['start_time'] or '',
                                                          r['recording']))
 
-    def flush(self, force=False):
+    def flush(self, force: bool = False) -> None:
         """Rewrite estimates.parquet, estimates.csv and failed.json (atomic replaces)."""
         if not (self._dirty or force):
             return

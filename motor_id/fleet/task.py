@@ -7,16 +7,23 @@ It never raises: a failure comes back as a row with ``status: failed``, the stag
 (``read``, ``fit``, ``analyze``) and the reason.
 """
 
+from __future__ import annotations
+
 from dataclasses import dataclass
 import datetime as dt
 import os
 import socket
 import time
 import traceback
+from typing import Any, TYPE_CHECKING
 
 from motor_id.errors import MotorIdError
 from motor_id.fleet.profile import FitSettings, MotorSpec
 from motor_id.model import PARAM_NAMES
+
+if TYPE_CHECKING:
+    from motor_id.identify import Identifier
+    from motor_id.recording import Recording
 
 
 @dataclass(frozen=True)
@@ -33,12 +40,12 @@ class Task:
     settings: str
 
     @property
-    def ident(self):
+    def ident(self) -> tuple[str, str]:
         """``(recording, motor)``: the row this task fills."""
         return (self.path, self.motor.name)
 
 
-def run_task(task):
+def run_task(task: Task) -> dict[str, Any]:
     """Read, fit and (optionally) analyse one motor of one recording.
 
     Parameters
@@ -80,7 +87,7 @@ def _failed(row, stage, reason, started):
     return row
 
 
-def read_motor(task):
+def read_motor(task: Task) -> Recording:
     """The motor's recording, read by the bag mapping, shifted and validated."""
     from motor_id.data.load import load_recording
     from motor_id.data.shift import shift_input
@@ -100,7 +107,7 @@ def _start_time(rec, task):
         timespec='milliseconds').replace('+00:00', 'Z')
 
 
-def identifier(task, input_kind):
+def identifier(task: Task, input_kind: str) -> Identifier:
     """The :class:`~motor_id.identify.Identifier` of a task's settings."""
     from motor_id.errors import ConfigError
     from motor_id.identify import Identifier, parse_bounds, parse_fixed
@@ -117,7 +124,7 @@ def identifier(task, input_kind):
                       random_state=f.seed, fixed=fixed, bounds=bounds)
 
 
-def fit_row(rec, task):
+def fit_row(rec: Recording, task: Task) -> dict[str, Any]:
     """The numbers a fit leaves: every parameter's value, std and determined flag, fit %,
     adequacy and warnings (read defensively: older reports have no ``adequate``)."""
     est = identifier(task, rec.input_kind).fit(rec)
@@ -139,7 +146,7 @@ def fit_row(rec, task):
     return row
 
 
-def analysis_row(rec, task):
+def analysis_row(rec: Recording, task: Task) -> dict[str, Any]:
     """The discrepancy analysis's verdict for the row."""
     from motor_id.analysis import DiscrepancyAnalysis
     m = task.motor
