@@ -25,7 +25,7 @@ a bag's topics and builds the function that reads one channel from a message; th
 reading itself is :mod:`motor_id.data.rosbag`.
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 import os
 import re
@@ -154,14 +154,20 @@ def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     data = read_yaml(path)
     if data is None:
         return {}
-    if not isinstance(data, dict):
-        raise ConfigError(f'--profile {path}: expected a mapping of {", ".join(PROFILE_KEYS)}')
-    data = {str(k).replace('-', '_'): v for k, v in data.items()}
-    unknown = sorted(set(data) - set(PROFILE_KEYS))
+    return check_keys(data, f'--profile {path}', PROFILE_KEYS)
+
+
+def check_keys(entry: Any, where: str, known: Sequence[str]) -> dict[str, Any]:
+    """A profile mapping with ``-`` in keys read as ``_``; ConfigError naming ``where``
+    for a non-mapping or an unknown key."""
+    if not isinstance(entry, dict):
+        raise ConfigError(f'{where}: expected a mapping of {", ".join(known)}, got {entry!r}')
+    entry = {str(k).replace('-', '_'): v for k, v in entry.items()}
+    unknown = sorted(set(entry) - set(known))
     if unknown:
-        raise ConfigError(f'--profile {path}: unknown key(s) {", ".join(unknown)} (known: '
-                          f'{", ".join(PROFILE_KEYS)})')
-    return data
+        raise ConfigError(f'{where}: unknown key(s) {", ".join(unknown)} (known: '
+                          f'{", ".join(known)})')
+    return entry
 
 
 def resolve(mapping: Mapping, topics: dict[str, Any],

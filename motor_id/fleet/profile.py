@@ -25,7 +25,7 @@ import json
 import math
 from typing import Any
 
-from motor_id.data.mapping import Mapping, PROFILE_KEYS, read_yaml
+from motor_id.data.mapping import check_keys, Mapping, PROFILE_KEYS, read_yaml
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 
@@ -131,15 +131,7 @@ def parse_fleet_profile(data: Any, where: str = 'profile') -> FleetProfile:
     return FleetProfile(tuple(motors), FitSettings(**fit), drift)
 
 
-def _keys(entry, where, known):
-    if not isinstance(entry, dict):
-        raise ConfigError(f'{where}: expected a mapping, got {entry!r}')
-    entry = {str(k).replace('-', '_'): v for k, v in entry.items()}
-    unknown = sorted(set(entry) - set(known))
-    if unknown:
-        raise ConfigError(f'{where}: unknown key(s) {", ".join(unknown)} (known: '
-                          f'{", ".join(known)})')
-    return entry
+_keys = check_keys
 
 
 def _motor(name, d, where):
