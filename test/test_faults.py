@@ -396,13 +396,17 @@ def test_driver_warns_once_on_a_baud_rate_mismatch_and_recovers(client, launch, 
             raw_pty.write(g[k:k + 1000], rng, pause=0.0)
             time.sleep(max(0.0, (end - time.monotonic()) / ((len(g) - k) / 1000 + 1)))
             seen_garbled.append(latest_status(diags, 'motor_id: driver').get('link'))
+        mark = len(diags)   # statuses from here on follow the garbled episode
         raw_pty.write(b''.join(good[50:75] if g is garbled[0] else good[75:]), rng)
     assert wait_until(lambda: int(latest_status(diags, 'motor_id: driver')
                                   .get('samples_published', 0)) >= 100, 10.0)
     st_ = latest_status(diags, 'motor_id: driver')
     assert drv.proc.poll() is None
     assert 'garbled' in seen_garbled, seen_garbled   # /diagnostics said so meanwhile
-    assert st_['link'] == 'connected'                  # and recovered with good frames
+    # and recovered with good frames (a second after the last of them it may be stalled)
+    links = [{kv.key: kv.value for kv in s.values}.get('link')
+             for d in list(diags)[mark:] for s in d.status if s.name == 'motor_id: driver']
+    assert 'connected' in links, links
     assert int(st_['garbage_bytes']) >= 0.9 * sum(map(len, garbled))
     assert int(st_['frames_ok']) == 100
     rows = rows_of(samples)
