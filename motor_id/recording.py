@@ -139,11 +139,6 @@ class Recording:
                    np.concatenate([r.speed for r in recordings]), cur,  # type: ignore[arg-type]
                    first.input_kind, meta, segs)
 
-    def segment(self, k: int) -> Recording:
-        """Run ``k`` as a recording of its own."""
-        a, b = self.segment_ranges[k]
-        return self.slice(a, b)
-
     def channels(self) -> tuple[str, ...]:
         """Names of the output channels present: speed, and current if measured."""
         return ('speed', 'current') if self.has_current else ('speed',)

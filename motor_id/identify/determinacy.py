@@ -16,6 +16,8 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.metrics import noise_floor
+
 MAX_RELATIVE_STD = 0.5
 """A parameter whose (robust) relative standard deviation exceeds this is not determined:
 the record allows it to change by a factor of 1.65 at one sigma."""
@@ -51,15 +53,13 @@ def channel_levels(y: np.ndarray) -> int:
 
 
 def relative_noise(y: np.ndarray) -> float:
-    """Sample-to-sample noise of a channel relative to its standard deviation (robust
-    second differences), clipped to [:data:`VISIBLE`, 0.5]."""
+    """Sample-to-sample noise of a channel (:func:`motor_id.metrics.noise_floor`)
+    relative to its standard deviation, clipped to [:data:`VISIBLE`, 0.5]."""
     y = np.asarray(y, dtype=float)
     s = float(np.std(y))
     if y.size < 4 or s == 0:
         return 0.5
-    d2 = np.diff(y, 2)
-    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0)
-    return float(min(max(sigma / s, VISIBLE), 0.5))
+    return float(min(max(noise_floor(y) / s, VISIBLE), 0.5))
 
 
 def inductance_bound(L_m: float, R_m: float, period: float, noise: float) -> float | None:

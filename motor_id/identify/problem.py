@@ -15,6 +15,7 @@ from numpy.typing import ArrayLike
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds
 from motor_id.identify.units import InternalUnits
+from motor_id.metrics import noise_floor
 from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
 from motor_id.simulate import simulate_runs
 
@@ -126,16 +127,15 @@ def initial_tolerance(y: ArrayLike) -> float:
     """How far a run's initial state may sit from its first measured value: three times
     the channel's sample-to-sample noise, or half its resolution if larger.
 
-    The noise is read from second differences (robust median absolute deviation), which
-    a smooth response barely moves; a channel on a grid (an encoder, a quantised current)
-    also gets half its smallest step.
+    The noise is :func:`motor_id.metrics.noise_floor` (second differences, which a smooth
+    response barely moves); a channel on a grid (an encoder, a quantised current) also
+    gets half its smallest step.
     """
     y = np.asarray(y, dtype=float)
     scale = float(np.std(y)) or float(np.max(np.abs(y))) or 1.0
     if y.size < 4:
         return 0.1 * scale
-    d2 = np.diff(y, 2)
-    sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    sigma = noise_floor(y)
     steps = np.abs(np.diff(y))
     steps = steps[steps > 1e-12 * scale]
     half_step = 0.5 * float(np.min(steps)) if steps.size else 0.0
@@ -255,8 +255,6 @@ class IdentificationProblem:
                 hi.append(v + span)
         self.x0 = np.array(x0, dtype=float)
         self.x0_bounds = (np.array(lo), np.array(hi))
-        self.measured_states = tuple(
-            k for k, (ch, y) in enumerate(signals.items()) if y is not None)
         ys = [un.signal(getattr(rec, c), c) for c in self.channels]
         for ch, y in zip(self.channels, ys, strict=True):
             if np.ptp(y) == 0:
