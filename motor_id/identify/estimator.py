@@ -191,14 +191,11 @@ class Identifier:
             sides = self._on_default_bound()
             if not sides:
                 return
-            bounds = {**(self.bounds or {}), **self.widened_, **sides}
-            settings = {k: getattr(self, k) for k in _SETTINGS}
-            again = Identifier(**{**settings, 'bounds': bounds, 'widen': False})
+            again = self._variant(bounds={**(self.bounds or {}), **self.widened_, **sides})
             again._fit(rec, progress, sample_weight)
             if not again.result_.fit['cost'] <= self.result_.fit['cost']:
                 return
-            for attr in ('problem_', 'result_', 'params_', 'covariance_', 'history_'):
-                setattr(self, attr, getattr(again, attr))
+            self._adopt(again, 'history_')
             self.widened_.update(sides)
             self.result_.fit['widened'] = {k: [float(lo), float(hi)]
                                            for k, (lo, hi) in self.widened_.items()}
@@ -239,11 +236,9 @@ class Identifier:
                          f'{r["given"]:.4g} Ohm is used')
         if not notes:
             return
-        settings = {k: getattr(self, k) for k in _SETTINGS}
         start = {k: v for k, v in self.params_.items() if v is not None}
-        again = Identifier(**{**settings, 'fixed': fixed, 'channels': channels,
-                              'start': start, 'use_ga': False, 'widen': False,
-                              'bounds': {**(self.bounds or {}), **self.widened_} or None})
+        again = self._variant(fixed=fixed, channels=channels, start=start, use_ga=False,
+                              bounds={**(self.bounds or {}), **self.widened_} or None)
         again._fit(rec, None, sample_weight)
         res2 = again.result_
         res2.ga, res2.warnings = res.ga, notes + res2.warnings
@@ -251,8 +246,17 @@ class Identifier:
             res2.resistance['note'] = notes[-1]
             res2.resistance['data_estimate'] = {'value': r.get('estimate'),
                                                 'std': r.get('std')}
-        for attr in ('problem_', 'result_', 'params_', 'covariance_'):
-            setattr(self, attr, getattr(again, attr))
+        self._adopt(again)
+
+    def _variant(self, **changes: Any) -> Identifier:
+        """An unwidened Identifier with these settings changed (the refits above)."""
+        return Identifier(**{**{k: getattr(self, k) for k in _SETTINGS}, 'widen': False,
+                             **changes})
+
+    def _adopt(self, other: Identifier, *extra: str) -> None:
+        """Take over the fitted state of ``other`` (and the ``extra`` attributes)."""
+        for attr in ('problem_', 'result_', 'params_', 'covariance_', *extra):
+            setattr(self, attr, getattr(other, attr))
 
     def _on_default_bound(self) -> dict[str, tuple[float, float]]:
         """``{name: (low, high)}`` SI: the widened range of each physical parameter the
