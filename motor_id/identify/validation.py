@@ -19,11 +19,9 @@ import numpy as np
 from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
-from motor_id.model import EFFECTS, PARAM_NAMES
+from motor_id.model import EFFECTS, MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
 from motor_id.simulate import simulate_batch
-
-TORQUE_PARAMS = ('J', 'B')
 
 
 @dataclass
@@ -54,7 +52,7 @@ class SavedModel:
         if kind not in INPUT_KINDS:
             raise ConfigError(f'{source or "the model"}: the report names no plant kind '
                               '("input_kind": voltage or torque)')
-        names = PARAM_NAMES if kind == 'voltage' else TORQUE_PARAMS
+        names = PARAM_NAMES if kind == 'voltage' else MECHANICAL_PARAMS
         params = {}
         for n in names:
             p = report['parameters'].get(n)
