@@ -35,6 +35,10 @@ class Recording:
         Sample ranges ``[start, stop)`` of separate runs joined into one recording
         (:meth:`concatenate`): each starts from its own initial state and the model is
         never simulated across a boundary. None: one run.
+    position : ndarray or None
+        Measured position [rad] (or [m] for a linear axis), when the source logs it
+        (encoder counts scaled by the counts per revolution, the EMPS ``qm``, a SysId
+        log's position). A model that integrates speed holds it too.
     """
 
     time: np.ndarray
@@ -46,6 +50,7 @@ class Recording:
     input_kind: str = 'voltage'
     meta: dict = field(default_factory=dict)
     segments: list[tuple[int, int]] | None = None
+    position: np.ndarray | None = None
 
     MAX_MAGNITUDE = 1e200
     """Largest accepted magnitude of any value. The fit rescales each channel and copes
@@ -61,6 +66,8 @@ class Recording:
         self.speed = np.asarray(self.speed, dtype=float)
         if self.current is not None:
             self.current = np.asarray(self.current, dtype=float)
+        if self.position is not None:
+            self.position = np.asarray(self.position, dtype=float)
 
     def __len__(self) -> int:
         return self.time.size
@@ -69,6 +76,11 @@ class Recording:
     def has_current(self) -> bool:
         """True when a current channel is present."""
         return self.current is not None
+
+    @property
+    def has_position(self) -> bool:
+        """True when a position channel is present."""
+        return self.position is not None
 
     @property
     def sample_period(self) -> float:
@@ -111,12 +123,13 @@ class Recording:
             return recordings[0]
         first = recordings[0]
         for r in recordings[1:]:
-            if r.input_kind != first.input_kind or r.has_current != first.has_current:
+            if (r.input_kind != first.input_kind or r.has_current != first.has_current
+                    or r.has_position != first.has_position):
                 raise DataError(
                     f'cannot fit {r.meta.get("source", "a recording")} together with '
                     f'{first.meta.get("source", "the first")}: one has '
-                    f'{first.input_kind} input and channels {first.channels()}, the other '
-                    f'{r.input_kind} input and {r.channels()}')
+                    f'{first.input_kind} input and channels {first.channels(True)}, the '
+                    f'other {r.input_kind} input and {r.channels(True)}')
         times: list[np.ndarray] = []
         segs: list[tuple[int, int]] = []
         offsets: list[float] = []
@@ -132,20 +145,28 @@ class Recording:
             n += t.size
         cur = np.concatenate([r.current for r in recordings]) if first.has_current \
             else None
+        pos = np.concatenate([r.position for r in recordings]) if first.has_position \
+            else None
         meta = dict(first.meta)
         meta['sources'] = [r.meta.get('source') for r in recordings]
         meta['segment_offsets'] = offsets
         return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),
                    np.concatenate([r.speed for r in recordings]), cur,  # type: ignore[arg-type]
-                   first.input_kind, meta, segs)
+                   first.input_kind, meta, segs, pos)
 
-    def channels(self) -> tuple[str, ...]:
-        """Names of the output channels present: speed, and current if measured."""
-        return ('speed', 'current') if self.has_current else ('speed',)
+    def channels(self, with_position: bool = False) -> tuple[str, ...]:
+        """Names of the output channels present: speed, and current if measured.
+
+        ``with_position`` adds 'position' when it is measured (the channels a model
+        is compared with in simulation; the equation-error fit uses speed and current).
+        """
+        out = ('speed', 'current') if self.has_current else ('speed',)
+        return out + ('position',) if with_position and self.has_position else out
 
     def slice(self, start: int | None, stop: int | None) -> Recording:
         """A new recording with samples ``start:stop``."""
         cur = None if self.current is None else self.current[start:stop]
+        pos = None if self.position is None else self.position[start:stop]
         start, stop, _ = slice(start, stop).indices(len(self))
         segs: list[tuple[int, int]] | None = None
         if self.segments:
@@ -154,7 +175,7 @@ class Recording:
             segs = segs if len(segs) > 1 else None
         return Recording(self.time[start:stop], self.input[start:stop],
                          self.speed[start:stop], cur, self.input_kind, dict(self.meta),
-                         segs)
+                         segs, pos)
 
     def validate(self, min_samples: int = MIN_SAMPLES) -> Recording:
         """Raise :class:`DataError` with a one-line reason if the data cannot be fitted.
@@ -165,7 +186,8 @@ class Recording:
         :attr:`MIN_MOVING_FRACTION` of the samples).
         """
         n = self.time.size
-        names = ('time', 'input', 'speed') + (('current',) if self.has_current else ())
+        names = (('time', 'input', 'speed') + (('current',) if self.has_current else ())
+                 + (('position',) if self.has_position else ()))
         for name in names[1:]:
             arr = getattr(self, name)
             if arr.shape != self.time.shape:
@@ -224,6 +246,8 @@ class Recording:
              'speed': self.speed.tolist(), 'input_kind': self.input_kind, 'meta': self.meta}
         if self.has_current:
             d['current'] = self.current.tolist()
+        if self.position is not None:
+            d['position'] = self.position.tolist()
         return d
 
 

@@ -65,3 +65,29 @@ def test_one_corrupt_cell_among_sane_values_is_named():
     with pytest.raises(DataError, match=r"channel 'speed' at sample 1234: 3e\+16 is .* times "
                                         r'the typical magnitude .* a corrupt value\?'):
         rec.validate()
+
+
+def test_position_channel_survives_slice_concatenate_and_csv(tmp_path):
+    """An optional position channel is kept by slicing, joining runs and the CSV round trip."""
+    from motor_id.data.csv_io import read_csv, write_csv
+    t = np.arange(100) * 0.01
+    u = np.where(t > 0.2, 1.0, 0.0)
+    w = np.cumsum(u) * 0.01
+    pos = np.cumsum(w) * 0.01
+    rec = Recording(t, u, w, position=pos)
+    assert rec.channels() == ('speed',)
+    assert rec.channels(True) == ('speed', 'position')
+    part = rec.slice(10, 60)
+    np.testing.assert_array_equal(part.position, pos[10:60])
+    both = Recording.concatenate([rec, rec.slice(0, 50)])
+    assert both.position.size == 150
+    np.testing.assert_array_equal(both.position[100:], pos[:50])
+    with pytest.raises(DataError, match='position'):
+        Recording.concatenate([rec, Recording(t, u, w)])
+    path = tmp_path / 'pos.csv'
+    write_csv(rec, path)
+    back = read_csv(path)
+    np.testing.assert_allclose(back.position, pos, rtol=1e-15)
+    bad = Recording(t, u, w, position=np.where(t > 0.5, np.nan, pos))
+    with pytest.raises(DataError, match="'position' has 49 NaN"):
+        bad.validate()

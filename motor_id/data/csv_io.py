@@ -11,7 +11,7 @@ from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import bad_magnitude, MIN_SAMPLES, Recording
 
-ROLES = ('time', 'input', 'speed', 'current')
+ROLES = ('time', 'input', 'speed', 'current', 'position')
 """Channels a column can be mapped to (``--columns ROLE=NAME,...``)."""
 INPUT_NAMES = {'voltage': 'voltage', 'torque': 'torque', 'force': 'torque'}
 """Input column names recognised without a mapping, and the plant kind each one sets."""
@@ -58,7 +58,7 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
     """Read a recording from CSV with a header naming its columns.
 
     Columns ``time`` [s], the input and ``speed`` [rad/s] are required, ``current`` [A]
-    optional; other columns are ignored. The input column is named ``voltage`` [V]
+    and ``position`` [rad] (or [m]) optional; other columns are ignored. The input column is named ``voltage`` [V]
     (voltage plant), ``torque`` [N m] or ``force`` [N] (torque plant), or mapped with
     ``columns``. Comma-separated; lines starting with ``#`` are comments
     (``# input_kind: torque`` sets the plant kind); a UTF-8 byte-order mark is accepted.
@@ -68,7 +68,7 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
     path : str or os.PathLike
     min_samples : int
     columns : dict or str, optional
-        ``{role: header name}`` for roles ``time, input, speed, current`` (see
+        ``{role: header name}`` for roles ``time, input, speed, current, position`` (see
         :func:`parse_columns`); unmapped roles use the standard names.
     input_kind : {'voltage', 'torque'}, optional
         Overrides the kind given by a comment or by the input column's name.
@@ -120,10 +120,8 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
                         f'{time[k - 1]:g})')
     if columns:
         meta['columns'] = {role: names[j] for role, j in cols.items()}
-    if 'current' in data:
-        rec = Recording(time, data['input'], data['speed'], data['current'], kind, meta)
-    else:
-        rec = Recording(time, data['input'], data['speed'], input_kind=kind, meta=meta)
+    rec = Recording(time, data['input'], data['speed'], data.get('current'), kind, meta,
+                    position=data.get('position'))
     try:
         return rec.validate(min_samples)
     except DataError as exc:
@@ -185,8 +183,9 @@ def _find_columns(path: str | os.PathLike[str], header_line: int, header: str,
             missing.append('voltage (or torque, force)')
         elif name not in names:
             missing.append(name)
-    if 'current' in columns and columns['current'] not in names:
-        missing.append(columns['current'])
+    for role in ('current', 'position'):
+        if role in columns and columns[role] not in names:
+            missing.append(columns[role])
     if missing:
         hint = ''
         if len(names) == 1 and any(d in header for d in ';\t|'):
@@ -258,7 +257,7 @@ def _parse_body(path: str | os.PathLike[str], linenos: np.ndarray, lines: list[s
 
 def write_csv(rec: Recording, path: str | os.PathLike[str],
               comments: dict[str, Any] | None = None) -> None:
-    """Write a recording as CSV (``time,voltage|torque,speed[,current]``) with comments.
+    """Write a recording as CSV (``time,voltage|torque,speed[,current][,position]``).
 
     Parameters
     ----------
@@ -268,9 +267,10 @@ def write_csv(rec: Recording, path: str | os.PathLike[str],
         Written as ``# key: value`` lines before the header.
     """
     name = 'voltage' if rec.input_kind == 'voltage' else 'torque'
-    current = [] if rec.current is None else [rec.current]
-    cols = ['time', name, 'speed'] + (['current'] if current else [])
-    arr = np.column_stack([rec.time, rec.input, rec.speed] + current)
+    extra = [(k, v) for k, v in (('current', rec.current), ('position', rec.position))
+             if v is not None]
+    cols = ['time', name, 'speed'] + [k for k, _ in extra]
+    arr = np.column_stack([rec.time, rec.input, rec.speed] + [v for _, v in extra])
     with open(path, 'w', newline='') as fh:
         if rec.input_kind != 'voltage':
             fh.write(f'# input_kind: {rec.input_kind}\n')

@@ -124,7 +124,9 @@ def load_emps(path: str | os.PathLike[str]) -> Recording:
         'units': {'t': 's', 'voltage': 'N', 'speed': 'm/s', 'current': 'A', 'flags': '1'},
         'parameter_meaning': {'J': 'moving mass M [kg]', 'B': 'viscous friction Fv [N s/m]'},
     }
-    return Recording(time, force, speed, input_kind='torque', meta=meta)
+    meta['units']['position'] = 'm'
+    return Recording(time, force, speed, input_kind='torque', meta=meta,
+                     position=col['qm'].copy())
 
 
 def load_dunker(path: str | os.PathLike[str], motor: int = 1) -> Recording:
