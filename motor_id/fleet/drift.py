@@ -36,6 +36,7 @@ import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from motor_id.errors import ConfigError
 
@@ -129,7 +130,8 @@ class DriftRule:
         rel = np.nan_to_num(s[keep] / x[keep], nan=0.0, posinf=0.0)
         return self._scan(t_kept, y, rel, keep)
 
-    def _scan(self, times, y, rel, index):
+    def _scan(self, times: list[Any], y: NDArray[np.float64], rel: NDArray[np.float64],
+              index: NDArray[np.intp]) -> DriftFinding:
         from scipy import stats
         n = y.size
         finding = DriftFinding(detected=False, n=int(n), scores=[None] * n)
@@ -141,7 +143,7 @@ class DriftRule:
                 finding.latest = float(np.exp(y[-1]))
                 finding.change = finding.latest / finding.baseline - 1.0
             return finding
-        members = []        # the regime's estimates that count as in control
+        members: list[int] = []   # the regime's estimates that count as in control
         c_pos = c_neg = 0.0
         start_pos = start_neg = 0
         for j in range(n):
@@ -176,7 +178,8 @@ class DriftRule:
                 members.append(j)
         return self._finish(finding, y, rel, members)
 
-    def _baseline(self, y, rel, base):
+    def _baseline(self, y: NDArray[np.float64], rel: NDArray[np.float64], base: list[int]
+                  ) -> tuple[float, float, float, int]:
         """(mean, tau^2, mean s_b^2, n) of the baseline points."""
         yb = y[base]
         nb = len(base)
@@ -185,7 +188,8 @@ class DriftRule:
         tau2 = max(var - sb2, self.floor ** 2)
         return float(np.mean(yb)), tau2, sb2, nb
 
-    def _finish(self, finding, y, rel, members):
+    def _finish(self, finding: DriftFinding, y: NDArray[np.float64], rel: NDArray[np.float64],
+                members: list[int]) -> DriftFinding:
         f = finding
         cps = f.change_points
         for a, cp in enumerate(cps):
@@ -255,7 +259,7 @@ class DriftFinding:
         return d
 
 
-def _split(y, base, start, end):
+def _split(y: NDArray[np.float64], base: list[int], start: int, end: int) -> int:
     """The change point in ``start..end``: the split that best separates the means of the
     estimates before it (with the baseline) and from it on (least squares)."""
     best, best_stat = start, -1.0
@@ -269,7 +273,7 @@ def _split(y, base, start, end):
     return best
 
 
-def _iso(t):
+def _iso(t: object) -> str | None:
     """An ISO text of a time value (strings pass through)."""
     if t is None or isinstance(t, str):
         return t

@@ -134,7 +134,7 @@ def parse_fleet_profile(data: Any, where: str = 'profile') -> FleetProfile:
 _keys = check_keys
 
 
-def _motor(name, d, where):
+def _motor(name: str, d: dict[str, Any], where: str) -> MotorSpec:
     for key in ('resistance', 'resistance_tolerance'):
         v = d.get(key)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))

@@ -43,19 +43,19 @@ document.body.dataset.ready = '1';
 """
 
 
-def _e(x):
+def _e(x: object) -> str:
     return html.escape('' if x is None else str(x))
 
 
-def _pct(x):
+def _pct(x: float | None) -> str:
     return '-' if x is None else f'{x * 100:+.1f} %'
 
 
-def _g(x, spec='.4g'):
+def _g(x: float | None, spec: str = '.4g') -> str:
     return '-' if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
 
 
-def _epoch(iso):
+def _epoch(iso: object) -> float:
     return dt.datetime.fromisoformat(str(iso).replace('Z', '+00:00')).timestamp()
 
 
@@ -98,7 +98,7 @@ def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
     for key in counts:
         status.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
 
-    def rank(key):
+    def rank(key: tuple[str, str]) -> tuple[int, float, tuple[str, str]]:
         s = status[key]
         w = s['worst']
         return (0 if w else 1 if s['failed'] else 2, -abs(w['z'] or 0) if w else 0, key)
@@ -133,7 +133,9 @@ def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
     return '\n'.join(out)
 
 
-def _glance_table(order, status, counts):
+def _glance_table(order: list[tuple[str, str]],
+                  status: dict[tuple[str, str], dict[str, Any]],
+                  counts: dict[tuple[str, str], list[Row]]) -> str:
     head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', 'K_T', 'R_m',
             'B', 'recordings', 'last recording', 'failed')
     out = ['<table id="glance-table" class="sortable"><thead><tr>'
@@ -165,11 +167,12 @@ def _glance_table(order, status, counts):
     return ''.join(out)
 
 
-def _anchor(key):
+def _anchor(key: tuple[str, str]) -> str:
     return 'm-' + ''.join(c if c.isalnum() else '-' for c in f'{key[0]}-{key[1]}')
 
 
-def _motor_section(key, status, per, drift_rows):
+def _motor_section(key: tuple[str, str], status: dict[str, Any],
+                   per: dict[str, list[tuple[Any, ...]]], drift_rows: list[Row]) -> str:
     rows = {d['parameter']: d for d in drift_rows
             if (d['robot'], d['motor']) == key}
     title = f'{key[0]} / {key[1]}'
@@ -193,7 +196,8 @@ def _motor_section(key, status, per, drift_rows):
     return ''.join(out)
 
 
-def _plot(param, hist, d, width=360, height=150):
+def _plot(param: str, hist: list[tuple[Any, ...]], d: Row | None, width: int = 360,
+          height: int = 150) -> str:
     """One parameter's history as inline SVG: points with +-2 std bars, baseline, change."""
     ml, mr, mt, mb = 62, 8, 8, 22
     t = [_epoch(x[0]) for x in hist]
@@ -209,10 +213,10 @@ def _plot(param, hist, d, width=360, height=150):
     t0, t1 = min(t), max(t)
     span = (t1 - t0) or 1.0
 
-    def x_px(x):
+    def x_px(x: float) -> float:
         return ml + (x - t0) / span * (width - ml - mr)
 
-    def y_px(y):
+    def y_px(y: float) -> float:
         return mt + (hi - y) / (hi - lo) * (height - mt - mb)
     parts = [f'<svg width="{width}" height="{height}" '
              f'viewBox="0 0 {width} {height}" role="img" data-parameter="{_e(param)}" '
@@ -254,7 +258,7 @@ def _plot(param, hist, d, width=360, height=150):
     return f'<figure>{"".join(parts)}<figcaption>{cap}</figcaption></figure>'
 
 
-def _failures_table(failures):
+def _failures_table(failures: list[Row]) -> str:
     out = [f'<h2 id="failed">Failed tasks ({len(failures)})</h2>']
     if not failures:
         out.append('<p>None.</p>')

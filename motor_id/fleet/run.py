@@ -100,11 +100,13 @@ def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
     return run
 
 
-def _execute(todo, store, run, workers, scheduler, progress, engine):
+def _execute(todo: list[Task], store: ResultStore, run: FleetRun, workers: int | None,
+             scheduler: str | None, progress: Progress | None,
+             engine: DaskEngine | None) -> None:
     if progress:
         progress(0, 0, len(todo), None)
     own = engine is None
-    if own:
+    if engine is None:
         engine = DaskEngine(workers=workers, scheduler=scheduler).__enter__()
     try:
         left = len(todo)

@@ -14,6 +14,7 @@ import json
 import os
 from pathlib import Path
 import time
+from types import ModuleType
 from typing import Any, TYPE_CHECKING
 
 from motor_id.errors import ConfigError
@@ -35,7 +36,7 @@ _BOOL = {c for c in COLUMNS if c.endswith('_determined')} | {'adequate', 'unexpl
 _STR = {'robot', 'motor', 'recording', 'settings', 'warnings', 'verdict', 'worker'}
 
 
-def _pa():
+def _pa() -> ModuleType:
     try:
         import pyarrow
         import pyarrow.parquet
@@ -64,11 +65,11 @@ def schema() -> Any:
     return pa.schema(fields)
 
 
-def _parse_time(text):
+def _parse_time(text: str) -> dt.datetime:
     return dt.datetime.fromisoformat(text.replace('Z', '+00:00'))
 
 
-def _iso(t):
+def _iso(t: dt.datetime | str | None) -> str | None:
     if t is None or isinstance(t, str):
         return t
     if t.tzinfo is None:
@@ -113,7 +114,7 @@ class ResultStore:
     def failed_path(self) -> Path:
         return self.out / 'failed.json'
 
-    def _load(self):
+    def _load(self) -> None:
         if self.parquet_path.exists():
             import pyarrow.parquet as pq
             _pa()
@@ -176,7 +177,7 @@ class ResultStore:
         self._dirty = False
         self._flushed = time.monotonic()
 
-    def _write_parquet(self, rows):
+    def _write_parquet(self, rows: list[dict[str, Any]]) -> None:
         pa = _pa()
         import pyarrow.parquet as pq
         cols = {c: [r.get(c) for r in rows] for c in COLUMNS}
@@ -187,7 +188,7 @@ class ResultStore:
         pq.write_table(table, tmp)
         os.replace(tmp, self.parquet_path)
 
-    def _write_csv(self, rows):
+    def _write_csv(self, rows: list[dict[str, Any]]) -> None:
         tmp = self.csv_path.with_suffix('.csv.tmp')
         with open(tmp, 'w', newline='', encoding='utf-8') as fh:
             w = csv.writer(fh)
@@ -197,7 +198,7 @@ class ResultStore:
         os.replace(tmp, self.csv_path)
 
 
-def _cell(v):
+def _cell(v: object) -> object:
     if v is None:
         return ''
     if isinstance(v, bool):
@@ -207,7 +208,7 @@ def _cell(v):
     return v
 
 
-def _atomic_text(path, text):
+def _atomic_text(path: str | os.PathLike[str], text: str) -> None:
     tmp = Path(str(path) + '.tmp')
     with open(tmp, 'w', encoding='utf-8') as fh:
         fh.write(text)

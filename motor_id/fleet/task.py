@@ -15,7 +15,7 @@ import os
 import socket
 import time
 import traceback
-from typing import Any, TYPE_CHECKING
+from typing import Any, SupportsFloat, TYPE_CHECKING
 
 from motor_id.errors import MotorIdError
 from motor_id.fleet.profile import FitSettings, MotorSpec
@@ -81,7 +81,7 @@ def run_task(task: Task) -> dict[str, Any]:
     return row
 
 
-def _failed(row, stage, reason, started):
+def _failed(row: dict[str, Any], stage: str, reason: str, started: float) -> dict[str, Any]:
     row.update(status='failed', stage=stage, reason=reason,
                seconds=time.perf_counter() - started)
     return row
@@ -99,7 +99,7 @@ def read_motor(task: Task) -> Recording:
     return rec
 
 
-def _start_time(rec, task):
+def _start_time(rec: Recording, task: Task) -> str:
     ns = rec.meta.get('time_origin_ns')
     if ns is None:
         ns = task.mtime_ns
@@ -156,5 +156,5 @@ def analysis_row(rec: Recording, task: Task) -> dict[str, Any]:
     return {'verdict': str(rep.get('verdict')), 'unexplained': bool(rep.get('unexplained'))}
 
 
-def _num(v):
+def _num(v: SupportsFloat | None) -> float | None:
     return None if v is None else float(v)

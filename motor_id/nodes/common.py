@@ -66,7 +66,7 @@ class ParamSpec:
     dynamic: bool = False
     read_only: bool = False
     syntax: str | None = None
-    validator: Callable[[Any, str], None] | None = None
+    validator: Callable[[Any, str], object] | None = None
 
     def allowed(self) -> str:
         """The allowed values, in words."""

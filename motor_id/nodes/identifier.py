@@ -4,6 +4,7 @@ import datetime as dt
 import sys
 import threading
 import time
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 import numpy as np
@@ -12,6 +13,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
@@ -37,12 +39,12 @@ from motor_id.nodes.topic_input import TopicInput
 FITTED = tuple(n for n in PARAM_NAMES if n != 'R_m')
 
 
-def _items(text):
+def _items(text: str) -> list[str]:
     """The comma-separated items of a string parameter."""
     return [x for x in text.split(',') if x.strip()]
 
 
-def fixed_values(text, name='fix'):
+def fixed_values(text: str, name: str = 'fix') -> dict[str, float]:
     """``fix`` parameter -> {NAME: value}; raises ConfigError starting with ``name``."""
     fixed = parse_fixed(_items(text), name)
     if 'R_m' in fixed:
@@ -50,7 +52,7 @@ def fixed_values(text, name='fix'):
     return fixed
 
 
-def bound_values(text, name='bounds'):
+def bound_values(text: str, name: str = 'bounds') -> dict[str, tuple[float, float]]:
     """``bounds`` parameter -> {NAME: (low, high)}; raises ConfigError starting with ``name``."""
     bounds = parse_bounds(_items(text), name)
     unknown = sorted(set(bounds) - set(FITTED))
@@ -145,7 +147,7 @@ class IdentifierNode(Node):
     only ``/diagnostics`` is global.
     """
 
-    def __init__(self):
+    def __init__(self) -> None:
         super().__init__('identifier')
         self.settings = declare_parameters(self, PARAMETERS)
         if self.settings['min_samples'] > self.settings['max_samples']:
@@ -162,13 +164,13 @@ class IdentifierNode(Node):
         self.hardware_id = (self.settings['hardware_id'] or self.get_namespace().strip('/')
                             or self.get_name())
         self._setting_outputs = threading.local()
-        self._outputs = set()
+        self._outputs: set[str] = set()
         self.input_kind = self.settings['input_kind']
         if self.settings['input'] == 'topics' and self.settings['effort_is'] == 'torque':
             self.input_kind = 'torque'
         if self.settings['warm_up']:
             self._warm_up()
-        self.topic_input = None
+        self.topic_input: TopicInput | None = None
         if self.settings['input'] == 'topics':
             self.topic_input = TopicInput(self, self.buffer, self.settings)
         else:
@@ -183,8 +185,8 @@ class IdentifierNode(Node):
                                                 messages.LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
-        self._history = None
-        self._drift = []
+        self._history: EstimateHistory | None = None
+        self._drift: list[dict[str, Any]] = []
         if self.settings['history_file']:
             self._history = EstimateHistory(self.settings['history_file'],
                                             robot=self.hardware_id, motor=self.get_name())
@@ -212,7 +214,7 @@ class IdentifierNode(Node):
             f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm, input '
             f'{self.settings["input"]}')
 
-    def _warm_up(self):
+    def _warm_up(self) -> None:
         """Load the compiled kernels and run a tiny fit on synthetic data before serving,
         so that the first ~/identify does not stall reception (logged)."""
         from motor_id import simulate
@@ -234,7 +236,7 @@ class IdentifierNode(Node):
             f'{kernels["seconds"]:.2f} s, {kernels["compiled"]} compiled; a tiny fit)')
 
     # ------------------------------------------------------------- callbacks
-    def _on_set(self, params):
+    def _on_set(self, params: list[Parameter]) -> SetParametersResult:
         internal = getattr(self._setting_outputs, 'active', False)
         for p in params:
             if p.name.startswith(OUTPUT_PREFIXES) and not internal:
@@ -245,7 +247,7 @@ class IdentifierNode(Node):
                 self.buffer.window_s = float(p.value)
         return SetParametersResult(successful=True)
 
-    def _on_samples(self, msg):
+    def _on_samples(self, msg: Float64MultiArray) -> None:
         try:
             self.buffer.extend(messages.msg_to_rows(msg))
         except DataError as exc:
@@ -253,22 +255,23 @@ class IdentifierNode(Node):
             if self._bad_messages == 1:
                 self.get_logger().warning(f'ignoring malformed samples message(s): {exc}')
 
-    def _on_identify(self, request, response):
+    def _on_identify(self, request: Trigger.Request,
+                     response: Trigger.Response) -> Trigger.Response:
         response.success, response.message = self.identify()
         return response
 
-    def _on_period(self):
+    def _on_period(self) -> None:
         ok, text = self.identify()
         if not ok and 'already running' not in text:
             self.get_logger().warning(f'periodic identification: {text}')
 
-    def _publish_diagnostics(self):
+    def _publish_diagnostics(self) -> None:
         snap_rows = len(self.buffer)
-        values = {'rows': snap_rows, 'received': self.buffer.received,
-                  'duplicates': self.buffer.duplicates, 'gaps': self.buffer.gaps,
-                  'malformed_messages': self._bad_messages, 'fits_ok': self._fits['ok'],
-                  'fits_failed': self._fits['failed'],
-                  'fit_running': self._fit_lock.locked()}
+        values: dict[str, Any] = {
+            'rows': snap_rows, 'received': self.buffer.received,
+            'duplicates': self.buffer.duplicates, 'gaps': self.buffer.gaps,
+            'malformed_messages': self._bad_messages, 'fits_ok': self._fits['ok'],
+            'fits_failed': self._fits['failed'], 'fit_running': self._fit_lock.locked()}
         if self.topic_input is not None:
             values.update(self.topic_input.counts())
         level = messages.OK if snap_rows else messages.WARN
@@ -284,12 +287,12 @@ class IdentifierNode(Node):
         self._publish(self.diag_pub,
                       messages.diagnostic_array(self.get_clock().now().to_msg(), [st]))
 
-    def _publish(self, pub, msg):
+    def _publish(self, pub: Publisher, msg: DiagnosticArray | String) -> None:
         if self.context.ok():
             pub.publish(msg)
 
     # ------------------------------------------------------------------ work
-    def identify(self):
+    def identify(self) -> tuple[bool, str]:
         """Fit the buffered window; return ``(success, message)``. Never raises."""
         if not self._fit_lock.acquire(blocking=False):
             return False, 'a fit is already running; try again when it finishes'
@@ -298,7 +301,7 @@ class IdentifierNode(Node):
         finally:
             self._fit_lock.release()
 
-    def _identify(self):
+    def _identify(self) -> tuple[bool, str]:
         p = {s.name: self.get_parameter(s.name).value for s in PARAMETERS}
         started = time.perf_counter()
         try:
@@ -349,11 +352,11 @@ class IdentifierNode(Node):
         self.get_logger().info(head + '\n' + summary)
         return True, head + '\n' + summary
 
-    def _set_outputs(self, fit):
+    def _set_outputs(self, fit: pipeline.FitReport) -> None:
         """Set ``estimate.*`` and ``controller.*`` parameters (NaN: unknown)."""
         units = fit.extra['units']
         flat = fit.to_ros_parameters('x', unknown='nan')['x']['ros__parameters']
-        values = {}
+        values: dict[str, tuple[float, str]] = {}
         for name, value in flat.items():
             if name.startswith('estimate.'):
                 sym = name[len('estimate.'):].removesuffix('_std')
@@ -374,7 +377,7 @@ class IdentifierNode(Node):
         finally:
             self._setting_outputs.active = False
 
-    def _track_drift(self, report):
+    def _track_drift(self, report: dict[str, Any]) -> None:
         """Append the estimate to ``history_file`` and test the history for drift."""
         if self._history is None:
             return
@@ -391,16 +394,16 @@ class IdentifierNode(Node):
         if new:
             self.get_logger().warning(drift_message(new))
 
-    def _failed(self, reason):
+    def _failed(self, reason: str) -> tuple[bool, str]:
         self._fits['failed'] += 1
         self._last = f'last fit refused: {reason}'
         self.get_logger().warning(f'identify: {reason}')
         return False, reason
 
-    def _progress(self, generation, generations, best_cost):
+    def _progress(self, generation: int, generations: int, best_cost: float) -> bool:
         return self._stopping.is_set() or not self.context.ok()
 
-    def stop(self):
+    def stop(self) -> None:
         """Stop a running fit at its next generation, then the fit node's executor."""
         self._stopping.set()
         if not self.in_flight.wait_idle(10.0):
@@ -412,7 +415,7 @@ class IdentifierNode(Node):
         self.fit_node.destroy_node()
 
 
-def main(args=None):
+def main(args: list[str] | None = None) -> int:
     """Console script `identifier`: spin the node until Ctrl-C / SIGTERM."""
     return run_node(IdentifierNode, 'identifier', num_threads=1, args=args)
 

@@ -24,13 +24,19 @@ per parameter. Drifts (:class:`Drift`) are steps or ramps of a relative size on 
 parameter of one motor from a given day.
 """
 
+from __future__ import annotations
+
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 import datetime as dt
 import json
+import os
 from pathlib import Path
 import shutil
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy.linalg import expm
 
 ALPHA_CU = 0.00393
@@ -54,7 +60,7 @@ class MotorTruth:
     R_m: float = 1.2
     T_c: float = 0.0
 
-    def scaled(self, **factors):
+    def scaled(self, **factors: float) -> MotorTruth:
         """A copy with each named parameter multiplied by its factor."""
         d = asdict(self)
         for k, f in factors.items():
@@ -76,7 +82,7 @@ class Drift:
     kind: str = 'step'
     ramp_days: int = 5
 
-    def factor(self, day):
+    def factor(self, day: int) -> float:
         """Multiplier of the parameter on ``day``."""
         if day < self.onset:
             return 1.0
@@ -85,7 +91,7 @@ class Drift:
         frac = min(1.0, (day - self.onset + 1) / self.ramp_days)
         return 1.0 + self.size * frac
 
-    def full_day(self):
+    def full_day(self) -> int:
         """First day on which the drift has its whole size."""
         return self.onset if self.kind == 'step' else self.onset + self.ramp_days - 1
 
@@ -127,27 +133,26 @@ class FleetSpec:
     """
 
     robots: int = 3
-    motors: tuple = ('wheel_left', 'wheel_right')
+    motors: tuple[str, ...] = ('wheel_left', 'wheel_right')
     days: int = 12
     start: str = '2026-01-05'
     nominal: MotorTruth = field(default_factory=MotorTruth)
     unit_spread: float = 0.05
     temp_span_k: float = 5.0
-    day_jitter: dict = field(default_factory=lambda: {'K_T': 0.001, 'R_m': 0.002, 'B': 0.01,
-                                                      'J': 0.002, 'L_m': 0.005,
-                                                      'T_c': 0.02})
-    drifts: tuple = ()
+    day_jitter: dict[str, float] = field(default_factory=lambda: {
+        'K_T': 0.001, 'R_m': 0.002, 'B': 0.01, 'J': 0.002, 'L_m': 0.005, 'T_c': 0.02})
+    drifts: tuple[Drift, ...] = ()
     duration_s: float = 20.0
     period_s: float = 0.01
     max_voltage: float = 12.0
     speed_noise: float = 0.005
     current_noise: float = 0.01
-    broken: tuple = ()
+    broken: tuple[tuple[str, int, str], ...] = ()
     storage: str = 'mcap'
     layout: str = 'folder'
     seed: int = 0
 
-    def robot_names(self):
+    def robot_names(self) -> list[str]:
         """``robot_00``, ``robot_01``, ..."""
         return [f'robot_{k:02d}' for k in range(self.robots)]
 
@@ -162,17 +167,17 @@ class FleetTruth:
     """
 
     spec: FleetSpec
-    recordings: list
-    truth: dict
-    profile: dict
+    recordings: list[dict[str, Any]]
+    truth: dict[tuple[str, str], list[MotorTruth]]
+    profile: dict[str, Any]
 
-    def drift_of(self, robot, motor):
+    def drift_of(self, robot: str, motor: str) -> list[Drift]:
         """The drifts of one motor."""
         return [d for d in self.spec.drifts if d.robot == robot and d.motor == motor]
 
 
 # --------------------------------------------------------------------------- physics
-def _system(p):
+def _system(p: MotorTruth) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Continuous state matrix and input matrix (columns: voltage, friction torque)."""
     a = np.array([[-p.B / p.J, p.K_T / p.J],
                   [-p.K_T / p.L_m, -p.R_m / p.L_m]])
@@ -181,7 +186,8 @@ def _system(p):
     return a, b
 
 
-def _discrete(a, b, h):
+def _discrete(a: NDArray[np.float64], b: NDArray[np.float64], h: float
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Exact hold-equivalent (A_d, B_d) over ``h`` seconds (matrix exponential)."""
     n, m = a.shape[0], b.shape[1]
     big = np.zeros((n + m, n + m))
@@ -191,7 +197,8 @@ def _discrete(a, b, h):
     return e[:n, :n], e[:n, n:]
 
 
-def simulate_motor(p, u, period, substeps=8):
+def simulate_motor(p: MotorTruth, u: NDArray[np.float64], period: float, substeps: int = 8
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Speed and current at the ticks for a voltage held over each tick.
 
     Parameters
@@ -238,7 +245,8 @@ def simulate_motor(p, u, period, substeps=8):
     return w, cur
 
 
-def driving_commands(n, period, max_voltage, rng):
+def driving_commands(n: int, period: float, max_voltage: float, rng: np.random.Generator
+                     ) -> NDArray[np.float64]:
     """A day of ordinary driving: held voltage levels of random length, with stops."""
     u = np.zeros(n)
     k = 0
@@ -251,9 +259,10 @@ def driving_commands(n, period, max_voltage, rng):
 
 
 # --------------------------------------------------------------------------- fleet
-def motor_truths(spec, rng):
+def motor_truths(spec: FleetSpec, rng: np.random.Generator
+                 ) -> dict[tuple[str, str], list[MotorTruth]]:
     """``{(robot, motor): [MotorTruth per day]}`` with unit spread, temperature, drifts."""
-    out = {}
+    out: dict[tuple[str, str], list[MotorTruth]] = {}
     names = ('J', 'K_T', 'B', 'L_m', 'R_m', 'T_c')
     temps = {r: rng.uniform(-spec.temp_span_k, spec.temp_span_k, spec.days)
              for r in spec.robot_names()}
@@ -276,7 +285,7 @@ def motor_truths(spec, rng):
     return out
 
 
-def fleet_profile(spec):
+def fleet_profile(spec: FleetSpec) -> dict[str, Any]:
     """The ``motor-id fleet --profile`` mapping for the generated bags."""
     motors = {}
     for m in spec.motors:
@@ -286,7 +295,7 @@ def fleet_profile(spec):
     return {'motors': motors}
 
 
-def generate_fleet(spec, out_dir):
+def generate_fleet(spec: FleetSpec, out_dir: str | os.PathLike[str]) -> FleetTruth:
     """Write the fleet's recordings under ``out_dir`` and its profile as ``fleet.yaml``.
 
     Parameters
@@ -313,7 +322,7 @@ def generate_fleet(spec, out_dir):
     start = dt.date.fromisoformat(spec.start)
     n = int(round(spec.duration_s / spec.period_s))
     broken = {(r, d): kind for r, d, kind in spec.broken}
-    recs = []
+    recs: list[dict[str, Any]] = []
     for robot in spec.robot_names():
         for day in range(spec.days):
             date = start + dt.timedelta(days=day)
@@ -321,13 +330,13 @@ def generate_fleet(spec, out_dir):
                                 tzinfo=dt.timezone.utc)
             clock += dt.timedelta(seconds=float(rng.uniform(0, 8 * 3600)))
             start_ns = int(clock.timestamp()) * 10 ** 9
-            channels = {}
+            channels: dict[str, tuple[NDArray[np.float64], ...]] = {}
             for motor in spec.motors:
                 p = truths[(robot, motor)][day]
                 u = driving_commands(n, spec.period_s, spec.max_voltage, rng)
                 w, cur = simulate_motor(p, u, spec.period_s)
-                w = w + rng.normal(0, spec.speed_noise * max(np.std(w), 1e-9), n)
-                cur = cur + rng.normal(0, spec.current_noise * max(np.std(cur), 1e-9), n)
+                w = w + rng.normal(0, spec.speed_noise * max(float(np.std(w)), 1e-9), n)
+                cur = cur + rng.normal(0, spec.current_noise * max(float(np.std(cur)), 1e-9), n)
                 channels[motor] = (u, w, cur)
             kind = broken.get((robot, day))
             name = f'{robot}_{date.isoformat()}'
@@ -354,7 +363,7 @@ def generate_fleet(spec, out_dir):
     return truth
 
 
-def truth_json(truth):
+def truth_json(truth: FleetTruth) -> dict[str, Any]:
     """The generated truth as JSON-ready data (drifts, recordings, per-day parameters)."""
     return {'drifts': [asdict(d) for d in truth.spec.drifts],
             'recordings': truth.recordings,
@@ -362,7 +371,7 @@ def truth_json(truth):
                            for (r, m), days in truth.truth.items()}}
 
 
-def _truncate(path):
+def _truncate(path: str | os.PathLike[str]) -> None:
     p = Path(path)
     files = [p] if p.is_file() else sorted(p.glob('*.mcap')) + sorted(p.glob('*.db3'))
     for f in files:
@@ -372,7 +381,9 @@ def _truncate(path):
 
 
 # --------------------------------------------------------------------------- bags
-def write_robot_bag(path, start_ns, period, channels, storage='mcap', drop_commands=()):
+def write_robot_bag(path: str | os.PathLike[str], start_ns: int, period: float,
+                    channels: Mapping[str, Sequence[NDArray[np.float64]]], storage: str = 'mcap',
+                    drop_commands: Collection[str] = ()) -> Path:
     """Write one robot's recording as a rosbag2 folder the way a robot's recorder does.
 
     Parameters
@@ -412,7 +423,7 @@ def write_robot_bag(path, start_ns, period, channels, storage='mcap', drop_comma
         js = writer.add_connection('/joint_states', joint_state.__msgtype__, typestore=store)
         cmds = {m: writer.add_connection(f'/{m}_cmd', float64.__msgtype__, typestore=store)
                 for m in names if m not in drop_commands}
-        last = {}
+        last: dict[str, float] = {}
         for k in range(n):
             t_ns = start_ns + int(round(k * period * 1e9))
             for j, m in enumerate(names):
@@ -434,7 +445,7 @@ def write_robot_bag(path, start_ns, period, channels, storage='mcap', drop_comma
 
 
 # --------------------------------------------------------------------------- scoring
-def drift_benchmark_spec(quick=False, seed=17):
+def drift_benchmark_spec(quick: bool = False, seed: int = 17) -> FleetSpec:
     """A fleet with one drift at the issue's smallest sizes per kind, and clean robots.
 
     K_T -8 %, R_m +10 % and B +50 %, each as a step and as a 4-day ramp (``quick``: the
@@ -456,7 +467,8 @@ def drift_benchmark_spec(quick=False, seed=17):
                      drifts=tuple(drifts), seed=seed + 6)
 
 
-def score_detection(spec, drift_rows):
+def score_detection(spec: FleetSpec, drift_rows: Iterable[Mapping[str, Any]]
+                    ) -> tuple[list[dict[str, Any]], list[str], int]:
     """How the drift rows (drift.json) match the generated drifts.
 
     Returns
@@ -471,11 +483,11 @@ def score_detection(spec, drift_rows):
     clean_series : int
         Histories of motors without a drift.
     """
-    by = {}
+    by: dict[tuple[str, str], dict[str, Mapping[str, Any]]] = {}
     for d in drift_rows:
         by.setdefault((d['robot'], d['motor']), {})[d['parameter']] = d
     start = dt.date.fromisoformat(spec.start)
-    rows = []
+    rows: list[dict[str, Any]] = []
     for dr in spec.drifts:
         per = by.get((dr.robot, dr.motor), {})
         d = per.get(dr.parameter, {})
