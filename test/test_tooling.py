@@ -1,5 +1,7 @@
-"""The linters hold: ruff (ruff.toml) and mypy (mypy.ini) pass, as import-linter does."""
+"""The linters hold: ruff (ruff.toml) and mypy (mypy.ini) pass, as import-linter does; and
+the functions of motor_id carry type hints."""
 
+import ast
 import os
 import shutil
 import subprocess
@@ -8,6 +10,8 @@ import sys
 import pytest
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+MIN_ANNOTATED = 0.90
+"""Smallest fraction of motor_id's functions with complete type hints (issue 18)."""
 
 
 def _tool(name):
@@ -29,3 +33,63 @@ def test_ruff_passes():
 
 def test_mypy_passes():
     _run([_tool('mypy'), '--config-file', os.path.join(ROOT, 'mypy.ini'), 'motor_id'])
+
+
+def _functions(tree):
+    """``(function node, defined directly in a class body)`` for every def in ``tree``,
+    nested ones included."""
+    found = []
+
+    def visit(node, in_class):
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                found.append((child, in_class))
+                visit(child, False)
+            else:
+                visit(child, in_class or isinstance(child, ast.ClassDef))
+    visit(tree, False)
+    return found
+
+
+def _annotated(fn, method):
+    """Every parameter annotated (a method's ``self`` / ``cls`` aside) and the return."""
+    args = fn.args
+    params = [*args.posonlyargs, *args.args]
+    static = any(isinstance(d, ast.Name) and d.id == 'staticmethod'
+                 for d in fn.decorator_list)
+    if method and not static and params and params[0].arg in ('self', 'cls'):
+        params = params[1:]
+    params += [*args.kwonlyargs, *(a for a in (args.vararg, args.kwarg) if a is not None)]
+    return fn.returns is not None and all(p.annotation is not None for p in params)
+
+
+def annotation_coverage(package='motor_id'):
+    """``(annotated, total, {file: [unannotated function, ...]})`` over ``package``."""
+    annotated = total = 0
+    missing = {}
+    for folder, _, names in os.walk(os.path.join(ROOT, package)):
+        for name in sorted(n for n in names if n.endswith('.py')):
+            path = os.path.join(folder, name)
+            with open(path, encoding='utf-8') as fh:
+                tree = ast.parse(fh.read(), path)
+            for fn, method in _functions(tree):
+                total += 1
+                if _annotated(fn, method):
+                    annotated += 1
+                else:
+                    missing.setdefault(os.path.relpath(path, ROOT), []).append(
+                        f'{fn.name}:{fn.lineno}')
+    return annotated, total, missing
+
+
+def test_functions_have_type_hints():
+    """At least 90 % of motor_id's functions and methods (nested ones too) have every
+    parameter and the return annotated. Measured: 909 of 983 (92.5 %) before issue 18 item 5,
+    980 of 985 (99.5 %) after it (the fleet, the identifier node and the fleet generator)."""
+    annotated, total, missing = annotation_coverage()
+    worst = sorted(missing.items(), key=lambda kv: (-len(kv[1]), kv[0]))[:10]
+    lines = [f'  {path}: {len(names)} ({", ".join(names[:8])})' for path, names in worst]
+    assert annotated >= MIN_ANNOTATED * total, (
+        f'{annotated} of {total} functions ({annotated / total:.1%}) fully annotated, fewer '
+        f'than {MIN_ANNOTATED:.0%}; the files with the most unannotated functions:\n'
+        + '\n'.join(lines))
