@@ -242,9 +242,10 @@ def check_uint(name: str, value: Any, limit: int) -> int:
             value = int(value)
         except (TypeError, ValueError, OverflowError):
             raise ConfigError(f'{name} must be an integer, got {value!r}') from None
-    if not 0 <= value < limit:
-        raise ConfigError(f'{name} must be in [0, {limit - 1}], got {value}')
-    return value
+    checked: int = value   # given as an int, or converted to one above
+    if not 0 <= checked < limit:
+        raise ConfigError(f'{name} must be in [0, {limit - 1}], got {checked}')
+    return checked
 
 
 def _micros(name: str, seconds: float, limit: int, minimum: int = 0) -> int:
@@ -509,10 +510,12 @@ def parse_frame(frame: bytes) -> Sample | Reply:
         ``bad_length`` (payload size vs type), ``bad_value``.
     """
     ftype, payload = _split(frame)
-    return _decode(ftype, payload, CARD_TYPES)
+    decoded: Sample | Reply = _decode(ftype, payload, CARD_TYPES)
+    return decoded
 
 
 def parse_command(frame: bytes) -> Command:
     """Decode one complete host -> card frame into a command; errors as :func:`parse_frame`."""
     ftype, payload = _split(frame)
-    return _decode(ftype, payload, HOST_TYPES)
+    command: Command = _decode(ftype, payload, HOST_TYPES)
+    return command

@@ -68,7 +68,8 @@ def read_available(port: serial.SerialBase, max_bytes: int = 4096) -> bytes:
     """
     try:
         waiting = port.in_waiting
-        return port.read(max(1, min(max_bytes, waiting)))
+        data: bytes = port.read(max(1, min(max_bytes, waiting)))
+        return data
     except (serial.SerialException, OSError) as exc:
         raise TransportError(f'read from {port.name or port.port} failed: {exc}') from exc
 

@@ -50,10 +50,10 @@ class ControllerDesign:
     """
 
     input_kind: str
-    feedforward: dict
-    time_constants: dict
-    pi: dict
-    notes: list = field(default_factory=list)
+    feedforward: dict[str, Any]
+    time_constants: dict[str, Any]
+    pi: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: keys ``feedforward, time_constants, pi, notes`` (the contract)."""

@@ -224,10 +224,11 @@ def _bandwidth(num: np.ndarray, den: np.ndarray, drop_db: float = -3.0) -> float
     level = float(dc * 10 ** (drop_db / 20))
 
     def excess(w: ArrayLike) -> np.ndarray:
-        return np.abs(_response(num, den, w)) - level
+        gap: np.ndarray = np.abs(_response(num, den, w)) - level
+        return gap
 
     w = _extend(_grid(num, den), lambda x: excess(x) + level, level, num, den)
     if excess(w[:1])[0] < 0:  # below the level already at the lowest frequency
         return None
     drops = _roots_on_grid(excess, w)
-    return drops[0] if drops.size else None
+    return float(drops[0]) if drops.size else None

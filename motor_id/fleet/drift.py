@@ -248,8 +248,8 @@ class DriftFinding:
     z: float | None = None
     baseline: float | None = None
     latest: float | None = None
-    change_points: list = field(default_factory=list)
-    scores: list = field(default_factory=list)
+    change_points: list[dict[str, Any]] = field(default_factory=list)
+    scores: list[float | None] = field(default_factory=list)
     reason: str | None = None
 
     def to_dict(self) -> dict[str, Any]:

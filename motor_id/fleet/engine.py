@@ -136,7 +136,8 @@ class DaskEngine:
 
     def worker_memory(self) -> dict[str, int]:
         """``{worker address: resident memory [bytes]}`` of every worker process."""
-        return self.client.run(_rss)
+        memory: dict[str, int] = self.client.run(_rss)
+        return memory
 
 
 def _rss() -> int:

@@ -50,8 +50,8 @@ class MotorSpec:
     shift: int | None = None
     resistance: float | None = None
     resistance_tolerance: float = 10.0
-    fix: dict = field(default_factory=dict)
-    bounds: dict = field(default_factory=dict)
+    fix: dict[str, Any] = field(default_factory=dict)
+    bounds: dict[str, Any] = field(default_factory=dict)
 
     def mapping(self) -> Mapping:
         """The bag mapping of :mod:`motor_id.data.rosbag`."""
@@ -75,7 +75,7 @@ class FitSettings:
 class FleetProfile:
     """The parsed profile."""
 
-    motors: tuple
+    motors: tuple[MotorSpec, ...]
     fit: FitSettings
     drift: DriftRule
 

@@ -201,8 +201,8 @@ def _plot(param: str, hist: list[tuple[Any, ...]], d: Row | None, width: int = 3
     """One parameter's history as inline SVG: points with +-2 std bars, baseline, change."""
     ml, mr, mt, mb = 62, 8, 8, 22
     t = [_epoch(x[0]) for x in hist]
-    v = [x[1] for x in hist]
-    s = [x[2] or 0.0 for x in hist]
+    v: list[float] = [x[1] for x in hist]
+    s: list[float] = [x[2] or 0.0 for x in hist]
     lo = min(a - 2 * b for a, b in zip(v, s, strict=True))
     hi = max(a + 2 * b for a, b in zip(v, s, strict=True))
     for extra in (d or {}).get('baseline'), (d or {}).get('latest'):

@@ -28,8 +28,8 @@ class FleetRun:
     done: int = 0
     failed: int = 0
     seconds: float = 0.0
-    drift: list = field(default_factory=list)
-    files: dict = field(default_factory=dict)
+    drift: list[dict[str, Any]] = field(default_factory=list)
+    files: dict[str, str] = field(default_factory=dict)
 
     def drifting(self) -> list[dict[str, Any]]:
         """The drift rows that flagged a change."""

@@ -43,7 +43,8 @@ def _pa() -> ModuleType:
     except ImportError:
         raise ConfigError('motor-id fleet writes Parquet with pyarrow: pip install '
                           '"motor_id[fleet]" (dask[distributed], pyarrow)') from None
-    return pyarrow
+    module: ModuleType = pyarrow   # pyarrow has no type information: Any to mypy
+    return module
 
 
 def schema() -> Any:

@@ -62,7 +62,7 @@ class ParamSpec:
     description: str
     low: float | None = None
     high: float | None = None
-    choices: tuple | None = None
+    choices: tuple[object, ...] | None = None
     dynamic: bool = False
     read_only: bool = False
     syntax: str | None = None

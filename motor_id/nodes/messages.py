@@ -86,7 +86,7 @@ def joint_value(msg: JointState, index: int, field: str) -> float:
 
 def stamp_seconds(stamp: Any) -> float:
     """A ``builtin_interfaces/Time`` in seconds (0.0 for an unset stamp)."""
-    return stamp.sec + 1e-9 * stamp.nanosec
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
 
 
 DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=DIAGNOSTICS_DEPTH,
