@@ -13,8 +13,9 @@ from motor_id.data.shift import detect_shift, shift_input
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import Recording
 
-DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), or a rosbag2 recording: '
-             'an .mcap or .db3 file or a bag folder')
+DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), a rosbag2 recording (an '
+             '.mcap or .db3 file or a bag folder), or a WPILib SysId log (.json, its four '
+             'tests as four runs)')
 
 
 def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) -> None:
@@ -28,7 +29,7 @@ def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) ->
         Add ``--profile FILE`` (a subcommand that already has a ``--profile`` adds its
         own and sets ``args.profile`` to the file or None).
     """
-    g = parser.add_argument_group('data source (CSV columns, bag topics)')
+    g = parser.add_argument_group('data source (CSV columns, bag topics, SysId side)')
     g.add_argument('--columns', metavar='ROLE=NAME,...',
                    help='CSV: map columns, e.g. time=t,input=u_cmd,speed=omega,current=i_a')
     g.add_argument('--input-kind', choices=INPUT_KINDS,
@@ -40,7 +41,8 @@ def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) ->
     g.add_argument('--current', metavar='TOPIC[:FIELD]',
                    help='bag: measured current, e.g. /joint_states:effort')
     g.add_argument('--joint', metavar='NAME',
-                   help='bag: JointState joint (name or index)')
+                   help='bag: JointState joint (name or index); SysId Drivetrain log: the '
+                        'side, left or right')
     g.add_argument('--effort-is', choices=('current', 'torque'),
                    help='bag: what a JointState effort is (torque: a torque plant whose '
                         'input is the effort)')

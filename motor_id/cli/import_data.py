@@ -1,7 +1,8 @@
-"""`motor-id import`: convert measured data (emps, dunker, csv, any rosbag2) to MCAP."""
+"""`motor-id import`: convert measured data (emps, dunker, csv, any rosbag2, SysId) to MCAP."""
 
 import argparse
 import os
+import sys
 
 from motor_id.bag import write_recording
 from motor_id.cli.data_args import add_data_arguments, load_from_args
@@ -10,11 +11,11 @@ from motor_id.errors import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """``motor-id import emps|dunker|csv|bag SRC OUT.mcap [--motor N] [data options]``."""
+    """``motor-id import emps|dunker|csv|bag|sysid SRC OUT.mcap [--motor N] [options]``."""
     parser.add_argument('source', choices=SOURCES, help='kind of the input data')
     parser.add_argument('src', metavar='SRC',
-                        help='input file (.mat, .csv) or rosbag2 recording (.mcap, .db3, '
-                             'folder)')
+                        help='input file (.mat, .csv, SysId .json) or rosbag2 recording '
+                             '(.mcap, .db3, folder)')
     parser.add_argument('out', metavar='OUT.mcap', help='bag to write')
     parser.add_argument('--motor', type=int, default=1, choices=(1, 2, 3),
                         help='dunker: which motor (default 1)')
@@ -32,11 +33,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'{args.out} exists; pass --force to replace it')
     if args.source in ('csv', 'bag'):
         rec = load_from_args(args, args.src)
+    elif args.source == 'sysid':
+        rec = load(args.source, args.src, joint=args.joint)
     else:
         rec = load(args.source, args.src, args.motor)
-    meta = {'import_command': (f'motor-id import {args.source} {os.path.basename(args.src)} '
-                               f'{os.path.basename(args.out)}'
-                               + (f' --motor {args.motor}' if args.source == 'dunker' else ''))}
+    meta = {'import_command': _command(args)}
     if os.path.exists(args.out):
         os.remove(args.out)
     res = write_recording(rec, args.out, meta=meta, batch=args.batch,
@@ -45,4 +46,21 @@ def run(args: argparse.Namespace) -> int:
     span = rec.time[-1] - rec.time[0]
     print(f'{args.out}: {res["samples"]} samples over {span:.3f} s '
           f'({rec.input_kind} input), {res["messages"]} messages, {size} bytes')
+    if len(rec.segment_ranges) > 1:
+        names = rec.meta.get('segment_names') or []
+        print(f'note: the bag holds the {len(rec.segment_ranges)} runs '
+              f'({", ".join(names)}) one after another without their boundaries; fit '
+              f'{os.path.basename(args.src)} itself to give each run its own initial state',
+              file=sys.stderr)
     return 0
+
+
+def _command(args: argparse.Namespace) -> str:
+    """The import command line, for the bag's metadata."""
+    extra = ''
+    if args.source == 'dunker':
+        extra = f' --motor {args.motor}'
+    elif args.source == 'sysid' and args.joint is not None:
+        extra = f' --joint {args.joint}'
+    return (f'motor-id import {args.source} {os.path.basename(args.src)} '
+            f'{os.path.basename(args.out)}{extra}')

@@ -1,4 +1,4 @@
-"""Importers of measured data sets (EMPS, Dunker GR 42x25, CSV, rosbag2) into Recordings."""
+"""Importers of measured data sets (EMPS, Dunker GR 42x25, CSV, rosbag2, SysId) as Recordings."""
 
 import math
 import os
@@ -7,6 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from motor_id.data.csv_io import read_csv
+from motor_id.data.sysid import load_sysid
 from motor_id.errors import ConfigError, DataError
 from motor_id.recording import Recording
 
@@ -39,7 +40,7 @@ DUNKER_SIGN_RULE = ('torque = k_t * |i| * s with s = sign(m{n}vel) where the mea
                     'current trailing a stop), 0 before any motion. The logged current has '
                     'no sign and follows the speed, also during the ~0.12 s after a '
                     'set-point step to 0 while the motor still runs')
-SOURCES = ('emps', 'dunker', 'csv', 'bag')
+SOURCES = ('emps', 'dunker', 'csv', 'bag', 'sysid')
 
 
 def load_emps(path: str | os.PathLike[str]) -> Recording:
@@ -121,10 +122,10 @@ def load_emps(path: str | os.PathLike[str]) -> Recording:
         'time_note': f'exact 1 ms grid; the file t deviates by <= {jitter:.2g} s',
         'gtau': gtau, 'kp': float(col['kp'][0]), 'kv': float(col['kv'][0]),
         'reference': EMPS_REFERENCE,
-        'units': {'t': 's', 'voltage': 'N', 'speed': 'm/s', 'current': 'A', 'flags': '1'},
+        'units': {'t': 's', 'voltage': 'N', 'speed': 'm/s', 'current': 'A', 'flags': '1',
+                  'position': 'm'},
         'parameter_meaning': {'J': 'moving mass M [kg]', 'B': 'viscous friction Fv [N s/m]'},
     }
-    meta['units']['position'] = 'm'
     return Recording(time, force, speed, input_kind='torque', meta=meta,
                      position=col['qm'].copy())
 
@@ -254,11 +255,13 @@ def load_csv(path: str | os.PathLike[str], columns: str | dict[str, str] | None 
     return read_csv(path, columns=columns, input_kind=input_kind)
 
 
-def load(source: str, path: str | os.PathLike[str], motor: int = 1) -> Recording:
-    """Dispatch to the loader of ``source`` ('emps', 'dunker', 'csv' or 'bag').
+def load(source: str, path: str | os.PathLike[str], motor: int = 1,
+         joint: str | None = None) -> Recording:
+    """Dispatch to the loader of ``source`` ('emps', 'dunker', 'csv', 'bag' or 'sysid').
 
     'bag' reads the ``/samples`` topic of any rosbag2 recording; a field mapping is
-    :func:`motor_id.data.rosbag.read_bag`'s.
+    :func:`motor_id.data.rosbag.read_bag`'s. 'sysid' reads a WPILib SysId log
+    (:func:`motor_id.data.sysid.load_sysid`; ``joint`` the side of a Drivetrain log).
     """
     if source == 'emps':
         return load_emps(path)
@@ -269,4 +272,6 @@ def load(source: str, path: str | os.PathLike[str], motor: int = 1) -> Recording
     if source == 'bag':
         from motor_id.data.rosbag import read_bag
         return read_bag(path)
+    if source == 'sysid':
+        return load_sysid(path, joint)
     raise ConfigError(f'unknown source {source!r}; choose one of {", ".join(SOURCES)}')

@@ -1,9 +1,10 @@
-"""Load a recording from any file the tools accept, chosen by what the path is."""
+"""Load a recording from any file the tools accept (CSV, rosbag2, SysId log), by its path."""
 
 import os
 from typing import TYPE_CHECKING
 
 from motor_id.data.csv_io import read_csv
+from motor_id.data.sysid import is_sysid_log, load_sysid
 from motor_id.errors import ConfigError
 from motor_id.recording import Recording
 
@@ -14,26 +15,31 @@ if TYPE_CHECKING:  # the bag modules load only when a bag is read
 def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] | None = None,
                    input_kind: str | None = None,
                    mapping: 'Mapping | None' = None) -> Recording:
-    """Read a recording from a CSV file or a rosbag2 recording.
+    """Read a recording from a CSV file, a rosbag2 recording or a WPILib SysId log.
 
     Parameters
     ----------
     path : str or os.PathLike
         A directory (rosbag2 folder), ``*.mcap`` or ``*.db3``: a bag, read by
-        :func:`motor_id.data.rosbag.read_bag`; anything else: CSV
-        (:func:`motor_id.data.csv_io.read_csv`).
+        :func:`motor_id.data.rosbag.read_bag`; ``*.json``: a SysId log
+        (:func:`motor_id.data.sysid.load_sysid`, its four tests as four runs); anything
+        else: CSV (:func:`motor_id.data.csv_io.read_csv`).
     columns : dict or str, optional
         CSV only: column mapping ``{role: name}``.
     input_kind : {'voltage', 'torque'}, optional
         Plant kind when the names cannot tell (CSV, or a bag mapping).
     mapping : motor_id.data.mapping.Mapping, optional
-        Bags only: the topic/field mapping (None or empty: the ``/samples`` topic).
+        Bags: the topic/field mapping (None or empty: the ``/samples`` topic); a SysId
+        log takes only its ``joint`` (the side of a Drivetrain log).
 
     Returns
     -------
     motor_id.recording.Recording
-        Validated for CSV; a bag's recording is validated by the caller.
+        Validated for CSV and SysId logs; a bag's recording is validated by the caller.
     """
+    if is_sysid_log(path):
+        _check_sysid_options(path, columns, input_kind, mapping)
+        return load_sysid(path, joint=None if mapping is None else mapping.joint)
     from motor_id.data.mapping import Mapping
     from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
@@ -48,3 +54,17 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
         raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
                           'for a CSV map its columns with --columns time=T,input=U,speed=W')
     return read_csv(path, columns=columns, input_kind=input_kind)
+
+
+def _check_sysid_options(path: str | os.PathLike[str],
+                         columns: str | dict[str, str] | None, input_kind: str | None,
+                         mapping: 'Mapping | None') -> None:
+    """ConfigError for the CSV and bag options that a SysId log cannot take."""
+    if columns:
+        raise ConfigError(f'{path}: a SysId log has fixed columns; --columns maps CSV '
+                          'columns')
+    if input_kind not in (None, 'voltage'):
+        raise ConfigError(f'{path}: a SysId log has voltage input, not {input_kind}')
+    if mapping is not None and not mapping.is_empty:
+        raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
+                          'a SysId log takes only --joint (left or right, Drivetrain)')
