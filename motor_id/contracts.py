@@ -54,6 +54,11 @@ REPORT_TOPIC = 'report'
 # The same topics as a bag records them (absolute names).
 BAG_SAMPLES_TOPIC = '/samples'
 BAG_META_TOPIC = '/motor_id/meta'
+BAG_POSITION_TOPIC = '/motor_id/position'
+"""A recording's measured position, when it has one: batches of ``(seq, position)`` rows
+(Float64MultiArray, second dimension labelled :data:`POSITION_LABEL`), beside the
+``/samples`` rows of the same sequence numbers."""
+POSITION_LABEL = 'seq,position'
 BAG_ESTIMATE_TOPIC = '/identifier/estimate'
 
 # QoS depths, in one place: a slow subscriber of samples loses nothing within this depth.

@@ -75,14 +75,15 @@ PAPER_MOTOR = MotorParams()
 """The motor of the paper: R_m 2.3, L_m 34.5 mH, J 0.052, K_T 0.66, K_b 0.64, B 0.002."""
 
 
-SCALES = ('one', 'torque', 'input', 'speed', 'torque/speed^2', 'record', 'sample',
+SCALES = ('one', 'torque', 'input', 'speed', 'torque/speed', 'torque/speed^2', 'record',
+          'sample',
           'per_record', 'per_sample', 'heating', 'max_delay', 'current', 'lag_floor')
 """Data scales an effect parameter's start grid and search range are stated in.
 
 The analysis measures them on each recording: ``torque`` the stall torque K_T A / R_m
 (the input amplitude A for a torque plant), ``input`` A, ``speed`` the top speed,
-``torque/speed^2`` their ratio, ``record`` the record length and ``sample`` the sample
-period [s], ``per_record`` / ``per_sample`` their inverses [Hz], ``heating``
+``torque/speed`` and ``torque/speed^2`` their ratios, ``record`` the record length and
+``sample`` the sample period [s], ``per_record`` / ``per_sample`` their inverses [Hz], ``heating``
 R_m / (i_rms^2 record) [Ohm/(A^2 s)], ``max_delay`` the longest delay tried [samples],
 ``current`` the current's spread [A], ``lag_floor`` the shortest sensor lag that is more
 than the sampling itself (half a sample period; a whole one when the speed is counted
@@ -151,6 +152,9 @@ class EffectSpec:
     found from the measured values themselves). ``min_fraction`` maps a parameter name
     to ``(multiple, scale)``: below that the fitted term is not plausible as the named
     effect (a resistance that settles within a few samples is a wrong R_m, not heating).
+    ``extends`` names the effect this one refines (asymmetric or Stribeck friction refine
+    Coulomb friction): it is tried only once that effect is in the model, by the
+    simulation-error stage of the analysis, never as a first explanation.
     """
 
     name: str
@@ -161,6 +165,7 @@ class EffectSpec:
     category: str = 'dynamic'
     channel: str = ''
     min_fraction: tuple = ()
+    extends: str = ''
 
     def defaults(self) -> dict[str, float]:
         """Return ``{param: default}``."""
@@ -187,6 +192,26 @@ EFFECTS = {e.name: e for e in (
                (EffectParam('T_c', 'N m', 0.05, 0.0, 1e3, 'torque', (1e-4, 0.5, 16),
                             (0.0, 2.0)),),
                description='dry friction with stiction at zero speed'),
+    EffectSpec('asymmetric_friction', 'Coulomb level T_c + dT_c and viscous B + dB when '
+               'the motion is negative (w < 0); T_c and B when positive',
+               (EffectParam('dT_c', 'N m', 0.0, -1e3, 1e3, 'torque', (1e-3, 0.2, 4),
+                            (-2.0, 2.0), 'signed'),
+                EffectParam('dB', 'N m s/rad', 0.0, -1e5, 1e5, 'torque/speed', (1e-3, 0.3, 4),
+                            (-2.0, 2.0), 'signed')),
+               description='direction-dependent dry and viscous friction (Fc+/Fc-, Fv+/Fv-)',
+               extends='coulomb_friction'),
+    EffectSpec('stribeck_friction', 'dry friction T_c + (T_s - T_c) exp(-(w / v_s)^2); '
+               'break-away at T_s',
+               (EffectParam('T_s', 'N m', 0.08, 0.0, 1e3, 'torque', (0.01, 0.6, 6), (0.0, 2.0)),
+                EffectParam('v_s', 'rad/s', 0.05, 0.0, 1e4, 'speed', (0.003, 0.3, 6),
+                            (0.0, 1.0))),
+               description='friction falling from a static level to the Coulomb level as '
+               'the speed rises (Stribeck curve)', extends='coulomb_friction'),
+    EffectSpec('stiction', 'stuck (w = 0) while |drive| <= T_s; moving: Coulomb T_c',
+               (EffectParam('T_s', 'N m', 0.08, 0.0, 1e3, 'torque', (0.01, 0.6, 8),
+                            (0.0, 2.0)),),
+               description='break-away torque above the Coulomb level at zero speed',
+               extends='coulomb_friction'),
     EffectSpec('load_torque', 'tau -= T_L',
                (EffectParam('T_L', 'N m', 0.05, -1e3, 1e3, 'torque', (1e-4, 0.5, 12),
                             (-2.0, 2.0), 'signed'),),

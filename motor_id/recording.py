@@ -44,9 +44,7 @@ class Recording:
     time: np.ndarray
     input: np.ndarray
     speed: np.ndarray
-    # TODO(owner: main session): ndarray | None, once the callers that pass None (data,
-    # bag) drop their ignores and csv_io/bag.writer narrow it
-    current: np.ndarray = None  # type: ignore[assignment]
+    current: np.ndarray | None = None
     input_kind: str = 'voltage'
     meta: dict = field(default_factory=dict)
     segments: list[tuple[int, int]] | None = None
@@ -151,7 +149,7 @@ class Recording:
         meta['sources'] = [r.meta.get('source') for r in recordings]
         meta['segment_offsets'] = offsets
         return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),
-                   np.concatenate([r.speed for r in recordings]), cur,  # type: ignore[arg-type]
+                   np.concatenate([r.speed for r in recordings]), cur,
                    first.input_kind, meta, segs, pos)
 
     def channels(self, with_position: bool = False) -> tuple[str, ...]:
@@ -236,7 +234,7 @@ class Recording:
         form in which a bag stores, and a replay publishes, a recording.
         """
         n = len(self)
-        cur = self.current if self.has_current else np.full(n, np.nan)
+        cur = self.current if self.current is not None else np.full(n, np.nan)
         return np.column_stack([np.arange(n, dtype=float), self.time, self.input, self.speed,
                                 cur, np.zeros(n)])
 
@@ -244,7 +242,7 @@ class Recording:
         """Plain lists for JSON."""
         d = {'time': self.time.tolist(), 'input': self.input.tolist(),
              'speed': self.speed.tolist(), 'input_kind': self.input_kind, 'meta': self.meta}
-        if self.has_current:
+        if self.current is not None:
             d['current'] = self.current.tolist()
         if self.position is not None:
             d['position'] = self.position.tolist()

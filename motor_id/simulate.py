@@ -37,8 +37,8 @@ _HEAP_PRIME_BYTES = 16 << 20
 """Size of the block :func:`_prime_allocator` allocates and frees once (16 MiB)."""
 
 
-def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, tau_s,  # noqa: C901
-            R0, Hm, Hq):
+def _kernel(A, Bd, idx, dts, u, x0, voltage, fr, T_L, k_q, V_b, k_h, tau_th, tau_s,  # noqa: C901
+            R0, Hm, Hq, ipos):
     P, N = u.shape
     n = A.shape[2]
     X = np.zeros((P, N, n))
@@ -66,6 +66,8 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
                     elif i < 0.0:
                         v += V_b[p]
             tau = -T_L[p] - k_q[p] * w * abs(w)
+            if w < 0.0:
+                tau -= fr[p, 2] * w   # extra viscous friction in the negative direction
             heat = 0.0
             if voltage and k_h[p] != 0.0:
                 # the extra resistance drops dR i(t): held at dR times the interval's mean
@@ -89,26 +91,39 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, T_c, T_L, k_q, V_b, k_h, tau_th, ta
             if heat != 0.0:
                 # copper loss i^2 R: the heating rate grows with the resistance itself
                 dR += dt * (k_h[p] * heat * (1.0 + dR / R0[p]) - dR / tau_th[p])
-            tc = T_c[p]
-            if tc > 0.0:
+            if fr[p, 0] > 0.0 or fr[p, 1] > 0.0 or fr[p, 3] > 0.0:
                 if w != 0.0:
                     s = 1.0 if w > 0.0 else -1.0
+                    # the Coulomb level of this direction, raised towards the static
+                    # level near zero speed (Stribeck)
+                    tc = fr[p, 0] if s > 0.0 else fr[p, 1]
+                    if fr[p, 3] > tc and fr[p, 4] > 0.0:
+                        z = w / fr[p, 4]
+                        tc += (fr[p, 3] - tc) * np.exp(-z * z)
                     for j in range(n):
                         xn[j] -= Bd[p, c, j, 1] * tc * s
                     if xn[0] * s < 0.0:  # it stops within the interval; a drive that
-                        # beats T_c the other way carries it on (friction then opposes -s)
-                        back = xn[0] + 2.0 * Bd[p, c, 0, 1] * tc * s
+                        # beats the other direction's friction carries it on (which then
+                        # opposes -s)
+                        to = max(fr[p, 1] if s > 0.0 else fr[p, 0], fr[p, 3])
+                        back = xn[0] + Bd[p, c, 0, 1] * (tc + to) * s
                         if back * s < 0.0:
                             for j in range(n):
-                                xn[j] += 2.0 * Bd[p, c, j, 1] * tc * s
+                                xn[j] += Bd[p, c, j, 1] * (tc + to) * s
                         else:
                             xn[0] = 0.0
+                            if ipos >= 0:   # it stopped part-way: half the free travel
+                                xn[ipos] = x[ipos] + 0.5 * (xn[ipos] - x[ipos])
                 elif xn[0] != 0.0:
                     s = 1.0 if xn[0] > 0.0 else -1.0
+                    # break-away: the static level of the drive's direction
+                    tc = max(fr[p, 0] if s > 0.0 else fr[p, 1], fr[p, 3])
                     for j in range(n):
                         xn[j] -= Bd[p, c, j, 1] * tc * s
                     if xn[0] * s <= 0.0:
                         xn[0] = 0.0
+                        if ipos >= 0:
+                            xn[ipos] = x[ipos]   # held at rest
             for j in range(n):
                 x[j] = xn[j]
             if tau_s[p] > 0.0:
@@ -314,10 +329,28 @@ def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]
     return u
 
 
+def _initial_batch(x0: ArrayLike | None, P: int, n: int, resonance_states: int
+                   ) -> np.ndarray:
+    """``x0`` as (P, n): missing states 0; with a two-mass shaft (``resonance_states`` =
+    the dynamic states) the load starts at the motor's speed."""
+    x0b = np.zeros((P, n))
+    if x0 is None:
+        return x0b
+    x0 = np.asarray(x0, dtype=float)
+    if x0.ndim == 1:
+        x0b[:, :x0.size] = x0[:n]
+    else:
+        x0b[:, :x0.shape[1]] = x0[:, :n]
+    if resonance_states:   # load starts at the motor's speed, shaft untwisted
+        x0b[:, resonance_states - 2] = x0b[:, 0]
+    return x0b
+
+
 def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
                    input_kind: str = 'voltage', method: str = 'zoh',
                    effects: Mapping[str, Mapping[str, ArrayLike]] | None = None,
-                   x0: ArrayLike | None = None) -> dict[str, np.ndarray]:
+                   x0: ArrayLike | None = None, position: bool = False
+                   ) -> dict[str, np.ndarray]:
     """Simulate P parameter sets on one input record.
 
     Parameters
@@ -333,13 +366,17 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     effects : dict, optional
         ``{effect: {param: scalar or (P,) array}}`` from :data:`motor_id.model.EFFECTS`.
     x0 : array_like, shape (n,) or (P, n), optional
-        Initial state; zeros when omitted.
+        Initial state; zeros when omitted. With ``position`` the position is the last
+        state.
+    position : bool
+        Also integrate the motor's position (exactly, with the held inputs: an extra
+        state ``d(theta)/dt = w``).
 
     Returns
     -------
     dict
         ``'speed'`` (P, N) as the sensor reports it, ``'current'`` (P, N) for a voltage
-        plant, ``'states'`` (P, N, n).
+        plant, ``'position'`` (P, N) with ``position``, ``'states'`` (P, N, n).
     """
     effects = dict(effects or {})
     for name, vals in effects.items():
@@ -356,19 +393,12 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     res = effects.get('resonance')
     res_b = {k: _as_batch(v, P) for k, v in res.items()} if res else None
     F, G = continuous_matrices(full, input_kind, res_b)
+    n_dyn = F.shape[1]
+    if position:
+        F, G = with_position(F, G)
     A, Bd = discretize(F, G, dts, method)
     n = F.shape[1]
-    if x0 is None:
-        x0b = np.zeros((P, n))
-    else:
-        x0 = np.asarray(x0, dtype=float)
-        x0b = np.zeros((P, n))
-        if x0.ndim == 1:
-            x0b[:, :x0.size] = x0[:n]
-        else:
-            x0b[:, :x0.shape[1]] = x0[:, :n]
-        if res_b is not None:  # load starts at the motor's speed, shaft untwisted
-            x0b[:, n - 2] = x0b[:, 0]
+    x0b = _initial_batch(x0, P, n, n_dyn if res_b is not None else 0)
     ueff = apply_input_maps(u, effects, P)
 
     def eff(name: str, key: str, default: float = 0.0) -> np.ndarray:
@@ -377,11 +407,12 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
         return np.full(P, default)
 
     kernel_effects = {'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
-                      'resistance_drift', 'sensor_lag'}
+                      'resistance_drift', 'sensor_lag', 'asymmetric_friction',
+                      'stribeck_friction', 'stiction'}
     # one array layout per argument, so that each kernel has one compiled signature
     A = np.ascontiguousarray(A)
     Bd = np.ascontiguousarray(Bd)
-    if not kernel_effects & set(effects):
+    if not kernel_effects & set(effects) and not position:
         if n == 2 and dts.size == 1:
             X = _compiled(_linear2_regular_kernel)(A, Bd, ueff, x0b)
         else:
@@ -397,14 +428,49 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     else:
         Hm, Hq = np.zeros((1, 1, nz)), np.zeros((1, 1, nz, nz))
     X, Y = _compiled(_kernel)(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
-                   eff('coulomb_friction', 'T_c'), eff('load_torque', 'T_L'),
+                   friction_table(effects, P), eff('load_torque', 'T_L'),
                    eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
                    eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
-                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm, Hq)
+                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm, Hq,
+                   n - 1 if position else -1)
     out = {'speed': _speed_reading(Y, effects, P), 'states': X}
+    if position:
+        out['position'] = np.ascontiguousarray(X[:, :, n - 1])
     if input_kind == 'voltage':
         out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
     return out
+
+
+def with_position(F: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``F, G`` with one more state, the motor's position: ``d(theta)/dt = w``."""
+    P, n, _ = F.shape
+    Fp = np.zeros((P, n + 1, n + 1))
+    Fp[:, :n, :n] = F
+    Fp[:, n, 0] = 1.0
+    Gp = np.zeros((P, n + 1, G.shape[2]))
+    Gp[:, :n] = G
+    return Fp, Gp
+
+
+def friction_table(effects: Mapping[str, Mapping[str, ArrayLike]], P: int) -> np.ndarray:
+    """The kernel's dry-friction parameters, shape (P, 5).
+
+    Columns: Coulomb level for positive and for negative motion, the extra viscous
+    friction of negative motion, the static (break-away) level, the Stribeck speed.
+    """
+    fr = np.zeros((P, 5))
+    if 'coulomb_friction' in effects:
+        fr[:, 0] = fr[:, 1] = _as_batch(effects['coulomb_friction']['T_c'], P)
+    if 'asymmetric_friction' in effects:
+        asym = effects['asymmetric_friction']
+        fr[:, 1] = np.maximum(fr[:, 0] + _as_batch(asym.get('dT_c', 0.0), P), 0.0)
+        fr[:, 2] = _as_batch(asym.get('dB', 0.0), P)
+    for name in ('stiction', 'stribeck_friction'):
+        if name in effects:
+            fr[:, 3] = np.maximum(fr[:, 3], _as_batch(effects[name]['T_s'], P))
+    if 'stribeck_friction' in effects:
+        fr[:, 4] = _as_batch(effects['stribeck_friction']['v_s'], P)
+    return fr
 
 
 def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
@@ -525,7 +591,5 @@ def simulate_recording(plant: Plant, t: ArrayLike, u: ArrayLike, speed_noise: fl
     info = {'simulated': True, 'truth': plant.to_dict(), 'speed_noise': speed_noise,
             'current_noise': current_noise}
     info.update(meta or {})
-    # TODO(owner: main session): drop the ignore once Recording.current is ndarray | None
     return Recording(np.asarray(t, dtype=float), np.asarray(u, dtype=float), speed,
-                     current,  # type: ignore[arg-type]
-                     plant.input_kind, info)
+                     current, plant.input_kind, info)

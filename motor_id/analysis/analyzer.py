@@ -26,8 +26,10 @@ from motor_id.analysis.heldout import HeldOutSplit, noise_floor
 from motor_id.analysis.inverse_dynamics import electrical_evidence
 from motor_id.analysis.measurement import find_measurement_effects
 from motor_id.analysis.report import DiscrepancyReport, ModelScore
+from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.errors import ConfigError, DataError, IdentificationError
 from motor_id.identify import determinacy
+from motor_id.identify.validation import SavedModel
 from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS
 
@@ -35,7 +37,7 @@ if TYPE_CHECKING:
     from motor_id.identify import Identifier
     from motor_id.recording import Recording
 
-CANDIDATES = tuple(EFFECTS)
+CANDIDATES = tuple(e for e, spec in EFFECTS.items() if not spec.extends)
 """Candidate effects, in catalogue order (the more common first)."""
 
 
@@ -75,13 +77,18 @@ class DiscrepancyAnalysis:
         Distinct grid points each candidate's refinement starts from.
     R_m_tolerance : float
         Relative standard deviation of the prior on R_m (with the current measured).
+    init_samples : int
+        With a measured position, the model is also fitted and its refinements chosen by
+        simulation error (:mod:`.simulation_fit`), each block simulated from a state set
+        by its first ``init_samples`` samples; 0 skips that stage.
     """
 
     def __init__(self, R_m: float | None = None, candidates: Sequence[str] | None = None,
                  random_state: int | None = 0, min_gain: float = 0.05,
                  ambiguity: float = 0.03, max_effects: int = 3, structure_ratio: float = 1.5,
                  n_blocks: int = 10, max_delay: int | None = None, generations: int = 100,
-                 pool_size: int = 4, starts: int = 2, R_m_tolerance: float = 0.10) -> None:
+                 pool_size: int = 4, starts: int = 2, R_m_tolerance: float = 0.10,
+                 init_samples: int = 20) -> None:
         self.R_m = R_m
         self.candidates = candidates
         self.random_state = random_state
@@ -95,6 +102,7 @@ class DiscrepancyAnalysis:
         self.pool_size = pool_size
         self.starts = starts
         self.R_m_tolerance = R_m_tolerance
+        self.init_samples = init_samples
 
     def fit(self, rec: Recording, progress: Callable[[str], object] | None = None
             ) -> DiscrepancyAnalysis:
@@ -356,6 +364,10 @@ class DiscrepancyAnalysis:
         singles = self._singles(base)
         chosen, ranked = self._select(base, singles)
         self.report_ = self._report(rec, base, chosen, ranked)
+        if rec.has_position and self.init_samples:
+            model = SavedModel.from_report(self.report_.to_dict(), use_simulation=False)
+            self.report_.simulation = simulation_stage(
+                rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say)
         self.report_.seconds = time.perf_counter() - t_start
         return self
 

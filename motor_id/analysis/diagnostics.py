@@ -53,7 +53,7 @@ def steady_state_map(rec: Recording, min_len: int | None = None) -> list[dict[st
     for a, b in ranges:
         p: dict[str, Any] = {'start': a, 'stop': b, 'input': float(np.mean(u[a:b])),
              'speed': float(np.mean(rec.speed[a:b]))}
-        if rec.has_current:
+        if rec.current is not None:
             p['current'] = float(np.mean(rec.current[a:b]))
         points.append(p)
     return points
@@ -94,7 +94,7 @@ def residual_block(rec: Recording, channels: Sequence[str],
     """
     variables: dict[str, np.ndarray] = {'speed': rec.speed, 'input': rec.input,
                                         'sign(speed)': rec.speed, 'sign(input)': rec.input}
-    if rec.has_current:
+    if rec.current is not None:
         variables.update({'current': rec.current, 'sign(current)': rec.current})
     out: dict[str, Any] = {'residual': {}, 'binned': {}}
     for c in channels:

@@ -14,7 +14,7 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.errors import ConfigError
+from motor_id.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -129,6 +129,8 @@ def _electrical_columns(rec: Recording, scales: object
                        ) -> dict[str, list[tuple[float | None, np.ndarray]]]:
     """Candidate regressors ``{effect: [(param value, column), ...]}`` (unfiltered)."""
     t, u, i = rec.time, rec.input, rec.current
+    if i is None:
+        raise DataError('the electrical regressors need the measured current')
     T = float(t[-1] - t[0])
     u_max = float(np.max(np.abs(u))) or 1.0
     cols: dict[str, list[tuple[float | None, np.ndarray]]] = {
@@ -177,6 +179,8 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
     def f(x: np.ndarray) -> np.ndarray:
         return filtfilt(b, a, x)
 
+    if rec.current is None:
+        raise DataError('the electrical evidence needs the measured current')
     i_f = f(rec.current)
     base = np.column_stack([i_f, np.gradient(i_f, t), f(rec.speed)])
     y = f(rec.input)

@@ -89,6 +89,7 @@ class DiscrepancyReport:
     seconds: float = 0.0
     adequate: bool = True
     warnings: list = field(default_factory=list)
+    simulation: dict | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
@@ -109,19 +110,44 @@ class DiscrepancyReport:
              'seconds': self.seconds}
         if self.inverse_dynamics is not None:
             d['inverse_dynamics'] = self.inverse_dynamics
+        if self.simulation is not None:
+            d['simulation'] = self.simulation
         return d
 
     def summary(self) -> str:
         """A readable report for people."""
         lines = _fit_lines(self) + _diagnostic_lines(self.diagnostics)
         lines += _measurement_lines(self) + _candidate_lines(self)
-        lines += _parameter_lines(self)
+        lines += _parameter_lines(self) + _simulation_lines(self.simulation)
         if not self.adequate:
             lines.append('MODEL INADEQUATE: ' + self.warnings[0])
         for w in self.warnings[(0 if self.adequate else 1):]:
             lines.append('warning: ' + w)
         lines.append(f'analysis time {self.seconds:.2f} s')
         return '\n'.join(lines)
+
+
+def _simulation_lines(sim: dict[str, Any] | None) -> list[str]:
+    """The simulation-error stage: each candidate's held-out RMSE, the chosen model."""
+    if not sim:
+        return []
+    lines = [f'simulation error ({", ".join(sim["channels"])}; each block from its first '
+             f'{sim["init_samples"]} samples), held-out RMSE:']
+    for c in sim['candidates']:
+        err = ', '.join(f'{ch} {v:.4g}' for ch, v in c['heldout_rmse'].items()) \
+            or c.get('failed', '')
+        mark = '*' if c['name'] == sim['chosen'] else ' '
+        lines.append(f'  {mark} {c["name"]:<58} {err}')
+    if sim.get('model'):
+        vals = {**sim['model']['parameters'],
+                **{f'{e}.{p}': v for e, d in sim['model']['effects'].items()
+                   for p, v in d.items()}}
+        lines.append('  chosen, refitted on every block: ' + ', '.join(
+            f'{k} {v:.5g}' for k, v in vals.items()))
+        if sim.get('friction'):
+            lines.append('  friction by direction: ' + ', '.join(
+                f'{k} {v:.4g}' for k, v in sim['friction'].items()))
+    return lines
 
 
 def _fit_lines(rep: DiscrepancyReport) -> list[str]:

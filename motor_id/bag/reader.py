@@ -34,9 +34,11 @@ from motor_id.bag.schemas import (
 )
 from motor_id.contracts import (
     BAG_META_TOPIC,
+    BAG_POSITION_TOPIC,
     BAG_SAMPLES_TOPIC,
     batch_rows,
     INPUT_KINDS,
+    POSITION_LABEL,
     SAMPLE_COLUMNS,
     SEQ,
     seq_step,
@@ -247,8 +249,42 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
         See :func:`read_samples`.
     """
     contents = _read(path)
-    return samples_recording(_samples(contents), _meta(contents), contents.path,
-                             contents.note)
+    samples = _samples(contents)
+    rec = samples_recording(samples, _meta(contents), contents.path, contents.note)
+    _attach_position(contents, rec, np.round(samples['seq']).astype(np.int64))
+    return rec
+
+
+def _attach_position(contents: _Contents, rec: Recording, wanted: NDArray[np.int64]) -> None:
+    """Give ``rec`` the bag's measured position (``/motor_id/position``), matched to the
+    samples by sequence number; a position missing for some samples is left out whole,
+    with a note in ``rec.meta``."""
+    chans = _typed_channels(contents, BAG_POSITION_TOPIC, FLOAT64_MULTI_ARRAY)
+    if not chans:
+        return
+    parts = []
+    for ch in chans:
+        for i, msg in enumerate(contents.messages.get(ch.id, [])):
+            try:
+                decoded = deserialize(msg.data, FLOAT64_MULTI_ARRAY)
+                dims = list(decoded.layout.dim)
+                if len(dims) != 2 or dims[1].label != POSITION_LABEL or dims[1].size != 2:
+                    raise ValueError(f'layout {[(d.label, d.size) for d in dims]} is not '
+                                     f'(n, 2) rows of {POSITION_LABEL}')
+                parts.append(np.asarray(decoded.data, dtype=float).reshape(-1, 2))
+            except DECODE_ERRORS as exc:
+                raise BagError(f'{contents.path}: {BAG_POSITION_TOPIC} message {i} is not a '
+                               f'valid position batch: {exc}') from exc
+    seq, pos = (np.concatenate(parts) if parts else np.zeros((0, 2))).T
+    lookup = dict(zip(seq.astype(np.int64).tolist(), pos.tolist(), strict=True))
+    missing = [k for k in wanted.tolist() if k not in lookup]
+    if missing:
+        rec.meta['position_note'] = (f'{BAG_POSITION_TOPIC} lacks {len(missing)} of '
+                                     f'{wanted.size} samples (first seq {missing[0]}): '
+                                     'position left out')
+        return
+    rec.position = np.array([lookup[k] for k in wanted.tolist()])
+
 
 
 def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str | os.PathLike[str],

@@ -39,9 +39,11 @@ from motor_id.bag.schemas import (
 from motor_id.contracts import (
     BAG_ESTIMATE_TOPIC,
     BAG_META_TOPIC,
+    BAG_POSITION_TOPIC,
     BAG_SAMPLES_TOPIC,
     BATCH_LABEL,
     CHANNEL_TOPICS,
+    POSITION_LABEL,
     SAMPLE_COLUMNS,
     SAMPLES_LABEL,
 )
@@ -273,6 +275,17 @@ class BagWriter:
                'data': arr.ravel()}
         self.write(topic, FLOAT64_MULTI_ARRAY, msg, log_time_ns, publish_time_ns, sequence)
 
+    def write_positions(self, seq: ArrayLike, position: ArrayLike, log_time_ns: int) -> None:
+        """Write a batch of measured positions on ``/motor_id/position`` (rows
+        ``seq, position``; see :data:`motor_id.contracts.BAG_POSITION_TOPIC`)."""
+        arr = np.column_stack([np.asarray(seq, dtype=float), np.asarray(position, dtype=float)])
+        n = arr.shape[0]
+        msg = {'layout': {'dim': [{'label': BATCH_LABEL, 'size': n, 'stride': 2 * n},
+                                  {'label': POSITION_LABEL, 'size': 2, 'stride': 2}],
+                          'data_offset': 0},
+               'data': arr.ravel()}
+        self.write(BAG_POSITION_TOPIC, FLOAT64_MULTI_ARRAY, msg, log_time_ns)
+
     def write_meta(self, meta: dict[str, Any], log_time_ns: int = 0) -> None:
         """Write the recording's metadata as JSON on ``/motor_id/meta`` (latched).
 
@@ -436,6 +449,8 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
         for k0 in range(0, n, int(batch)):
             k1 = min(n, k0 + int(batch))
             bag.write_samples(rows[k0:k1], int(log_ns[k1 - 1]))
+            if rec.position is not None:
+                bag.write_positions(rows[k0:k1, 0], rec.position[k0:k1], int(log_ns[k1 - 1]))
             if channels:
                 for k in range(k0, k1):
                     bag.write_channel('voltage', rec.input[k], int(log_ns[k]))

@@ -58,10 +58,11 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
     """Read a recording from CSV with a header naming its columns.
 
     Columns ``time`` [s], the input and ``speed`` [rad/s] are required, ``current`` [A]
-    and ``position`` [rad] (or [m]) optional; other columns are ignored. The input column is named ``voltage`` [V]
-    (voltage plant), ``torque`` [N m] or ``force`` [N] (torque plant), or mapped with
-    ``columns``. Comma-separated; lines starting with ``#`` are comments
-    (``# input_kind: torque`` sets the plant kind); a UTF-8 byte-order mark is accepted.
+    and ``position`` [rad] (or [m]) optional; other columns are ignored. The input
+    column is named ``voltage`` [V] (voltage plant), ``torque`` [N m] or ``force`` [N]
+    (torque plant), or mapped with ``columns``. Comma-separated; lines starting with
+    ``#`` are comments (``# input_kind: torque`` sets the plant kind); a UTF-8 byte-order
+    mark is accepted.
 
     Parameters
     ----------

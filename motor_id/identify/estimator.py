@@ -214,7 +214,7 @@ class Identifier:
         notes: list[str] = []
         channels, fixed = self.channels, dict(self.fixed or {})
         cur = res.fit['channels'].get('current')
-        if cur is not None and self.channels is None:
+        if cur is not None and self.channels is None and rec.current is not None:
             levels = determinacy.channel_levels(rec.current)
             why: str | None
             if levels < determinacy.MIN_LEVELS:

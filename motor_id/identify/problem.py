@@ -235,8 +235,8 @@ class IdentificationProblem:
         self.segments = rec.segment_ranges
         signals: dict[str, np.ndarray | None] = {'speed': un.signal(rec.speed, 'speed')}
         if self.kind == 'voltage':
-            signals['current'] = (un.signal(rec.current, 'current') if rec.has_current
-                                  else None)
+            signals['current'] = (un.signal(rec.current, 'current')
+                                  if rec.current is not None else None)
         self.state_channels = tuple(signals)
         x0: list[float] = []
         lo: list[float] = []

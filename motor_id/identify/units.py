@@ -83,7 +83,7 @@ class InternalUnits:
                 'input': _exponent(float(np.max(np.abs(rec.input))), NORMAL_RANGE),
                 'speed': _exponent(float(np.max(np.abs(rec.speed))), NORMAL_RANGE),
                 'current': 0}
-        if rec.has_current:
+        if rec.current is not None:
             exps['current'] = _exponent(float(np.max(np.abs(rec.current))), NORMAL_RANGE)
         units = cls(exps, rec.input_kind)
         if has_effects and units.rescaled:

@@ -21,7 +21,10 @@ from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS, MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
-from motor_id.simulate import simulate_batch
+from motor_id.simulate import apply_input_maps, simulate_batch
+
+INPUT_MAPS = ('input_delay', 'dead_zone', 'voltage_saturation')
+"""Effects that act on the input before the dynamics (a delay reaches back in time)."""
 
 
 @dataclass
@@ -34,11 +37,14 @@ class SavedModel:
     source: str = ''
 
     @classmethod
-    def from_report(cls, report: dict, source: str = '') -> SavedModel:
+    def from_report(cls, report: dict, source: str = '', use_simulation: bool = True
+                    ) -> SavedModel:
         """Read the JSON of ``motor-id fit`` or ``motor-id analyze``.
 
         Undetermined parameters enter with their particular value: any point on an
-        unseen direction gives the same input-output behaviour.
+        unseen direction gives the same input-output behaviour. An analyze report with a
+        simulation-error model (``simulation.model``) gives that one unless
+        ``use_simulation`` is False.
 
         Raises
         ------
@@ -48,6 +54,11 @@ class SavedModel:
         if not isinstance(report, dict) or 'parameters' not in report:
             raise ConfigError(f'{source or "the model"}: not a motor-id fit or analyze '
                               'report (no "parameters")')
+        sim = (report.get('simulation') or {}).get('model') if use_simulation else None
+        if sim:
+            return cls(sim['input_kind'], {k: float(v) for k, v in sim['parameters'].items()},
+                       {e: {p: float(v) for p, v in d.items()}
+                        for e, d in sim['effects'].items()}, source)
         kind = report.get('input_kind') or report.get('data', {}).get('input_kind')
         if kind not in INPUT_KINDS:
             raise ConfigError(f'{source or "the model"}: the report names no plant kind '
@@ -162,7 +173,7 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
     n_init = init_samples if init_samples is not None else (2 if unmeasured else 1)
     if n_init < 1:
         raise ConfigError(f'--init-samples must be at least 1, got {n_init}')
-    channels = rec.channels()
+    channels = (('position',) if rec.has_position else ()) + rec.channels()
     sims = {ch: np.empty(len(rec)) for ch in channels}
     states = []
     score_mask = np.ones(len(rec), dtype=bool)
@@ -171,12 +182,16 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
             raise DataError(f'a run of {b - a} samples leaves nothing to score after '
                             f'{n_init} initial sample(s)')
         seg = rec.slice(a, b)
-        x0 = _initial_state(model, seg, n_init, unmeasured)
-        out = _simulate(model, seg, x0)
+        if rec.has_position:
+            out, x0 = _simulate_from(model, seg, n_init)
+        else:
+            x0 = _initial_state(model, seg, n_init, unmeasured)
+            out = _simulate(model, seg, x0)
         for ch in channels:
             sims[ch][a:b] = out[ch]
-        states.append({'speed': float(x0[0]), **({'current': float(x0[1])}
-                                                  if x0.size > 1 else {})})
+        names = ('speed',) + (('current',) if model.input_kind == 'voltage' else ()) \
+            + (('position',) if rec.has_position else ())
+        states.append({n: float(v) for n, v in zip(names, x0, strict=False)})
         score_mask[a:a + n_init] = False
     scores = {}
     for ch in channels:
@@ -203,6 +218,30 @@ def _simulate(model: SavedModel, rec: Recording, x0: np.ndarray) -> dict[str, np
     return res
 
 
+def _simulate_from(model: SavedModel, rec: Recording, n_init: int
+                   ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """The benchmark protocol on one run with a measured position: the state at sample
+    ``n_init - 1`` from the samples up to it (:func:`initial_state_at`), simulated from
+    there on the input alone (a delayed input reaches back before it). The samples before
+    carry the measured values (they are not scored)."""
+    k0 = n_init - 1
+    x0 = initial_state_at(rec, k0, n_init, model.input_kind, model.parameters, True)
+    maps = {e: v for e, v in model.effects.items() if e in INPUT_MAPS}
+    rest = {e: v for e, v in model.effects.items() if e not in INPUT_MAPS}
+    ueff = apply_input_maps(rec.input, maps, 1)[0]
+    with np.errstate(all='ignore'):
+        sim = simulate_batch(model.parameters, rec.time[k0:], np.ascontiguousarray(ueff[k0:]),
+                             model.input_kind, 'zoh', rest, x0, position=True)
+    out = {}
+    for ch in ('position',) + rec.channels():
+        full = np.array(getattr(rec, ch), dtype=float)
+        full[k0:] = sim[ch][0]
+        if not np.all(np.isfinite(full)):
+            raise DataError('the model diverges on this recording (non-finite simulation)')
+        out[ch] = full
+    return out, x0
+
+
 def _initial_state(model: SavedModel, rec: Recording, n_init: int,
                    unmeasured: bool) -> np.ndarray:
     """Measured states from the first sample; an unmeasured current by least squares on
@@ -210,7 +249,7 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
     speed0 = float(rec.speed[0])
     if model.input_kind != 'voltage':
         return np.array([speed0])
-    if not unmeasured:
+    if not unmeasured and rec.current is not None:
         return np.array([speed0, float(rec.current[0])])
     # the current that drives the first samples: quasi-static guess, then least squares
     p = model.parameters
@@ -237,3 +276,33 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
 
     sol = minimize_scalar(err, bounds=(grid[k] - step, grid[k] + step), method='bounded')
     return np.array([speed0, float(sol.x)])
+
+
+def initial_state_at(rec: Recording, k: int, n_init: int, input_kind: str,
+                     params: dict[str, float], position: bool = False) -> np.ndarray:
+    """The state at sample ``k`` from samples ``k - n_init + 1 .. k`` only (the benchmark
+    protocol: the first samples of a run set its state, nothing after them).
+
+    Speed: with a measured position and at least 3 samples, the slope at ``k`` of a
+    quadratic fitted to the positions (a count difference would be one grid step
+    noisy); else the measured speed at ``k``. Current (voltage plant): measured, or the
+    one that gives the acceleration the samples show, ``(J dw/dt + B w) / K_T``.
+    Position (with ``position``): as measured at ``k``.
+    """
+    lo = max(0, k - n_init + 1)
+    t = rec.time[lo:k + 1] - rec.time[k]
+    if rec.position is not None and t.size >= 3:
+        c = np.polyfit(t, rec.position[lo:k + 1], 2)
+        w, acc = float(c[1]), float(2.0 * c[0])
+    else:
+        w = float(rec.speed[k])
+        acc = float(np.polyfit(t, rec.speed[lo:k + 1], 1)[0]) if t.size >= 2 else 0.0
+    x = [w]
+    if input_kind == 'voltage':
+        if rec.current is not None:
+            x.append(float(rec.current[k]))
+        else:
+            x.append((params['J'] * acc + params['B'] * w) / params['K_T'])
+    if position:
+        x.append(float(rec.position[k]) if rec.position is not None else 0.0)
+    return np.array(x)
