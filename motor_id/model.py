@@ -475,9 +475,54 @@ def discretize(F: np.ndarray, G: np.ndarray, dt: ArrayLike, method: str = 'zoh'
         Bd = G[:, None] * (phi * dt[None, :])[:, :, None, None]
         return a[:, :, None, None], Bd
 
+    if dt.size >= SPECTRAL_MIN_INTERVALS:
+        return _discretize_spectral(F, G, dt)
     M = _held_input_matrix(F, G, dt)
     E = expm(M)
     return E[:, :, :n, :n], E[:, :, :n, n:]
+
+
+SPECTRAL_MIN_INTERVALS = 8
+"""From this many distinct interval lengths (a jittered record) :func:`discretize`
+diagonalises each plant once and evaluates every interval from its eigenvalues."""
+SPECTRAL_MAX_COND = 1e6
+"""A plant whose eigenvectors are worse conditioned than this (nearly repeated
+eigenvalues) is discretised by the matrix exponential instead."""
+
+
+def _discretize_spectral(F: np.ndarray, G: np.ndarray, dt: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order hold for many interval lengths: ``F = V diag(l) V^-1`` once per
+    plant, then ``A = V diag(exp(l dt)) V^-1`` and ``Bd = V diag(dt phi(l dt)) V^-1 G``
+    with ``phi(z) = (exp(z) - 1) / z`` for every interval (a jittered record has an
+    interval length per sample: one eigen-decomposition instead of one matrix
+    exponential each). Plants with ill-conditioned eigenvectors take the exponential."""
+    P, n, _ = F.shape
+    lam, V = np.linalg.eig(F)
+    ok = np.isfinite(lam).all(axis=1) & np.isfinite(V).all(axis=(1, 2))
+    cond = np.full(P, np.inf)
+    cond[ok] = np.linalg.cond(V[ok])
+    good = np.flatnonzero(cond < SPECTRAL_MAX_COND)
+    A = np.empty((P, dt.size, n, n))
+    Bd = np.empty((P, dt.size, n, G.shape[2]))
+    if good.size:
+        Vg = V[good]
+        Vi = np.linalg.inv(Vg)
+        z = lam[good][:, None, :] * dt[None, :, None]          # (p, K, n)
+        ez = np.exp(z)
+        small = np.abs(z) < 1e-4
+        with np.errstate(divide='ignore', invalid='ignore'):
+            phi = np.where(small, 1.0 + z / 2.0 + z * z / 6.0,
+                           (ez - 1.0) / np.where(small, 1.0, z))
+        A[good] = ((Vg[:, None] * ez[:, :, None, :]) @ Vi[:, None]).real
+        ViG = (Vi @ G[good])[:, None]
+        Bd[good] = ((Vg[:, None] * (phi * dt[None, :, None])[:, :, None, :]) @ ViG).real
+    bad = np.setdiff1d(np.arange(P), good)
+    if bad.size:
+        E = expm(_held_input_matrix(F[bad], G[bad], dt))
+        A[bad] = E[:, :, :n, :n]
+        Bd[bad] = E[:, :, :n, n:]
+    return A, Bd
 
 
 def _held_input_matrix(F: np.ndarray, G: np.ndarray, dt: np.ndarray) -> np.ndarray:

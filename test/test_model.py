@@ -87,3 +87,32 @@ def test_interval_integrals_match_quadrature_of_the_current():
     i = rows @ z0
     assert m[0, 0] @ z0 == pytest.approx(trapezoid(i, s), rel=1e-6)
     assert z0 @ Q[0, 0] @ z0 == pytest.approx(trapezoid(i * i, s), rel=1e-6)
+
+
+def test_many_interval_lengths_discretise_by_eigenvalues_as_exactly_as_expm():
+    """A jittered record (one interval length per sample) takes the eigen-decomposition
+    path; it matches the Pade matrix exponential to 1e-9 relative, also with the position
+    state (a zero eigenvalue) and for a plant with a repeated eigenvalue (which falls back
+    to the exponential)."""
+    from motor_id.linalg import expm
+    from motor_id.model import _held_input_matrix, SPECTRAL_MIN_INTERVALS
+    from motor_id.simulate import with_position
+    rng = np.random.default_rng(3)
+    P = 12
+    th = {'J': 10 ** rng.uniform(-6, 1, P), 'K_T': 10 ** rng.uniform(-3, 1, P),
+          'K_b': 10 ** rng.uniform(-3, 1, P), 'B': 10 ** rng.uniform(-7, 0, P),
+          'L_m': 10 ** rng.uniform(-5, 0, P), 'R_m': 10 ** rng.uniform(-1, 1, P)}
+    dt = np.sort(rng.uniform(2.6e-3, 7.4e-3, 4 * SPECTRAL_MIN_INTERVALS))
+    for kind in ('voltage', 'torque'):
+        for pos in (False, True):
+            F, G = continuous_matrices(th, kind)
+            if pos:
+                F, G = with_position(F, G)
+            F[0] = np.diag(np.full(F.shape[1], -50.0))   # repeated eigenvalue: fallback
+            A, Bd = discretize(F, G, dt)
+            n = F.shape[1]
+            E = expm(_held_input_matrix(F, G, dt))
+            scale_a = np.abs(E[:, :, :n, :n]).max(axis=(1, 2, 3))[:, None, None, None]
+            scale_b = np.abs(E[:, :, :n, n:]).max(axis=(1, 2, 3))[:, None, None, None]
+            assert np.max(np.abs(A - E[:, :, :n, :n]) / scale_a) < 1e-9, (kind, pos)
+            assert np.max(np.abs(Bd - E[:, :, :n, n:]) / scale_b) < 1e-9, (kind, pos)
