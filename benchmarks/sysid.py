@@ -1,0 +1,219 @@
+#!/usr/bin/env python3
+"""WPILib SysId's own feedforward fit against motor_id's model on a SysId log (issue 19).
+
+For one ``sysid_data.json`` (its four tests: quasistatic ramps and voltage steps, forward
+and backward) this prints, test by test, how well each model simulates the measured
+velocity from the logged voltage alone: the fit ``100 (1 - ||y - y_sim|| / ||y - mean
+y||)`` over each test after its first two samples (the ones that set the initial state
+of motor_id's model), and the constants kS, kV, kA of each model in the log's units.
+
+- SysId: the method of WPILib's SysId as it fits these logs (2022-2023: its data
+  preparation, then OLS of acceleration on velocity, voltage and sign;
+  :mod:`motor_id.testing.sysid_ols`), and the discrete form of SysId 2021
+  (``v[k+1] = a v[k] + b V[k] + c sgn(v[k])``). Each simulated as SysId plots it: from
+  the test's first velocity, every interval discretised exactly.
+- motor_id: ``motor-id analyze LOG --resistance R --json`` (``--fit-only``: ``motor-id fit
+  LOG --resistance R --effect coulomb_friction --json``) in a child process, then its
+  saved model simulated on every test with :func:`motor_id.identify.validation.validate`
+  (each test a run from its first samples). Its kS, kV, kA are the first-order equivalents
+  of the fitted motor, which are independent of the assumed R (a speed-only record cannot
+  see R): ``kV = (R_m B + K_T K_b) / K_T``, ``kA = (R_m J + B L_m) / K_T``,
+  ``kS = T_c R_m / K_T`` (+ a brush drop V_b).
+
+Usage::
+
+    python benchmarks/sysid.py [--log PATH] [--json OUT] [--fit-only] [--resistance R]
+                               [--joint left|right] [--timeout S]
+
+The log defaults to ``../shared/data/sysid/sysid_data.json`` beside the repository; the
+script says so and exits with status 2 when it is absent. Progress lines go to stderr, the
+tables to stdout.
+"""
+
+import argparse
+import json
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+import tempfile
+import time
+
+from common import render_table
+import numpy as np
+
+from motor_id.data.sysid import load_sysid
+from motor_id.errors import MotorIdError
+from motor_id.identify.validation import SavedModel, validate
+from motor_id.metrics import normalised_fit
+from motor_id.report import to_jsonable
+from motor_id.testing.sysid_ols import fit_acceleration, fit_discrete, prepare
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_LOG = REPO.parent / 'shared' / 'data' / 'sysid' / 'sysid_data.json'
+UNIT_SYMBOLS = {'Meters': 'm', 'Feet': 'ft', 'Inches': 'in', 'Radians': 'rad',
+                'Rotations': 'rot', 'Degrees': 'deg'}
+INIT_SAMPLES = 2
+"""Samples at the start of each test left out of every score (motor_id's model sets its
+unmeasured current from them)."""
+
+
+def progress(msg, t0=None):
+    """A progress line on stderr (with the seconds since ``t0``)."""
+    tail = '' if t0 is None else f' ({time.perf_counter() - t0:.1f} s)'
+    print(f'[sysid benchmark] {msg}{tail}', file=sys.stderr, flush=True)
+
+
+def per_test_fit(rec, simulated):
+    """Fit % of a simulated speed per test, after its first :data:`INIT_SAMPLES`."""
+    out = {}
+    for name, (a, b) in zip(rec.meta['segment_names'], rec.segment_ranges, strict=True):
+        y, yh = rec.speed[a + INIT_SAMPLES:b], simulated[a + INIT_SAMPLES:b]
+        out[name] = normalised_fit(y, yh) if np.all(np.isfinite(yh)) else math.nan
+    return out
+
+
+def sysid_side(rec):
+    """SysId's two fits, their constants and their simulated speed per test."""
+    prep = prepare(rec)
+    out = {}
+    for label, fit in (('SysId', fit_acceleration(prep)),
+                       ('SysId 2021 discrete', fit_discrete(prep))):
+        sim = np.empty(len(rec))
+        for a, b in rec.segment_ranges:
+            sim[a:b] = fit.simulate(rec.time[a:b], rec.input[a:b], rec.speed[a])
+        out[label] = {'gains': {'kS': fit.kS, 'kV': fit.kV, 'kA': fit.kA},
+                           'fit_percent': per_test_fit(rec, sim), 'details': fit.to_dict()}
+    return out
+
+
+def run_motor_id(log, out_json, args):
+    """``motor-id analyze`` (or ``fit``) on the log in a child process; its seconds."""
+    cmd = [sys.executable, '-m', 'motor_id.cli', 'fit' if args.fit_only else 'analyze',
+           str(log), '--resistance', repr(args.resistance), '--json', str(out_json)]
+    if args.fit_only:
+        cmd += ['--effect', 'coulomb_friction', '-q']
+    if args.joint:
+        cmd += ['--joint', args.joint]
+    env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get('PYTHONPATH',
+                                                                                 ''))
+    t0 = time.perf_counter()
+    progress('running ' + ' '.join(['motor-id'] + cmd[3:]) + ' (progress below)')
+    proc = subprocess.run(cmd, stdout=sys.stderr, stderr=sys.stderr, env=env,
+                          timeout=args.timeout, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f'motor-id {cmd[3]} exited with {proc.returncode}')
+    shown = ['motor-id'] + [a if a != str(out_json) else 'OUT.json' for a in cmd[3:]]
+    return time.perf_counter() - t0, ' '.join(shown)
+
+
+def first_order_gains(model):
+    """kS, kV, kA of a saved voltage-input model (first-order equivalents, SI)."""
+    p = model.parameters
+    k_t, r = p['K_T'], p['R_m']
+    kS = 0.0
+    if 'coulomb_friction' in model.effects:
+        kS += abs(model.effects['coulomb_friction'].get('T_c', 0.0)) * r / k_t
+    if 'brush_drop' in model.effects:
+        kS += abs(model.effects['brush_drop'].get('V_b', 0.0))
+    return {'kS': kS, 'kV': (r * p['B'] + k_t * p['K_b']) / k_t,
+            'kA': (r * p['J'] + p['B'] * p['L_m']) / k_t}
+
+
+def motor_id_side(rec, log, args):
+    """motor_id's model: fitted by the CLI, simulated per test by validation."""
+    with tempfile.TemporaryDirectory() as tmp:
+        out_json = Path(tmp) / 'model.json'
+        seconds, command = run_motor_id(log, out_json, args)
+        report = json.loads(out_json.read_text())
+    model = SavedModel.from_report(report, source=command)
+    val = validate(model, rec, INIT_SAMPLES)
+    return {'command': command, 'seconds': seconds, 'gains': first_order_gains(model),
+            'effects': model.effects, 'parameters': model.parameters,
+            'fit_percent': per_test_fit(rec, val.simulated['speed']),
+            'fit_percent_all': val.channels['speed']['fit_percent'],
+            'verdict': report.get('verdict')}
+
+
+def tables(rec, models):
+    """The two tables (per-test fit %, constants) as ``(title, columns, rows)``."""
+    names = list(models)
+    keys = [f'm{k}' for k in range(len(names))]
+    fit_cols = [('test', 'test', 's'), ('samples', 'samples', 'd')]
+    fit_cols += [(k, n, '.1f') for k, n in zip(keys, names, strict=True)]
+    rows = []
+    for test, (a, b) in zip(rec.meta['segment_names'], rec.segment_ranges, strict=True):
+        row = {'test': test, 'samples': b - a - INIT_SAMPLES}
+        row.update({k: models[n]['fit_percent'][test] for k, n in zip(keys, names,
+                                                                     strict=True)})
+        rows.append(row)
+    units = rec.meta['sysid']['units']
+    per = rec.meta['sysid']['si_to_units']
+    unit = UNIT_SYMBOLS[units]
+    gain_cols = [('model', 'model', 's'), ('kS', 'kS [V]', '.4g'),
+                 ('kV', f'kV [V s/{unit}]', '.4g'), ('kA', f'kA [V s^2/{unit}]', '.4g')]
+    gain_rows = [{'model': n, 'kS': models[n]['gains']['kS'],
+                  'kV': models[n]['gains']['kV'] / per, 'kA': models[n]['gains']['kA'] / per}
+                 for n in names]
+    return [('simulated velocity: fit % per test, from the logged voltage alone', fit_cols,
+             rows),
+            (f"feedforward constants in the log's units ({units})", gain_cols, gain_rows)]
+
+
+def parse(argv):
+    """The options."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    ap.add_argument('--log', default=str(DEFAULT_LOG), metavar='PATH',
+                    help=f'the SysId log (default {DEFAULT_LOG})')
+    ap.add_argument('--json', default='sysid_benchmark.json', metavar='OUT',
+                    help='where to write the numbers (default sysid_benchmark.json)')
+    ap.add_argument('--fit-only', action='store_true',
+                    help='motor-id fit (with Coulomb friction) instead of motor-id analyze')
+    ap.add_argument('--resistance', type=float, default=1.0, metavar='R',
+                    help='R_m [Ohm] given to motor-id (a speed-only log cannot see it; the '
+                         'I/O behaviour and kS, kV, kA do not depend on it; default 1)')
+    ap.add_argument('--joint', choices=('left', 'right'), help='side of a Drivetrain log')
+    ap.add_argument('--timeout', type=float, default=3600.0, metavar='S',
+                    help='give up on motor-id after S seconds (default 3600)')
+    return ap.parse_args(argv)
+
+
+def main(argv=None):
+    """Run both sides, print the tables, write the JSON."""
+    args = parse(argv)
+    log = Path(args.log)
+    if not log.is_file():
+        print(f'{log}: no SysId log there; pass --log PATH', file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    try:
+        rec = load_sysid(log, args.joint)
+    except MotorIdError as exc:
+        print(f'sysid benchmark: {exc}', file=sys.stderr)
+        return 2
+    progress(f'{log.name}: {len(rec)} samples in {len(rec.segment_ranges)} tests', t0)
+    models = sysid_side(rec)
+    progress('SysId fits done', t0)
+    try:
+        ours = motor_id_side(rec, log, args)
+    except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        print(f'sysid benchmark: {exc}', file=sys.stderr)
+        return 1
+    models['motor_id ' + ('fit' if args.fit_only else 'analyze')] = ours
+    progress('motor_id model simulated', t0)
+    result = {'log': str(log), 'units': rec.meta['sysid'], 'init_samples': INIT_SAMPLES,
+              'seconds': time.perf_counter() - t0, 'models': models}
+    for title, cols, rows in tables(rec, models):
+        print(f'\n{title}')
+        print(render_table(cols, rows))
+    print(f'\nmotor_id: {ours["command"]} took {ours["seconds"]:.1f} s')
+    with open(args.json, 'w') as fh:
+        json.dump(to_jsonable(result), fh, indent=1)
+        fh.write('\n')
+    print(f'wrote {args.json}')
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
