@@ -32,13 +32,32 @@ def test_paper_method_reports_three_combinations_and_varies_by_seed():
         assert len(r.undetermined_directions) == 2
         assert 'not determined by this data' in r.summary()
         assert [c['name'] for c in r.identifiable_combinations] == [
-            'K_T/(J*L_m)', 'R_m/L_m + B/J', '(R_m*B + K_T*K_b)/(J*L_m)']
+            'K_T/(J*L_m)', 'R_m/L_m + B/J', '(R_m*B + K_T*K_b)/(J*L_m)', 'kV', 'kA']
     J = np.array([r.parameters['J'].particular_value for r in results])
     assert np.ptp(np.log(J)) > np.log(1.2)  # raw J differs by > 20 % between seeds
     truth = {'K_T/(J*L_m)': 0.66 / (0.052 * 0.0345)}
     for r in results:  # the determined combination is close for every seed
         c = r.identifiable_combinations[0]
         assert rel_err(c['value'], truth['K_T/(J*L_m)']) < 0.08
+
+
+def test_speed_only_fit_reports_sysid_kv_ka_with_error_bars_that_cover_the_truth():
+    """Speed alone determines SysId's kV = a0/b0 and kA = a1/b0 (the five parameters it
+    does not): within 1 % of the truth and within 3 reported std, for three noise seeds,
+    and the controller block carries them."""
+    from motor_id.controller import from_identification
+    truth = {'kV': (2.3 * 0.002 + 0.66 * 0.64) / 0.66,
+             'kA': (2.3 * 0.052 + 0.002 * 0.0345) / 0.66}
+    for seed in (1, 2, 3):
+        rec = paper_recording(with_current=False, speed_noise=0.005, seed=seed)
+        r = Identifier(R_m=2.3, random_state=0).fit(rec).result_
+        c = {d['name']: d for d in r.identifiable_combinations}
+        for k in ('kV', 'kA'):
+            assert rel_err(c[k]['value'], truth[k]) < 0.01, (seed, k, c[k])
+            assert abs(c[k]['value'] - truth[k]) < 3 * c[k]['std'], (seed, k, c[k])
+        ff = from_identification(r.to_dict()).feedforward
+        assert ff['kV']['value'] == pytest.approx(c['kV']['value'])
+        assert ff['kA']['std'] == pytest.approx(c['kA']['std'])
 
 
 def test_zoh_recovers_all_five_with_current_and_tie():

@@ -117,6 +117,7 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
         vals = {n: math.nan if values[n] is None else values[n] for n in names}
         kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
     design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
+    _feedforward_from_combinations(design, result_dict, notes)
     if undetermined:
         how = ('state one with --fix NAME=VALUE (e.g. --fix J=...)' if input_kind == 'torque'
                else 'record the current channel (with the K_T = K_b tie, on by default) or '
@@ -125,6 +126,24 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
                      f'that need them are null: {how} to determine them')
     design.notes.extend(notes)
     return design
+
+
+def _feedforward_from_combinations(design: ControllerDesign, result_dict: Mapping[str, Any],
+                                   notes: list[str]) -> None:
+    """kV and kA from the determined combinations of a speed-only fit, where the
+    physical parameters they are usually computed from are not determined."""
+    combos = {c.get('name'): c for c in result_dict.get('identifiable_combinations') or []
+              if isinstance(c, dict)}
+    filled = []
+    for k in ('kV', 'kA'):
+        entry = design.feedforward.get(k) or {}
+        if k in combos and entry.get('value') is None:
+            design.feedforward[k] = {'value': combos[k]['value'], 'std': combos[k].get('std')}
+            filled.append(k)
+    if filled:
+        notes.append(f'{" and ".join(filled)} from the speed transfer function the data '
+                     'determine (kV = a0/b0; kA = a1/b0 = R_m J/K_T + B L_m/K_T, the second '
+                     'term negligible for a short electrical time constant)')
 
 
 def to_ros_parameters(design: ControllerDesign | Mapping[str, Any],

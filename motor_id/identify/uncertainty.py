@@ -228,18 +228,44 @@ def undetermined_directions(names: Sequence[str], Vn: np.ndarray, determined: np
     return out, (pivots, others)
 
 
+def feedforward(v: Mapping[str, float]) -> dict[str, float]:
+    """WPILib SysId's kV and kA of a voltage plant from any point of its parameters.
+
+    ``kV = a0 / b0 = (R_m B + K_T K_b) / K_T`` and ``kA = a1 / b0 = (R_m J + B L_m) / K_T``
+    with the speed transfer function ``b0 / (s^2 + a1 s + a0)``: the ratios speed-only
+    data determine even where J, K_T, K_b, B, L_m are not (``kA`` includes the term
+    ``B L_m / K_T``, which SysId's first-order model has no place for and which is far
+    below ``R_m J / K_T`` for any motor whose electrical time constant is short).
+    """
+    return {'kV': (v['R_m'] * v['B'] + v['K_T'] * v['K_b']) / v['K_T'],
+            'kA': (v['R_m'] * v['J'] + v['B'] * v['L_m']) / v['K_T']}
+
+
 def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.ndarray
                  ) -> list[dict[str, Any]]:
-    """The transfer-function coefficients (SI), with delta-method standard errors."""
-    base = problem.coefficients(z_best, physical=True)
+    """The transfer-function coefficients (SI), with delta-method standard errors; for a
+    voltage plant fitted on speed alone also SysId's kV and kA (:func:`feedforward`)."""
+
+    def values(z: np.ndarray) -> dict[str, float]:
+        out = problem.coefficients(z, physical=True)
+        if problem.kind == 'voltage' and 'current' not in problem.channels:
+            v = {k: problem.units.to_physical(k, x) for k, x in problem.values_at(z).items()}
+            with np.errstate(all='ignore'):
+                out.update(feedforward(v))
+        return out
+
+    base = values(z_best)
     out: list[dict[str, Any]] = []
+    grads = []
+    for j in range(len(problem.free)):
+        h = 1e-6
+        zp = z_best.copy()
+        zp[j] += h
+        grads.append(values(zp))
     for key, val in base.items():
         g = np.zeros(z_best.size)
-        for j in range(len(problem.free)):
-            h = 1e-6
-            zp = z_best.copy()
-            zp[j] += h
-            g[j] = (problem.coefficients(zp, physical=True)[key] - val) / h
+        for j, up in enumerate(grads):
+            g[j] = (up[key] - val) / 1e-6
         std = max(float(np.sqrt(max(g @ cov @ g, 0.0))), 1e-6 * abs(float(val)))
         out.append({'name': key, 'value': float(val), 'std': std, 'determined': True})
     return out
