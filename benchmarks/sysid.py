@@ -98,14 +98,15 @@ def run_motor_id(log, out_json, args):
         cmd += ['--joint', args.joint]
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get('PYTHONPATH',
                                                                                  ''))
+    shown = ' '.join(['motor-id'] + [a if a != str(out_json) else 'OUT.json'
+                                     for a in cmd[3:]])
     t0 = time.perf_counter()
-    progress('running ' + ' '.join(['motor-id'] + cmd[3:]) + ' (progress below)')
+    progress(f'running {shown} (its progress below)')
     proc = subprocess.run(cmd, stdout=sys.stderr, stderr=sys.stderr, env=env,
                           timeout=args.timeout, check=False)
     if proc.returncode != 0:
-        raise RuntimeError(f'motor-id {cmd[3]} exited with {proc.returncode}')
-    shown = ['motor-id'] + [a if a != str(out_json) else 'OUT.json' for a in cmd[3:]]
-    return time.perf_counter() - t0, ' '.join(shown)
+        raise RuntimeError(f'{shown} exited with {proc.returncode}')
+    return time.perf_counter() - t0, shown
 
 
 def first_order_gains(model):

@@ -250,6 +250,7 @@ def test_fit_recovers_the_feedforward_constants(clean_log, tmp_path):
     proc = motor_id('fit', path, '-R', '0.5', '--effect', 'coulomb_friction', '--json', js,
                     '-q')
     assert 'fit speed:' in proc.stdout
+    assert 'responds' not in proc.stderr   # no shift claimed across the runs' boundaries
     report = json.loads(js.read_text())
     assert report['data']['runs'] == 4 and report['data']['source'] == 'clean.json'
     # a speed-only record determines three combinations; kV and kA are ratios of them

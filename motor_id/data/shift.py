@@ -94,7 +94,8 @@ def detect_shift(rec: Recording, max_shift: int = 3, min_gain: float = 0.5,
     Parameters
     ----------
     rec : Recording
-        Validated (finite values).
+        Validated (finite values); the runs of a joined recording are fitted together,
+        but no regression row spans two runs.
     max_shift : int
         Largest shift tried [samples].
     min_gain : float
@@ -126,6 +127,9 @@ def detect_shift(rec: Recording, max_shift: int = 3, min_gain: float = 0.5,
     u, w = norm(rec.input), norm(rec.speed)
     i = norm(rec.current) if use_current and rec.current is not None else None
     k = np.arange(max_shift + 1, n - max_shift - 1)
+    # separate runs of a joined recording: no regression row reaches across a boundary
+    run = rec.segment_index()[:n]
+    k = k[run[k - max_shift - 1] == run[k + max_shift + 1]]
     ones = np.ones(k.size)
     rss = {}
     for s in range(-max_shift, max_shift + 1):
