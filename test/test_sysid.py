@@ -1,7 +1,9 @@
 """WPILib SysId logs: the reader (units, runs, errors), `motor-id import|fit|validate|analyze`
 on generated logs, SysId's own fit re-implemented, and the real log when it is present."""
 
+import argparse
 import copy
+import io
 import json
 import math
 import os
@@ -14,6 +16,7 @@ import pytest
 
 from motor_id.bag import read_recording
 from motor_id.cli import main
+from motor_id.cli.data_args import add_data_arguments, load_runs
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import Mapping
 from motor_id.data.sysid import load_sysid, MIN_TEST_ROWS, TESTS
@@ -212,6 +215,22 @@ def test_bag_and_csv_options_do_not_apply_to_a_sysid_log(clean_log):
 
 
 # --------------------------------------------------------------------------------- CLI
+
+def test_several_logs_keep_every_test_as_a_run(clean_log, tmp_path):
+    _, path = clean_log
+    other = make_sysid_log(10, **SHORT).write(tmp_path / 'other.json')
+    parser = argparse.ArgumentParser()
+    parser.add_argument('data', nargs='+')
+    add_data_arguments(parser)
+    rec = load_runs(parser.parse_args([path, other]), stream=io.StringIO())
+    first, second = load_sysid(path), load_sysid(other)
+    assert len(rec) == len(first) + len(second)
+    sizes = [b - a for a, b in first.segment_ranges + second.segment_ranges]
+    assert [b - a for a, b in rec.segment_ranges] == sizes
+    assert rec.meta['segment_names'] == ([f'clean.json:{n}' for n in TESTS]
+                                         + [f'other.json:{n}' for n in TESTS])
+    np.testing.assert_array_equal(rec.speed, np.concatenate([first.speed, second.speed]))
+
 
 def test_import_writes_the_log_as_a_bag(clean_log, tmp_path, capsys):
     _, path = clean_log

@@ -2,6 +2,7 @@
 
 import argparse
 from collections.abc import Iterable
+import os
 import sys
 from typing import Any, TextIO
 
@@ -134,12 +135,23 @@ def load_runs(args: argparse.Namespace, paths: Iterable[str] | None = None,
 
     Each path is read and checked as by :func:`load_from_args`; several are joined with
     :meth:`motor_id.recording.Recording.concatenate` (shared parameters, an initial
-    state per run).
+    state per run). A file that holds several runs itself (a SysId log's four tests)
+    keeps them as runs; ``meta['segment_names']`` names every run then.
     """
-    paths = list(paths if paths is not None else args.data)
+    paths = [str(p) for p in (paths if paths is not None else args.data)]
     recs = [load_from_args(args, path=p, stream=stream) for p in paths]
     if len(recs) == 1:
         return recs[0]
-    rec = Recording.concatenate(recs)
-    rec.meta['source'] = ', '.join(str(p) for p in paths)
+    runs: list[Recording] = []
+    names: list[str] = []
+    for path, r in zip(paths, recs, strict=True):
+        inner = r.meta.get('segment_names') or [''] * len(r.segment_ranges)
+        for (a, b), name in zip(r.segment_ranges, inner, strict=True):
+            runs.append(r if len(r.segment_ranges) == 1 else r.slice(a, b))
+            names.append(f'{os.path.basename(path)}:{name}' if name else
+                         os.path.basename(path))
+    rec = Recording.concatenate(runs)
+    rec.meta['source'] = ', '.join(paths)
+    if len(runs) > len(recs):
+        rec.meta['segment_names'] = names
     return rec
