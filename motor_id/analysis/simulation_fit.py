@@ -242,17 +242,18 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
     return names
 
 
-def refinements(model: SavedModel) -> list[tuple[str, ...]]:
-    """Effect sets to try on top of ``model``: each refinement of one of its effects, and
-    the pairs of refinements that can coexist."""
-    singles = [e for e, spec in EFFECTS.items()
-               if spec.extends and spec.extends in model.effects and e not in model.effects
-               and model.input_kind in spec.kinds]
-    combos: list[tuple[str, ...]] = [(e,) for e in singles]
-    for a, b in itertools.combinations(singles, 2):
-        if {a, b} != {'stiction', 'stribeck_friction'}:   # both set the static level
-            combos.append((a, b))
-    return combos
+def refinements(model: SavedModel) -> list[str]:
+    """The refinements of ``model``'s effects (each tried alone first)."""
+    return [e for e, spec in EFFECTS.items()
+            if spec.extends and spec.extends in model.effects and e not in model.effects
+            and model.input_kind in spec.kinds]
+
+
+def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
+    """Pairs of refinements that each helped alone and can coexist (stiction and Stribeck
+    friction both set the static level)."""
+    return [(a, b) for a, b in itertools.combinations(helpful, 2)
+            if {a, b} != {'stiction', 'stribeck_friction'}]
 
 
 def _start_values(effect: str, model: SavedModel) -> dict[str, float]:
@@ -298,41 +299,33 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     held = blocks[2::3] if len(blocks) >= 3 else []
     train = [b for b in blocks if b not in held] if held else blocks
     cands: list[SimCandidate] = []
-    best: SimCandidate | None = None
-    best_z: np.ndarray | None = None
-    best_prob: SimulationProblem | None = None
-    families: list[tuple[str, ...]] = [()] + refinements(model)
-    for extra in families:
-        effects = {**model.effects, **{e: _start_values(e, model) for e in extra}}
-        m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
-        name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic') or 'linear'
-        prob = SimulationProblem(rec, m, blocks, init_samples, free_names(m, rec))
-        say(f'simulation error: fitting {name} on {len(train)} blocks')
-        cand = SimCandidate(name, {}, {})
-        try:
-            with np.errstate(all='ignore'):
-                z, cand.nfev = prob.fit(train)
-                cand.parameters, cand.effects = prob.to_model(z)
-                cand.train_rmse = prob.rmse(z, train)
-                if held:
-                    cand.heldout_rmse = prob.rmse(z, held)
-                    cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], held) ** 2))
-                else:
-                    cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], train) ** 2))
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-            cand.failed = f'{type(exc).__name__}: {exc}'
-        cands.append(cand)
-        if cand.failed or not math.isfinite(cand.heldout_cost):
-            continue
-        gain_needed = (1.0 - min_gain) ** 2    # on the squared error
-        if best is None or cand.heldout_cost < gain_needed * best.heldout_cost:
-            best, best_z, best_prob = cand, z, prob
-    if best is None or best_prob is None or best_z is None:
+    best: tuple[SimCandidate, np.ndarray, SimulationProblem] | None = None
+    gain_needed = (1.0 - min_gain) ** 2    # on the squared error
+    base_cost = math.inf
+    helpful: list[str] = []
+    singles: list[tuple[str, ...]] = [(e,) for e in refinements(model)]
+    for stage in ('base', 'singles', 'pairs'):
+        families: list[tuple[str, ...]] = ([()] if stage == 'base' else
+                                           singles if stage == 'singles' else pairs(helpful))
+        for extra in families:
+            cand, z, prob = _fit_family(rec, model, extra, blocks, train, held,
+                                        init_samples, say)
+            cands.append(cand)
+            if cand.failed or not math.isfinite(cand.heldout_cost):
+                continue
+            if stage == 'base':
+                base_cost = cand.heldout_cost
+            elif stage == 'singles' and cand.heldout_cost < gain_needed * base_cost:
+                helpful.append(extra[0])
+            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
+                best = (cand, z, prob)
+    if best is None:
         return {'channels': list(sim_channels(rec)), 'init_samples': init_samples,
                 'blocks': blocks, 'candidates': [c.to_dict() for c in cands],
                 'chosen': None, 'model': None,
                 'failed': 'no model could be fitted by simulation error'}
-    say(f'simulation error: refitting {best.name} on all {len(blocks)} blocks')
+    chosen, best_z, best_prob = best
+    say(f'simulation error: refitting {chosen.name} on all {len(blocks)} blocks')
     with np.errstate(all='ignore'):
         z, _ = best_prob.fit(blocks, best_z)
         params, effects = best_prob.to_model(z)
@@ -342,11 +335,38 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
             'channels': list(best_prob.channels), 'init_samples': init_samples,
             'blocks': [list(b) for b in blocks], 'heldout_blocks': [list(b) for b in held],
             'min_gain': min_gain, 'candidates': [c.to_dict() for c in cands],
-            'chosen': best.name,
+            'chosen': chosen.name,
             'model': {'input_kind': model.input_kind, 'parameters': params,
                       'effects': effects},
             'friction': friction_summary(params, effects, model.input_kind),
             'rmse': rmse}
+
+
+def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
+                blocks: list[tuple[int, int]], train: list[tuple[int, int]],
+                held: list[tuple[int, int]], init_samples: int,
+                say: Callable[[str], object]
+                ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
+    """``model`` plus the refinements ``extra`` fitted on ``train``, scored on ``held``."""
+    effects = {**model.effects, **{e: _start_values(e, model) for e in extra}}
+    m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
+    name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic') or 'linear'
+    prob = SimulationProblem(rec, m, blocks, init_samples, free_names(m, rec))
+    say(f'simulation error: fitting {name} on {len(train)} blocks')
+    cand = SimCandidate(name, {}, {})
+    z = prob.start()
+    try:
+        with np.errstate(all='ignore'):
+            z, cand.nfev = prob.fit(train)
+            cand.parameters, cand.effects = prob.to_model(z)
+            cand.train_rmse = prob.rmse(z, train)
+            score_on = held or train
+            if held:
+                cand.heldout_rmse = prob.rmse(z, held)
+            cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        cand.failed = f'{type(exc).__name__}: {exc}'
+    return cand, z, prob
 
 
 def friction_summary(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]],
