@@ -243,25 +243,37 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
 
 
 def refinements(model: SavedModel) -> list[str]:
-    """The refinements of ``model``'s effects (each tried alone first)."""
-    return [e for e, spec in EFFECTS.items()
-            if spec.extends and spec.extends in model.effects and e not in model.effects
-            and model.input_kind in spec.kinds]
+    """Effects to try on ``model``, each alone first: the refinements of its effects, and
+    an effect that refinements extend when the model lacks it (an equation-error stage
+    that took asymmetric friction for a load torque never named Coulomb friction)."""
+    out = [e for e, spec in EFFECTS.items()
+           if spec.extends and spec.extends in model.effects and e not in model.effects
+           and model.input_kind in spec.kinds]
+    bases = {spec.extends for spec in EFFECTS.values() if spec.extends}
+    return out + sorted(b for b in bases if b not in model.effects)
 
 
 def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
-    """Pairs of refinements that each helped alone and can coexist (stiction and Stribeck
-    friction both set the static level)."""
-    return [(a, b) for a, b in itertools.combinations(helpful, 2)
-            if {a, b} != {'stiction', 'stribeck_friction'}]
+    """Pairs of effects that each helped alone and can coexist (stiction and Stribeck
+    friction both set the static level); an added base effect (Coulomb friction) that
+    helped is also paired with each of its refinements."""
+    out: list[tuple[str, ...]] = [(a, b) for a, b in itertools.combinations(helpful, 2)
+           if {a, b} != {'stiction', 'stribeck_friction'}
+           and not (EFFECTS[a].extends == b or EFFECTS[b].extends == a)]
+    for base in helpful:
+        out += [(base, e) for e, spec in EFFECTS.items() if spec.extends == base]
+    return out
 
 
-def _start_values(effect: str, model: SavedModel) -> dict[str, float]:
+def _start_values(effect: str, model: SavedModel, drive_scale: float) -> dict[str, float]:
     """A refinement's start: no change from the model it refines (static friction at the
-    Coulomb level plus a little, Stribeck speed a tenth of the data's)."""
+    Coulomb level plus a little); an added Coulomb friction at 2 % of the largest drive
+    torque ``drive_scale``."""
     vals = EFFECTS[effect].defaults()
     tc = model.effects.get('coulomb_friction', {}).get('T_c', 0.0)
-    if effect == 'asymmetric_friction':
+    if effect == 'coulomb_friction':
+        vals['T_c'] = 0.02 * drive_scale
+    elif effect == 'asymmetric_friction':
         vals = {'dT_c': 0.0, 'dB': 0.0}
     elif effect in ('stiction', 'stribeck_friction'):
         vals['T_s'] = 1.2 * tc
@@ -348,7 +360,15 @@ def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
                 say: Callable[[str], object]
                 ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
     """``model`` plus the refinements ``extra`` fitted on ``train``, scored on ``held``."""
-    effects = {**model.effects, **{e: _start_values(e, model) for e in extra}}
+    u_max = float(np.max(np.abs(rec.input)))
+    scale = u_max if model.input_kind == 'torque' else \
+        model.parameters['K_T'] * u_max / model.parameters['R_m']
+    effects = {**model.effects, **{e: _start_values(e, model, scale) for e in extra}}
+    if 'coulomb_friction' in extra:   # its refinements start from the added level
+        tc = effects['coulomb_friction']['T_c']
+        for e in extra:
+            if e in ('stiction', 'stribeck_friction'):
+                effects[e]['T_s'] = 1.2 * tc
     m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
     name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic') or 'linear'
     prob = SimulationProblem(rec, m, blocks, init_samples, free_names(m, rec))
