@@ -53,7 +53,10 @@ from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
 from motor_id.simulate import on_grid, simulate_batch
 
-VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds)
+VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds and not e.extends)
+"""Effects the generator hides: every voltage-plant effect except the refinements of
+another (asymmetric, Stribeck, static friction), which only the simulation-error stage
+of a record with a position tries (:mod:`motor_id.analysis.simulation_fit`)."""
 """Effects the generator can hide (all apply to the voltage-driven motor)."""
 
 NOT_REVEALED_BY = {
