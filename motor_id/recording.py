@@ -109,7 +109,10 @@ class Recording:
 
         Each run keeps its samples; its times are shifted to follow the previous run by
         one median sample period (a run's own time origin is kept in
-        ``meta['segment_offsets']``). All runs must have the same input kind and channels.
+        ``meta['segment_offsets']``, one entry per run). A recording that is itself
+        several runs (a SysId log's four tests) keeps them as runs; the caller names the
+        joined runs (``meta['segment_names']`` is not carried over). All runs must have
+        the same input kind and channels.
 
         Raises
         ------
@@ -137,15 +140,17 @@ class Recording:
             t = np.asarray(r.time, dtype=float)
             shift = 0.0 if t_end is None else t_end + r.sample_period - t[0]
             times.append(t + shift)
-            offsets.append(shift)
+            inner = r.segment_ranges
+            offsets += [shift] * len(inner)
             t_end = float(times[-1][-1])
-            segs.append((n, n + t.size))
+            segs += [(n + a, n + b) for a, b in inner]
             n += t.size
         cur = np.concatenate([r.current for r in recordings]) if first.has_current \
             else None
         pos = np.concatenate([r.position for r in recordings]) if first.has_position \
             else None
         meta = dict(first.meta)
+        meta.pop('segment_names', None)
         meta['sources'] = [r.meta.get('source') for r in recordings]
         meta['segment_offsets'] = offsets
         return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),

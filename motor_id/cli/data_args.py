@@ -142,16 +142,13 @@ def load_runs(args: argparse.Namespace, paths: Iterable[str] | None = None,
     recs = [load_from_args(args, path=p, stream=stream) for p in paths]
     if len(recs) == 1:
         return recs[0]
-    runs: list[Recording] = []
     names: list[str] = []
     for path, r in zip(paths, recs, strict=True):
         inner = r.meta.get('segment_names') or [''] * len(r.segment_ranges)
-        for (a, b), name in zip(r.segment_ranges, inner, strict=True):
-            runs.append(r if len(r.segment_ranges) == 1 else r.slice(a, b))
-            names.append(f'{os.path.basename(path)}:{name}' if name else
-                         os.path.basename(path))
-    rec = Recording.concatenate(runs)
+        names += [f'{os.path.basename(path)}:{name}' if name else os.path.basename(path)
+                  for name in inner]
+    rec = Recording.concatenate(recs)   # a file of several runs keeps them
     rec.meta['source'] = ', '.join(paths)
-    if len(runs) > len(recs):
+    if len(names) > len(recs):
         rec.meta['segment_names'] = names
     return rec
