@@ -310,6 +310,18 @@ def batch_size(theta: Mapping[str, ArrayLike]) -> int:
     return sizes.pop() if sizes else 1
 
 
+INPUT_MAPS = ('input_delay', 'dead_zone', 'voltage_saturation')
+"""Effects that act on the input before the dynamics (:func:`apply_input_maps`); a
+delay reaches back in time, so a window of a record takes them from the whole record."""
+
+
+def split_input_maps(effects: Mapping[str, Mapping[str, ArrayLike]]
+                     ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``effects`` as ``(input maps, the rest)``."""
+    maps = {e: v for e, v in effects.items() if e in INPUT_MAPS}
+    return maps, {e: v for e, v in effects.items() if e not in INPUT_MAPS}
+
+
 def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]], P: int
                      ) -> np.ndarray:
     """Static input maps and delay, per member: returns ``u_eff`` of shape (P, N)."""

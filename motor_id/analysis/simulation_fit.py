@@ -31,9 +31,9 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 from scipy.optimize import least_squares
 
-from motor_id.identify.validation import initial_state_at, INPUT_MAPS, SavedModel
+from motor_id.identify.validation import initial_state_at, SavedModel
 from motor_id.model import EFFECTS, MECHANICAL_PARAMS
-from motor_id.simulate import apply_input_maps, simulate_batch
+from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -99,16 +99,16 @@ def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[
 class SimulationProblem:
     """Simulation error of a model family on the blocks of one recording."""
 
-    def __init__(self, rec: Recording, model: SavedModel, blocks: Sequence[tuple[int, int]],
-                 init_samples: int, free: Sequence[str]) -> None:
+    def __init__(self, rec: Recording, model: SavedModel, init_samples: int,
+                 free: Sequence[str]) -> None:
         self.rec = rec
         self.model = model
-        self.blocks = list(blocks)
         self.n_init = init_samples
         self.free = list(free)
         self.channels = sim_channels(rec)
         self.scale = {ch: float(np.std(getattr(rec, ch))) or 1.0 for ch in self.channels}
         self.kind = model.input_kind
+        self.n_states = 1 + (model.input_kind == 'voltage') + rec.has_position
 
     # parameter vector <-> model
     def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
@@ -151,17 +151,14 @@ class SimulationProblem:
         z = np.atleast_2d(z)
         P = z.shape[0]
         theta, effects = self.unpack(z)
-        maps = {e: v for e, v in effects.items() if e in INPUT_MAPS}
-        rest = {e: v for e, v in effects.items() if e not in INPUT_MAPS}
+        maps, rest = split_input_maps(effects)
         ueff = apply_input_maps(self.rec.input, maps, P)
         out = []
         pos = self.rec.has_position
         for a, b in blocks:
             k0 = a + self.n_init - 1
-            x0 = np.stack([initial_state_at(self.rec, k0, self.n_init, self.kind,
-                                            {n: float(np.ravel(v)[min(p, np.size(v) - 1)])
-                                             for n, v in theta.items()}, pos)
-                           for p in range(P)])
+            x0 = np.broadcast_to(initial_state_at(self.rec, k0, self.n_init, self.kind,
+                                                  theta, pos), (P, self.n_states))
             sim = simulate_batch(theta, self.rec.time[k0:b], np.ascontiguousarray(
                 ueff[:, k0:b]), self.kind, 'zoh', rest, x0, position=pos)
             out.append({ch: sim[ch][:, 1:] for ch in self.channels})
@@ -265,12 +262,13 @@ def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
     return out
 
 
-def _start_values(effect: str, model: SavedModel, drive_scale: float) -> dict[str, float]:
+def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
+                  drive_scale: float) -> dict[str, float]:
     """A refinement's start: no change from the model it refines (static friction at the
     Coulomb level plus a little); an added Coulomb friction at 2 % of the largest drive
     torque ``drive_scale``."""
     vals = EFFECTS[effect].defaults()
-    tc = model.effects.get('coulomb_friction', {}).get('T_c', 0.0)
+    tc = effects.get('coulomb_friction', {}).get('T_c', 0.0)
     if effect == 'coulomb_friction':
         vals['T_c'] = 0.02 * drive_scale
     elif effect == 'asymmetric_friction':
@@ -320,8 +318,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
         for extra in families:
-            cand, z, prob = _fit_family(rec, model, extra, blocks, train, held,
-                                        init_samples, say)
+            cand, z, prob = _fit_family(rec, model, extra, train, held, init_samples, say)
             cands.append(cand)
             if cand.failed or not math.isfinite(cand.heldout_cost):
                 continue
@@ -355,7 +352,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
 
 
 def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
-                blocks: list[tuple[int, int]], train: list[tuple[int, int]],
+                train: list[tuple[int, int]],
                 held: list[tuple[int, int]], init_samples: int,
                 say: Callable[[str], object]
                 ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
@@ -363,15 +360,12 @@ def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
     u_max = float(np.max(np.abs(rec.input)))
     scale = u_max if model.input_kind == 'torque' else \
         model.parameters['K_T'] * u_max / model.parameters['R_m']
-    effects = {**model.effects, **{e: _start_values(e, model, scale) for e in extra}}
-    if 'coulomb_friction' in extra:   # its refinements start from the added level
-        tc = effects['coulomb_friction']['T_c']
-        for e in extra:
-            if e in ('stiction', 'stribeck_friction'):
-                effects[e]['T_s'] = 1.2 * tc
+    effects = dict(model.effects)
+    for e in extra:   # in order: an added Coulomb friction before its refinements
+        effects[e] = _start_values(e, effects, scale)
     m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
     name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic') or 'linear'
-    prob = SimulationProblem(rec, m, blocks, init_samples, free_names(m, rec))
+    prob = SimulationProblem(rec, m, init_samples, free_names(m, rec))
     say(f'simulation error: fitting {name} on {len(train)} blocks')
     cand = SimCandidate(name, {}, {})
     z = prob.start()

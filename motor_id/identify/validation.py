@@ -10,21 +10,20 @@ starts anew. The score is per channel, over the samples after the initial ones.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 import math
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
 from motor_id.model import EFFECTS, MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
-from motor_id.simulate import apply_input_maps, simulate_batch
-
-INPUT_MAPS = ('input_delay', 'dead_zone', 'voltage_saturation')
-"""Effects that act on the input before the dynamics (a delay reaches back in time)."""
+from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
 
 
 @dataclass
@@ -226,8 +225,7 @@ def _simulate_from(model: SavedModel, rec: Recording, n_init: int
     carry the measured values (they are not scored)."""
     k0 = n_init - 1
     x0 = initial_state_at(rec, k0, n_init, model.input_kind, model.parameters, True)
-    maps = {e: v for e, v in model.effects.items() if e in INPUT_MAPS}
-    rest = {e: v for e, v in model.effects.items() if e not in INPUT_MAPS}
+    maps, rest = split_input_maps(model.effects)
     ueff = apply_input_maps(rec.input, maps, 1)[0]
     with np.errstate(all='ignore'):
         sim = simulate_batch(model.parameters, rec.time[k0:], np.ascontiguousarray(ueff[k0:]),
@@ -279,7 +277,7 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
 
 
 def initial_state_at(rec: Recording, k: int, n_init: int, input_kind: str,
-                     params: dict[str, float], position: bool = False) -> np.ndarray:
+                     params: Mapping[str, ArrayLike], position: bool = False) -> np.ndarray:
     """The state at sample ``k`` from samples ``k - n_init + 1 .. k`` only (the benchmark
     protocol: the first samples of a run set its state, nothing after them).
 
@@ -287,7 +285,8 @@ def initial_state_at(rec: Recording, k: int, n_init: int, input_kind: str,
     quadratic fitted to the positions (a count difference would be one grid step
     noisy); else the measured speed at ``k``. Current (voltage plant): measured, or the
     one that gives the acceleration the samples show, ``(J dw/dt + B w) / K_T``.
-    Position (with ``position``): as measured at ``k``.
+    Position (with ``position``): as measured at ``k``. Parameters of shape (P,) give
+    P states, shape (P, n); scalars one, shape (n,).
     """
     lo = max(0, k - n_init + 1)
     t = rec.time[lo:k + 1] - rec.time[k]
@@ -297,12 +296,13 @@ def initial_state_at(rec: Recording, k: int, n_init: int, input_kind: str,
     else:
         w = float(rec.speed[k])
         acc = float(np.polyfit(t, rec.speed[lo:k + 1], 1)[0]) if t.size >= 2 else 0.0
-    x = [w]
+    x: list[ArrayLike] = [w]
     if input_kind == 'voltage':
         if rec.current is not None:
             x.append(float(rec.current[k]))
         else:
-            x.append((params['J'] * acc + params['B'] * w) / params['K_T'])
+            J, B, K_T = (np.asarray(params[n], dtype=float) for n in ('J', 'B', 'K_T'))
+            x.append((J * acc + B * w) / K_T)
     if position:
         x.append(float(rec.position[k]) if rec.position is not None else 0.0)
-    return np.array(x)
+    return np.stack(np.broadcast_arrays(*(np.asarray(c, dtype=float) for c in x)), axis=-1)
