@@ -10,23 +10,18 @@ Methods
 ``paper``
     The paper as published: Euler, GA only, speed channel only.
 
-Modules: :mod:`.problem` (what is minimised: :class:`IdentificationProblem`),
-:mod:`.estimator` (:class:`Identifier`: GA + refinement), :mod:`.uncertainty`
-(covariance, identifiability, bootstrap), :mod:`.result` (:class:`Estimate`,
-:class:`IdentificationResult`), :mod:`.parsing` (``--fix`` / ``--bounds`` items).
+Modules: :mod:`.problem` (what is minimised: :class:`IdentificationProblem`), :mod:`.space`
+(its free parameters, bounds and search coordinates), :mod:`.estimator`
+(:class:`Identifier`: GA + refinement), :mod:`.uncertainty` (covariance, identifiability,
+bootstrap), :mod:`.result` (:class:`Estimate`, :class:`IdentificationResult`),
+:mod:`.parsing` (``--fix`` / ``--bounds`` items).
 """
 
 from motor_id.identify.estimator import Identifier
 from motor_id.identify.parsing import parse_bounds, parse_fixed
-from motor_id.identify.problem import (
-                                       DEFAULT_BOUNDS,
-                                       IdentificationProblem,
-                                       METHODS,
-                                       TORQUE_BOUNDS,
-                                       TORQUE_FREE,
-                                       VOLTAGE_FREE,
-)
+from motor_id.identify.problem import IdentificationProblem, METHODS
 from motor_id.identify.result import Estimate, IdentificationResult
+from motor_id.identify.space import DEFAULT_BOUNDS, TORQUE_BOUNDS, TORQUE_FREE, VOLTAGE_FREE
 
 __all__ = ['DEFAULT_BOUNDS', 'Estimate', 'IdentificationProblem', 'IdentificationResult',
            'Identifier', 'METHODS', 'parse_bounds', 'parse_fixed', 'TORQUE_BOUNDS',

@@ -9,8 +9,9 @@ from typing import Any, cast, TYPE_CHECKING
 import numpy as np
 
 from motor_id.identify import determinacy, uncertainty
-from motor_id.identify.problem import IdentificationProblem, TORQUE_FREE
+from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.result import Estimate
+from motor_id.identify.space import TORQUE_FREE
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
 

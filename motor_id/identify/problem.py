@@ -1,4 +1,7 @@
-"""The output-error problem of one recording: parameters, bounds, data, cost, residuals.
+"""The output-error problem of one recording: data, simulation, cost, residuals, Jacobian.
+
+Its parameters (which are free, their bounds, R_m's prior, the search coordinates) are
+a :class:`motor_id.identify.space.ParameterSpace`, which the problem extends with the data.
 
 The problem works in internal units (:mod:`motor_id.identify.units`): SI exactly for
 every ordinary recording, SI over powers of two for data in extreme units.
@@ -6,31 +9,22 @@ every ordinary recording, SI over powers of two for data in extreme units.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.errors import ConfigError, DataError
-from motor_id.ga import Bounds
+from motor_id.identify.space import ParameterSpace
 from motor_id.identify.units import InternalUnits
 from motor_id.metrics import noise_floor
-from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
 from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
 
 METHODS = ('zoh', 'euler', 'paper')
-VOLTAGE_FREE = ('J', 'K_T', 'K_b', 'B', 'L_m')
-TORQUE_FREE = ('J', 'B')
-DEFAULT_BOUNDS = {
-    'J': (1e-6, 10.0), 'K_T': (1e-3, 10.0), 'K_b': (1e-3, 10.0), 'B': (1e-7, 1.0),
-    'L_m': (1e-5, 1.0),
-}
-TORQUE_BOUNDS = {'J': (1e-7, 1e4), 'B': (1e-8, 1e5)}
-R_M_SPAN = 4.0      # a free R_m is searched in [given / 4, given * 4]
 FAILED_RESIDUAL = 1e6       # weighted residual given to a diverging simulation
 
 
@@ -48,79 +42,6 @@ def _pick_channels(rec: Recording, method: str, channels: Iterable[str] | None
             raise ConfigError(f'channel {ch!r} is not in the recording '
                               f'(it has {", ".join(rec.channels())})')
     return channels
-
-
-def _effect_terms(effects: Mapping[str, Mapping[str, float]] | None,
-                  free_effects: Iterable[str] | None
-                  ) -> tuple[dict[str, Mapping[str, float]], list[str]]:
-    """Complete effect parameters (catalogue defaults) and the checked free ones."""
-    effects = {k: dict(v) for k, v in (effects or {}).items()}
-    for e in effects:
-        if e not in EFFECTS:
-            raise ConfigError(f'unknown effect {e!r}')
-        effects[e] = {**EFFECTS[e].defaults(), **effects[e]}
-    free_eff = list(free_effects or ())
-    for fe in free_eff:
-        e, _, p = fe.partition('.')
-        if e not in effects or p not in effects[e]:
-            raise ConfigError(f'free effect parameter {fe!r} is not in the effects '
-                              f'{sorted(effects)}')
-    return effects, free_eff
-
-
-def _plant_parameters(problem: IdentificationProblem, R_m: float | None, fixed: dict[str, float]
-                      ) -> tuple[list[str], dict[str, tuple[float, float]], float | None]:
-    """Plant parameter names, default search box and the given R_m (None: torque plant).
-
-    Decides whether R_m is free: for a voltage plant with a fitted current channel (not
-    ``paper``) and R_m not in ``fixed``; otherwise it goes into ``fixed`` at its given
-    value.
-    """
-    if problem.kind != 'voltage':
-        unknown = set(fixed) - set(TORQUE_FREE)
-        if unknown:
-            raise ConfigError(f'cannot fix {sorted(unknown)}: the parameters of a torque '
-                              f'plant are {list(TORQUE_FREE)}')
-        return list(TORQUE_FREE), dict(TORQUE_BOUNDS), None
-    given = fixed.get('R_m', R_m)
-    if given is None:
-        raise ConfigError('the armature resistance R_m is required (--resistance R)')
-    if not (np.isfinite(given) and given > 0):
-        raise ConfigError(f'R_m must be a finite value > 0 Ohm, got {given}')
-    tol = problem.R_m_tolerance
-    if not (np.isfinite(tol) and tol > 0):
-        raise ConfigError(f'the R_m tolerance must be a finite fraction > 0 (0.1 = 10 %), '
-                          f'got {tol}')
-    names, box = list(VOLTAGE_FREE), dict(DEFAULT_BOUNDS)
-    unknown = set(fixed) - set(names) - {'R_m'}
-    if unknown:
-        raise ConfigError(f'cannot fix {sorted(unknown)}: the parameters of a voltage '
-                          f'plant are {names + ["R_m"]}')
-    if 'R_m' not in fixed and 'current' in problem.channels and problem.method != 'paper':
-        names.append('R_m')  # steady states V = R_m i + K_b w: the data see R_m
-        r = problem.units.to_internal('R_m', given)
-        box['R_m'] = (r / R_M_SPAN, r * R_M_SPAN)
-    else:
-        fixed['R_m'] = float(given)
-    return names, box, float(given)
-
-
-def _search_box(box: Mapping[str, tuple[float, float]],
-                bounds: Mapping[str, tuple[float, float]] | None, fitted: Sequence[str],
-                units: InternalUnits) -> dict[str, tuple[float, float]]:
-    """Default box updated by the user's ``bounds`` (SI -> internal) and effect ranges."""
-    box = dict(box)
-    for key, (lo, hi) in (bounds or {}).items():
-        if key not in box and key not in fitted:
-            raise ConfigError(f'bounds given for {key!r}, which is not fitted '
-                              f'(fitted: {fitted})')
-        box[key] = (units.to_internal(key, lo), units.to_internal(key, hi))
-    for fe in fitted:
-        if fe not in box:
-            e, _, p = fe.partition('.')
-            spec = {q.name: q for q in EFFECTS[e].params}[p]
-            box[fe] = (spec.low, spec.high)
-    return box
 
 
 def initial_tolerance(y: ArrayLike) -> float:
@@ -142,11 +63,13 @@ def initial_tolerance(y: ArrayLike) -> float:
     return max(3.0 * sigma, half_step, 1e-6 * scale)
 
 
-class IdentificationProblem:
+class IdentificationProblem(ParameterSpace):
     """What a fit minimises: the model, its free parameters, the data and the cost.
 
     Built by :meth:`motor_id.identify.Identifier.fit` (``Identifier.problem_``); usable
-    on its own by any optimiser (the benchmarks do).
+    on its own by any optimiser (the benchmarks do). The parameter side (``free``,
+    ``fixed``, ``bounds``, ``r_m_prior``, :meth:`expand`, :meth:`to_z`, :meth:`from_z`,
+    :meth:`start_vector`, ...) is that of :class:`~motor_id.identify.space.ParameterSpace`.
 
     Parameters
     ----------
@@ -190,44 +113,17 @@ class IdentificationProblem:
                  sample_weight: ArrayLike | None = None) -> None:
         if method not in METHODS:
             raise ConfigError(f'method must be one of {METHODS}, got {method!r}')
-        self.method = method
-        self.kind = rec.input_kind
         self.discretisation = 'zoh' if method == 'zoh' else 'euler'
-        self.channels = _pick_channels(rec, method, channels)
         self.evaluations = 0
         self.forward_differences = False
         """One-sided Jacobian (d + 1 simulations): enough to rank candidate models."""
-        self.units = InternalUnits.from_recording(rec, bool(effects))
-        self._configure(R_m, R_m_tolerance, tie, fixed, bounds, effects, free_effects)
+        channels = _pick_channels(rec, method, channels)
+        super().__init__(rec.input_kind, method, channels,
+                         InternalUnits.from_recording(rec, bool(effects)), R_m, R_m_tolerance,
+                         tie, fixed, bounds, effects, free_effects)
         self._load(rec, sample_weight)
 
-    # ----------------------------------------------------------------- set-up
-    def _configure(self, R_m: float | None, R_m_tolerance: float, tie: bool | None,
-                   fixed: Mapping[str, float] | None,
-                   bounds: Mapping[str, tuple[float, float]] | None,
-                   effects: Mapping[str, Mapping[str, float]] | None,
-                   free_effects: Iterable[str] | None) -> None:
-        fixed = {k: float(v) for k, v in (fixed or {}).items()}
-        self.R_m_tolerance = float(R_m_tolerance)
-        names, box, self.R_m_given = _plant_parameters(self, R_m, fixed)
-        if tie is None:
-            tie = (self.kind == 'voltage' and 'current' in self.channels
-                   and self.method != 'paper')
-        self.tie = bool(tie and self.kind == 'voltage')
-        free = [n for n in names if n not in fixed and not (self.tie and n == 'K_b')]
-        self.effects, self.free_effects = _effect_terms(effects, free_effects)
-        order = free + self.free_effects
-        box = _search_box(box, bounds, order, self.units)
-        self.fixed = {k: self.units.to_internal(k, v) for k, v in fixed.items()}
-        self.free = free
-        self.bounds = Bounds(tuple(order), tuple(box[n][0] for n in order),
-                             tuple(box[n][1] for n in order),
-                             tuple(n in PARAM_NAMES for n in order))
-        self.r_m_prior: tuple[int, float, float] | None = None
-        if 'R_m' in free:
-            mean = self.units.to_internal('R_m', cast(float, self.R_m_given))
-            self.r_m_prior = (free.index('R_m'), mean, self.R_m_tolerance * mean)
-
+    # ------------------------------------------------------------------- data
     def _load(self, rec: Recording, sample_weight: ArrayLike | None) -> None:
         un = self.units
         self.time = un.signal(rec.time, 'time')
@@ -277,23 +173,6 @@ class IdentificationProblem:
             self.weights = self.weights * self.sample_weight
 
     # -------------------------------------------------------------- simulation
-    def expand(self, X: ArrayLike, overrides: Mapping[str, float] | None = None
-               ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
-        """Parameter rows X (P, d) -> (theta dict, effects dict) batches for the model."""
-        X = np.atleast_2d(X)
-        P = X.shape[0]
-        theta = {k: np.full(P, v) for k, v in {**self.fixed, **(overrides or {})}.items()}
-        for j, n in enumerate(self.free):
-            theta[n] = X[:, j]
-        if self.tie:
-            theta['K_b'] = theta['K_T']
-        effects = {e: {p: np.full(P, v) for p, v in vals.items()}
-                   for e, vals in self.effects.items()}
-        for j, fe in enumerate(self.free_effects):
-            e, _, p = fe.partition('.')
-            effects[e][p] = X[:, len(self.free) + j]
-        return theta, effects
-
     def simulate_channels(self, X: ArrayLike, overrides: Mapping[str, float] | None = None
                           ) -> list[np.ndarray]:
         """Outputs per channel for parameter rows X (trailing columns: initial state).
@@ -321,13 +200,6 @@ class IdentificationProblem:
     def simulate(self, X: ArrayLike, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """All fitted channels side by side, shape (P, n_channels * N)."""
         return np.concatenate(self.simulate_channels(X, overrides), axis=1)
-
-    def prior_residuals(self, X: ArrayLike) -> np.ndarray | None:
-        """R_m's prior residual ``(R_m - given) / std`` per row of X, or None."""
-        if self.r_m_prior is None:
-            return None
-        j, mean, std = self.r_m_prior
-        return (np.atleast_2d(X)[:, j] - mean) / std
 
     def cost(self, X: ArrayLike) -> np.ndarray:
         """The GA's fitness: weighted mean squared output error (plus R_m's prior) per row.
@@ -368,26 +240,7 @@ class IdentificationProblem:
         """Simulated minus measured outputs (unweighted) at search vector z."""
         return self.simulate(self.from_z(z[None, :]))[0] - self.y
 
-    # ------------------------------------------------------------- transforms
-    def log_mask(self, size: int) -> np.ndarray:
-        """Which of ``size`` coordinates are on a log scale (initial states never are)."""
-        lg = np.zeros(size, dtype=bool)
-        lg[:self.bounds.dim] = self.bounds.log
-        return lg
-
-    def to_z(self, x: ArrayLike) -> np.ndarray:
-        """Parameters (and initial state) -> search coordinates (log of the positive ones)."""
-        x = np.asarray(x, dtype=float)
-        lg = self.log_mask(np.shape(x)[-1])
-        with np.errstate(all='ignore'):
-            return np.where(lg, np.log(np.where(lg, np.maximum(x, 1e-300), 1.0)), x)
-
-    def from_z(self, z: ArrayLike) -> np.ndarray:
-        """Search coordinates -> parameters."""
-        lg = self.log_mask(np.shape(z)[-1])
-        with np.errstate(over='ignore'):
-            return np.where(lg, np.exp(z), z)
-
+    # ------------------------------------------------------ least squares in z
     def z_bounds(self, size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Bounds in search coordinates; with the initial state when ``size`` asks."""
         lo = self.to_z(np.array(self.bounds.low))
@@ -397,22 +250,6 @@ class IdentificationProblem:
             hi = np.concatenate([hi, self.x0_bounds[1]])
         return lo, hi
 
-    def start_vector(self, start: Mapping[str, float]) -> np.ndarray:
-        """A starting parameter vector from SI values ``{name: value}``, clipped to bounds."""
-        vals: list[float] = []
-        for n in self.bounds.names:
-            if '.' in n:
-                e, _, p = n.partition('.')
-                vals.append(self.effects[e][p] if n not in start else start[n])
-            elif n == 'R_m' and n not in start:
-                vals.append(cast(tuple[int, float, float], self.r_m_prior)[1])
-            else:
-                if n not in start:
-                    raise ConfigError(f'start values lack {n!r}')
-                vals.append(self.units.to_internal(n, start[n]))
-        return np.clip(np.array(vals, dtype=float), self.bounds.low, self.bounds.high)
-
-    # ------------------------------------------------------------ derivatives
     def weighted_residuals(self, z: np.ndarray, weights: np.ndarray,
                            overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """Weighted residuals at search vector z (with the prior entry, if any)."""
@@ -465,22 +302,3 @@ class IdentificationProblem:
         return least_squares(self.weighted_residuals, z0, jac=jac, bounds=(lo, hi),
                              method='trf', x_scale='jac', max_nfev=max_nfev, xtol=1e-10,
                              ftol=1e-12, args=(weights,))
-
-    # ------------------------------------------------------------ structure
-    def values_at(self, z: np.ndarray) -> dict[str, float]:
-        """Full ``{name: value}`` of the physical parameters at free vector z (internal)."""
-        x = self.from_z(z)
-        v = dict(self.fixed)
-        for j, n in enumerate(self.free):
-            v[n] = x[j]
-        if self.tie:
-            v['K_b'] = v['K_T']
-        return v
-
-    def coefficients(self, z: np.ndarray, physical: bool = False) -> dict[str, float]:
-        """The transfer-function coefficients the data determine, at z."""
-        v = self.values_at(z)
-        if physical:
-            v = {k: self.units.to_physical(k, val) for k, val in v.items()}
-        with np.errstate(all='ignore'):
-            return transfer_coefficients(v, self.kind, self.channels)
