@@ -1,5 +1,6 @@
 """The pieces of a fit's result: estimates, effects, fit metrics, prior verdict,
-covariance and R_m sensitivity blocks, each built from the fitted problem."""
+covariance, R_m sensitivity, assumptions, resistance and GA blocks, each built from the
+fitted problem."""
 
 from __future__ import annotations
 
@@ -16,7 +17,9 @@ from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
+    from motor_id.ga import GeneticAlgorithm
     from motor_id.recording import Recording
+
 
 def estimates(problem: IdentificationProblem, names: list[str], x_best: np.ndarray,
                std_z: np.ndarray, lg: np.ndarray, determined: np.ndarray, bound: np.ndarray
@@ -116,3 +119,70 @@ def sensitivity_block(problem: IdentificationProblem, params: dict[str, Estimate
         src = 'K_T' if (problem.tie and n == 'K_b') else n
         out[n] = float(dz[names.index(src)]) if e.determined else None
     return out
+
+
+def assumptions_block(problem: IdentificationProblem) -> dict[str, Any]:
+    """``assumptions``: what the fit took as given (R_m, its prior, K_T = K_b, fixed values,
+    the discretisation), SI."""
+    fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
+    return {'R_m': fixed.get('R_m'), 'R_m_given': problem.R_m_given,
+            'R_m_prior': None if problem.r_m_prior is None else {
+                'mean': problem.R_m_given,
+                'std': problem.R_m_tolerance * cast(float, problem.R_m_given)},
+            'K_T_eq_K_b': bool(problem.tie),
+            'fixed': {k: v for k, v in fixed.items() if k != 'R_m'},
+            'discretisation': problem.discretisation}
+
+
+def resistance_block(problem: IdentificationProblem, params: dict[str, Estimate],
+                     fixed_by_caller: bool) -> dict[str, Any]:
+    """``resistance`` of a voltage plant: the given R_m, the estimate and what it says
+    (``fixed_by_caller``: R_m was among the caller's fixed values)."""
+    given = cast(float, problem.R_m_given)  # a voltage plant's
+    if problem.r_m_prior is None:
+        if fixed_by_caller:
+            why = 'fixed by --fix R_m'
+        elif 'current' not in problem.channels:
+            why = 'no current channel fitted: the data cannot see R_m; see ' \
+                  'r_m_sensitivity for what an error in it does'
+        else:
+            why = 'the paper method holds R_m fixed'
+        return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
+                'estimated': False, 'note': why}
+    e = params['R_m']
+    if e.value is None:
+        return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
+                'estimated': False, 'note': e.reason or 'not determined',
+                'prior_std': problem.R_m_tolerance * given}
+    rel = e.value / given - 1.0
+    prior_std = problem.R_m_tolerance
+    if e.std is None or e.std > 0.5 * prior_std * given:
+        note = 'the data hardly determine R_m; the estimate leans on the given value'
+    elif abs(rel) <= max(2 * e.std / given, 0.01):
+        note = 'consistent with the given value'
+    elif rel > 0:
+        note = 'a warm motor, or leads and brushes in series?'
+    else:
+        note = 'below the given value: a cold motor, or a wrong --resistance?'
+    if e.at_bound:
+        note += '; at its search bound'
+    return {'given': given, 'estimate': e.value, 'std': e.std, 'relative_change': rel,
+            'estimated': True, 'note': note,
+            'prior_std': prior_std * given}
+
+
+def ga_block(problem: IdentificationProblem, ga: GeneticAlgorithm | None,
+             ga_seconds: float) -> dict[str, Any]:
+    """``ga``: the GA's settings, stop reason and history (best parameters SI)."""
+    if ga is None:
+        return {'generations': 0, 'evaluations': 0, 'seconds': ga_seconds,
+                'history': []}
+    history = [h.to_dict() for h in ga.history_]
+    if problem.units.rescaled:
+        for h in history:
+            h['best'] = {k: problem.units.to_physical(k, v) for k, v in h['best'].items()}
+    return {'generations': ga.generation_, 'evaluations': ga.evaluations_,
+            'seconds': ga_seconds, 'best_cost': ga.best_cost_,
+            'stop': {k: v for k, v in ga.stop().items()},
+            'population': ga.population, 'crossover': ga.crossover,
+            'mutation': ga.mutation, 'history': history}

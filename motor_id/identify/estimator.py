@@ -1,26 +1,27 @@
-"""The estimator: GA fit of the constrained Elman net, then least-squares refinement."""
+"""The estimator: GA fit of the constrained Elman net, then least-squares refinement.
+
+:class:`Identifier` holds the settings and runs the stages of a fit (a first fit, refits
+in a widened box, a settling refit); the search itself is :mod:`.search`, the result
+:mod:`.assembly`."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping
 import math
 import time
-from typing import Any, cast, TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motor_id.errors import ConfigError, IdentificationError, MotorIdError
-from motor_id.ga import GeneticAlgorithm
-from motor_id.identify import blocks, determinacy, uncertainty
+from motor_id.errors import IdentificationError, MotorIdError
+from motor_id.identify import assembly, blocks, determinacy, search, uncertainty
 from motor_id.identify.problem import IdentificationProblem
-from motor_id.identify.result import Estimate, IdentificationResult
+from motor_id.identify.search import Progress
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
-
-_Progress = Callable[[int, int, float], object]
 
 WIDEN = 1e3
 """Factor by which a side of the default box that a fit sits on is moved outward."""
@@ -136,7 +137,7 @@ class Identifier:
         self.max_nfev = max_nfev
         self.quick_jacobian = quick_jacobian
 
-    def fit(self, rec: Recording, progress: _Progress | None = None,
+    def fit(self, rec: Recording, progress: Progress | None = None,
             sample_weight: ArrayLike | None = None) -> Identifier:
         """Fit the model to a recording.
 
@@ -184,7 +185,7 @@ class Identifier:
         self.result_.seconds = time.perf_counter() - t_start
         return self
 
-    def _widen(self, rec: Recording, progress: _Progress | None,
+    def _widen(self, rec: Recording, progress: Progress | None,
                sample_weight: ArrayLike | None) -> None:
         """Refit with the default box widened where a physical parameter sits on it."""
         for _ in range(WIDEN_ROUNDS):
@@ -200,7 +201,7 @@ class Identifier:
             self.result_.fit['widened'] = {k: [float(lo), float(hi)]
                                            for k, (lo, hi) in self.widened_.items()}
 
-    def _settle(self, rec: Recording, progress: _Progress | None,
+    def _settle(self, rec: Recording, progress: Progress | None,
                 sample_weight: ArrayLike | None) -> None:
         """Refit without what the record cannot carry (a warm start from the estimate).
 
@@ -282,7 +283,7 @@ class Identifier:
             out[name] = (lo / WIDEN, hi) if near_lo else (lo, hi * WIDEN)
         return out
 
-    def _fit(self, rec: Recording, progress: _Progress | None,
+    def _fit(self, rec: Recording, progress: Progress | None,
              sample_weight: ArrayLike | None) -> None:
         problem = IdentificationProblem(
             rec, method=self.method, R_m=self.R_m, R_m_tolerance=self.R_m_tolerance,
@@ -291,9 +292,14 @@ class Identifier:
             sample_weight=sample_weight)
         self.problem_ = problem
         rng = np.random.default_rng(self.random_state)   # a Generator comes back as is
-        ga, best, ga_seconds = self._run_ga(problem, rng, progress)
+        ga, best, ga_seconds = search.run_ga(
+            problem, rng, progress, start=self.start, use_ga=self.use_ga,
+            population=self.population, generations=self.generations,
+            crossover=self.crossover, mutation=self.mutation)
         problem.forward_differences = bool(self.quick_jacobian)
-        z_best, refine_info = self._refine(problem, ga, best)
+        z_best, refine_info = search.refine(
+            problem, ga, best, method=self.method, refine_starts=self.refine_starts,
+            reweight=self.reweight, max_nfev=self.max_nfev)
         problem.forward_differences = False
         x_best = problem.from_z(z_best)
         with np.errstate(all='ignore'):
@@ -303,210 +309,13 @@ class Identifier:
                                       'check the units of the data and the --bounds')
         sigma, w = uncertainty.noise_levels(problem, z_best)
         J = problem.jacobian_z(z_best, w)
-        result = self._build_result(rec, problem, x_best, z_best, J, sigma, w, pred)
-        result.ga = self._ga_block(problem, ga, ga_seconds)
+        result, self.covariance_ = assembly.build_result(
+            rec, problem, x_best, z_best, J, sigma, w, pred, error_blocks=self.error_blocks,
+            r_m_fixed_by_caller='R_m' in (self.fixed or {}))
+        result.ga = blocks.ga_block(problem, ga, ga_seconds)
         result.refinement = refine_info
         if self.bootstrap and self.method != 'paper':
-            self._bootstrap(problem, result, z_best, w, rng)
+            assembly.bootstrap_intervals(problem, result, z_best, w, rng, self.bootstrap)
         self.result_ = result
         self.params_ = result.values()
         self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
-
-    # -------------------------------------------------------------- the search
-    def _run_ga(self, problem: IdentificationProblem, rng: np.random.Generator,
-                progress: _Progress | None
-                ) -> tuple[GeneticAlgorithm | None, np.ndarray, float]:
-        """The paper's network training; returns (ga or None, best vector, seconds)."""
-        t_ga = time.perf_counter()
-        x_start = None
-        if self.start is not None:
-            x_start = problem.start_vector(self.start)
-        if not self.use_ga:
-            if x_start is None:
-                raise ConfigError('use_ga=False needs a start parameter set')
-            return None, x_start, time.perf_counter() - t_ga
-        ga = GeneticAlgorithm(problem.bounds, self.population, self.generations,
-                              self.crossover, self.mutation, x0=x_start, random_state=rng)
-        while not ga.stop():
-            with np.errstate(over='ignore'):  # Bounds.decode takes exp of linear genes too
-                X = ga.ask()
-            ga.tell(problem.cost(X))
-            if progress is not None and progress(ga.generation_, ga.generations,
-                                                 ga.best_cost_):
-                ga.cancel()
-        if not np.isfinite(ga.best_cost_):
-            raise IdentificationError('no parameter set inside the search bounds gives a '
-                                      'finite simulation: check the units of the data and '
-                                      'the --bounds')
-        return ga, cast(np.ndarray, ga.best_), time.perf_counter() - t_ga
-
-    def _refine(self, problem: IdentificationProblem, ga: GeneticAlgorithm | None, best: np.ndarray
-                ) -> tuple[np.ndarray, dict[str, Any]]:
-        """Least squares from the GA's best individuals (not for ``paper``)."""
-        z_best = problem.to_z(best)
-        if self.method == 'paper':
-            return z_best, {'used': False}
-        # the refinement also estimates the initial state (nuisance parameters):
-        # starting from a noisy first sample would bias the fit
-        z_best = np.concatenate([z_best, problem.x0])
-        starts = [z_best]
-        if ga is not None and self.refine_starts > 1:
-            order = np.argsort(cast(np.ndarray, ga.costs_))
-            pop = problem.to_z(ga.bounds.decode(ga.genes_))
-            for k in order:
-                if len(starts) >= self.refine_starts:
-                    break
-                zk = np.concatenate([pop[k], problem.x0])
-                if all(np.max(np.abs(zk - s)) > 0.05 for s in starts):
-                    starts.append(zk)
-        sols = [problem.refine(s, problem.weights, self.max_nfev) for s in starts]
-        sol = min(sols, key=lambda s: s.cost)
-        z_best = sol.x
-        # re-weight by the estimated noise levels and restart until the cost settles
-        # (a trust-region run can stall on a tiny step far from the optimum)
-        for _ in range(self.reweight):
-            w = uncertainty.noise_levels(problem, z_best)[1]
-            prev = np.sum(problem.weighted_residuals(z_best, w) ** 2)
-            sol = problem.refine(z_best, w, self.max_nfev)
-            z_best = sol.x
-            if prev - 2 * sol.cost <= 1e-9 * prev:
-                break
-        return z_best, {'used': True, 'starts': len(starts), 'nfev': int(sol.nfev),
-                        'status': int(sol.status), 'message': str(sol.message)}
-
-    # ------------------------------------------------------------ the result
-    def _build_result(self, rec: Recording, problem: IdentificationProblem, x_best: np.ndarray,
-                      z_best: np.ndarray, J: np.ndarray, sigma: Sequence[float], w: np.ndarray,
-                      pred: np.ndarray) -> IdentificationResult:
-        names = list(problem.bounds.names)
-        state_names = problem.state_names()[:z_best.size - len(names)]
-        names = names + state_names
-        rank, Vr, Vn, determined = uncertainty.structural(problem, z_best)
-        cov_gn, cond = uncertainty.covariance(J, Vr, rank)
-        ids, k = uncertainty.block_ids(problem.n_per, self.error_blocks)
-        cov_rob = uncertainty.robust_covariance(
-            J, problem.weighted_residuals(z_best, w), Vr, ids, k)
-        cov = uncertainty.combine(cov_gn, cov_rob)
-        self.covariance_ = cov
-        lg = problem.log_mask(len(names))
-        std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        bound = np.zeros(len(names), dtype=bool)
-        bound[:problem.bounds.dim] = uncertainty.at_bound(problem, z_best)
-        params = blocks.estimates(problem, names, x_best, std_z, lg, determined, bound)
-        undetermined, self._free_choice = uncertainty.undetermined_directions(
-            names, Vn, determined, lg)
-        fit, prediction = blocks.fit_block(rec, problem, x_best, sigma, pred, names, state_names)
-        idf = {'rank': rank - len(state_names), 'n_free': len(names) - len(state_names),
-               'free': names[:len(names) - len(state_names)], 'nuisance': state_names,
-               'condition': cond,
-               'basis': 'transfer-function coefficients (structural); covariance from '
-                        'output sensitivities on the identifiable subspace',
-               'fully_determined': rank == len(names),
-               'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels)}
-        idf.update(blocks.prior_verdict(problem, z_best))
-        warnings = self._honesty(rec, problem, params, fit)
-        adequate, why = determinacy.adequacy(
-            {ch: m['fit_percent'] for ch, m in fit['channels'].items()})
-        if not adequate:
-            for e in params.values():
-                if not e.assumed and e.determined:
-                    determinacy.mark_undetermined(e, why[0])
-        result = IdentificationResult(
-            adequate=adequate, warnings=why + warnings,
-            method=self.method, input_kind=problem.kind, channels=problem.channels,
-            parameters=params,
-            identifiable_combinations=uncertainty.combinations(problem, z_best, cov),
-            undetermined_directions=undetermined, identifiability=idf, fit=fit, ga={},
-            refinement={}, assumptions=self._assumptions(problem),
-            effects=blocks.effects_block(problem, x_best, std_z, determined, bound),
-            prediction=prediction, parameter_covariance=blocks.covariance_block(
-                problem, params, names, cov),
-            units=problem.units.to_dict())
-        if problem.kind == 'voltage':
-            result.resistance = self._resistance_block(problem, params)
-            if problem.r_m_prior is None:
-                dz = uncertainty.r_m_sensitivity(problem, z_best, w, J, cov_gn)
-                result.r_m_sensitivity = blocks.sensitivity_block(problem, params, names, dz)
-        return result
-
-    def _honesty(self, rec: Recording, problem: IdentificationProblem, params: dict[str, Estimate],
-                 fit: dict[str, Any]) -> list[str]:
-        """Floors the stds and marks what this record leaves open (warnings)."""
-        for e in params.values():
-            if not e.assumed:
-                e.std = determinacy.floor_std(e.value, e.std)
-        noise = {ch: determinacy.relative_noise(getattr(rec, ch)) for ch in problem.channels}
-        r_m = params['R_m'].value if 'R_m' in params else None
-        return determinacy.practical(params, rec.sample_period, noise, r_m)
-
-    def _assumptions(self, problem: IdentificationProblem) -> dict[str, Any]:
-        fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
-        return {'R_m': fixed.get('R_m'), 'R_m_given': problem.R_m_given,
-                'R_m_prior': None if problem.r_m_prior is None else {
-                    'mean': problem.R_m_given,
-                    'std': problem.R_m_tolerance * cast(float, problem.R_m_given)},
-                'K_T_eq_K_b': bool(problem.tie),
-                'fixed': {k: v for k, v in fixed.items() if k != 'R_m'},
-                'discretisation': problem.discretisation}
-
-    def _resistance_block(self, problem: IdentificationProblem, params: dict[str, Estimate]
-                          ) -> dict[str, Any]:
-        given = cast(float, problem.R_m_given)  # a voltage plant's
-        if problem.r_m_prior is None:
-            if 'R_m' in (self.fixed or {}):
-                why = 'fixed by --fix R_m'
-            elif 'current' not in problem.channels:
-                why = 'no current channel fitted: the data cannot see R_m; see ' \
-                      'r_m_sensitivity for what an error in it does'
-            else:
-                why = 'the paper method holds R_m fixed'
-            return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
-                    'estimated': False, 'note': why}
-        e = params['R_m']
-        if e.value is None:
-            return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
-                    'estimated': False, 'note': e.reason or 'not determined',
-                    'prior_std': problem.R_m_tolerance * given}
-        rel = e.value / given - 1.0
-        prior_std = problem.R_m_tolerance
-        if e.std is None or e.std > 0.5 * prior_std * given:
-            note = 'the data hardly determine R_m; the estimate leans on the given value'
-        elif abs(rel) <= max(2 * e.std / given, 0.01):
-            note = 'consistent with the given value'
-        elif rel > 0:
-            note = 'a warm motor, or leads and brushes in series?'
-        else:
-            note = 'below the given value: a cold motor, or a wrong --resistance?'
-        if e.at_bound:
-            note += '; at its search bound'
-        return {'given': given, 'estimate': e.value, 'std': e.std, 'relative_change': rel,
-                'estimated': True, 'note': note,
-                'prior_std': prior_std * given}
-
-    def _ga_block(self, problem: IdentificationProblem, ga: GeneticAlgorithm | None,
-                  ga_seconds: float) -> dict[str, Any]:
-        if ga is None:
-            return {'generations': 0, 'evaluations': 0, 'seconds': ga_seconds,
-                    'history': []}
-        history = [h.to_dict() for h in ga.history_]
-        if problem.units.rescaled:
-            for h in history:
-                h['best'] = {k: problem.units.to_physical(k, v) for k, v in h['best'].items()}
-        return {'generations': ga.generation_, 'evaluations': ga.evaluations_,
-                'seconds': ga_seconds, 'best_cost': ga.best_cost_,
-                'stop': {k: v for k, v in ga.stop().items()},
-                'population': ga.population, 'crossover': ga.crossover,
-                'mutation': ga.mutation, 'history': history}
-
-    def _bootstrap(self, problem: IdentificationProblem, result: IdentificationResult,
-                   z_best: np.ndarray, w: np.ndarray, rng: np.random.Generator) -> None:
-        samples = uncertainty.bootstrap(problem, z_best, w, self.bootstrap, rng)
-        names = list(problem.bounds.names)
-        for n, e in result.parameters.items():
-            src = 'K_T' if (problem.tie and n == 'K_b') else n
-            if e.determined and not e.assumed and src in names:
-                col = samples[:, names.index(src)]
-                lo, hi = np.percentile(col, 2.5), np.percentile(col, 97.5)
-                e.ci95 = (problem.units.to_physical(src, float(lo)),
-                          problem.units.to_physical(src, float(hi)))
-        result.refinement['bootstrap'] = int(self.bootstrap)
