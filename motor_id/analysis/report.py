@@ -128,25 +128,44 @@ class DiscrepancyReport:
 
 
 def _simulation_lines(sim: dict[str, Any] | None) -> list[str]:
-    """The simulation-error stage: each candidate's held-out RMSE, the chosen model."""
+    """The simulation-error stage: held readings, each candidate's held-out RMSE, the
+    chosen model's gains, and its estimates with their error bars."""
     if not sim:
         return []
     lines = [f'simulation error ({", ".join(sim["channels"])}; each block from its first '
-             f'{sim["init_samples"]} samples), held-out RMSE:']
+             f'{sim["init_samples"]} samples, or from rest), held-out RMSE:']
+    for ch, ev in (sim.get('held_readings') or {}).items():
+        if ev.get('found'):
+            lines.append(f'  held readings on {ch}: {ev["reason"]}; scored at the fresh '
+                         'samples only')
     for c in sim['candidates']:
         err = ', '.join(f'{ch} {v:.4g}' for ch, v in c['heldout_rmse'].items()) \
             or c.get('failed', '')
         mark = '*' if c['name'] == sim['chosen'] else ' '
         lines.append(f'  {mark} {c["name"]:<58} {err}')
-    if sim.get('model'):
+    if sim.get('gains'):
+        lines.append('  gains on the held-out blocks: ' + ', '.join(
+            f'{k} {100 * v:.1f} %' for k, v in sim['gains'].items()))
+    est = sim.get('estimates') or {}
+    if sim.get('model') and est.get('parameters'):
+        lines.append('  chosen, refitted on every block (error bars: the largest of '
+                     'Gauss-Newton, block sandwich and halves):')
+        for name, e in est['parameters'].items():
+            lines.append(f'    {name:<28} ' + (
+                f'{e["value"]:.5g} +- {e["std"]:.3g}' if e['determined'] else
+                f'{"-":>10}  not determined ({e.get("note", "")})'))
+        for key in ('combinations', 'friction'):
+            if est.get(key):
+                lines.append('  ' + ('SysId constants: ' if key == 'combinations' else
+                                     'friction by direction: ') + ', '.join(
+                    f'{e["name"]} {e["value"]:.4g} +- {e["std"]:.2g}' for e in est[key]))
+    elif sim.get('model'):
         vals = {**sim['model']['parameters'],
                 **{f'{e}.{p}': v for e, d in sim['model']['effects'].items()
                    for p, v in d.items()}}
-        lines.append('  chosen, refitted on every block: ' + ', '.join(
-            f'{k} {v:.5g}' for k, v in vals.items()))
-        if sim.get('friction'):
-            lines.append('  friction by direction: ' + ', '.join(
-                f'{k} {v:.4g}' for k, v in sim['friction'].items()))
+        lines.append('  chosen, refitted on every block (no error bars: '
+                     f'{est.get("failed", "not computed")}): ' + ', '.join(
+                         f'{k} {v:.5g}' for k, v in vals.items()))
     return lines
 
 

@@ -31,6 +31,9 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 from scipy.optimize import least_squares
 
+from motor_id.analysis.frames import fresh_mask, held_channels
+from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.identify.validation import initial_state_at, SavedModel
 from motor_id.model import EFFECTS, MECHANICAL_PARAMS
 from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
@@ -43,7 +46,17 @@ MIN_BLOCK = 50
 MAX_NFEV = 60
 """Residual evaluations of one candidate's least-squares fit (each one Jacobian is one
 batched simulation of all the perturbed parameter sets)."""
+FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
 VOLTAGE_FIT = ('J', 'K_T', 'K_b', 'B', 'L_m')
+LOG_REACH = math.log(1e6)
+"""A physical parameter is simulated within this (log) distance of its start: a fit that
+drifts towards L_m = 0 meets a flat cost instead of a singular model."""
+PROFILE_POINTS = 10
+"""Delays of the coarse profile (:func:`_profile_delay`)."""
+PROFILE_NFEV = 15
+"""Residual evaluations of each brief refit of the delay profile."""
+MAX_DELAY_S = 0.3
+"""Longest input delay the stage tries [s] (and at most a fifth of the shortest block)."""
 
 
 @dataclass
@@ -79,6 +92,15 @@ def sim_channels(rec: Recording) -> tuple[str, ...]:
     return (('position',) if rec.has_position else ()) + rec.channels()
 
 
+def _at_rest(rec: Recording, k: int) -> bool:
+    """The axis is at rest at sample ``k``: no input, a speed reading of zero (to a
+    millionth of its spread) and, where measured, no current."""
+    tol = 1e-6 * (float(np.std(rec.speed)) or 1.0)
+    return bool(rec.input[k] == 0 and abs(rec.speed[k]) <= tol
+                and (rec.current is None or abs(rec.current[k]) <= 1e-6 *
+                     (float(np.std(rec.current)) or 1.0)))
+
+
 def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[int, int]]:
     """Contiguous ``[start, stop)`` blocks inside each run, about ``n_blocks`` in all.
 
@@ -100,7 +122,8 @@ class SimulationProblem:
     """Simulation error of a model family on the blocks of one recording."""
 
     def __init__(self, rec: Recording, model: SavedModel, init_samples: int,
-                 free: Sequence[str]) -> None:
+                 free: Sequence[str], fresh: Mapping[str, np.ndarray] | None = None
+                 ) -> None:
         self.rec = rec
         self.model = model
         self.n_init = init_samples
@@ -109,6 +132,19 @@ class SimulationProblem:
         self.scale = {ch: float(np.std(getattr(rec, ch))) or 1.0 for ch in self.channels}
         self.kind = model.input_kind
         self.n_states = 1 + (model.input_kind == 'voltage') + rec.has_position
+        self.fresh = {ch: np.ones(len(rec), dtype=bool) if fresh is None or ch not in fresh
+                      else np.asarray(fresh[ch], dtype=bool) for ch in self.channels}
+        """Per channel: the samples scored (held readings: the fresh ones)."""
+        self._start = self._start_vector()
+        starts = {a for a, _ in rec.segment_ranges}
+        self._rest = {a for a in starts if _at_rest(rec, a)}
+
+    def first(self, a: int) -> int:
+        """The sample a block from ``a`` is simulated from: after its initial samples, or
+        its first sample when it opens a run at rest (at rest, the state is known from
+        that one sample, and what follows, a step's delay included, is the model's to
+        predict)."""
+        return a if a in self._rest else a + self.n_init - 1
 
     # parameter vector <-> model
     def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
@@ -119,12 +155,16 @@ class SimulationProblem:
             e, _, p = name.partition('.')
             if p:
                 effects[e][p] = z[:, j]
-            else:
-                theta[name] = np.exp(z[:, j])   # physical parameters: log scale
+            else:   # physical parameters: log scale, within a factor 1e6 of the start
+                theta[name] = np.exp(np.clip(z[:, j], self._start[j] - LOG_REACH,
+                                             self._start[j] + LOG_REACH))
         return theta, effects
 
     def start(self) -> np.ndarray:
         """The model's own values as a parameter vector."""
+        return self._start.copy()
+
+    def _start_vector(self) -> np.ndarray:
         out = []
         for name in self.free:
             e, _, p = name.partition('.')
@@ -132,7 +172,9 @@ class SimulationProblem:
         return np.array(out, dtype=float)
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Allowed ranges (the catalogue's for effect parameters)."""
+        """Allowed ranges: the catalogue's for effect parameters; the physical ones are
+        free (their logs: positive values; a finite bound would change the
+        trust-region scaling of every step, and cost the fit its best minimum)."""
         lo, hi = [], []
         for name in self.free:
             e, _, p = name.partition('.')
@@ -145,43 +187,63 @@ class SimulationProblem:
                 hi.append(np.inf)
         return np.array(lo), np.array(hi)
 
-    def simulate(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]
+    def simulate(self, z: np.ndarray, blocks: Sequence[tuple[int, int]],
+                 extra: Mapping[str, Mapping[str, Any]] | None = None
                  ) -> list[dict[str, np.ndarray]]:
-        """Per block: ``{channel: (P, n_scored)}`` simulated from the block's own start."""
+        """Per block: ``{channel: (P, n_scored)}`` simulated from the block's own start;
+        ``extra`` overrides effect parameters (arrays of shape (P,) for a batch)."""
         z = np.atleast_2d(z)
         P = z.shape[0]
         theta, effects = self.unpack(z)
+        for e, vals in (extra or {}).items():
+            effects[e] = {**effects.get(e, {}), **vals}
         maps, rest = split_input_maps(effects)
         ueff = apply_input_maps(self.rec.input, maps, P)
         out = []
         pos = self.rec.has_position
         for a, b in blocks:
-            k0 = a + self.n_init - 1
-            x0 = np.broadcast_to(initial_state_at(self.rec, k0, self.n_init, self.kind,
+            k0 = self.first(a)
+            x0 = np.broadcast_to(initial_state_at(self.rec, k0, k0 - a + 1, self.kind,
                                                   theta, pos), (P, self.n_states))
             sim = simulate_batch(theta, self.rec.time[k0:b], np.ascontiguousarray(
                 ueff[:, k0:b]), self.kind, 'zoh', rest, x0, position=pos)
             out.append({ch: sim[ch][:, 1:] for ch in self.channels})
         return out
 
-    def residuals(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
-        """Scaled simulation errors, shape (P, M); a diverging member gets large ones."""
-        sims = self.simulate(z, blocks)
+    def residuals(self, z: np.ndarray, blocks: Sequence[tuple[int, int]],
+                  extra: Mapping[str, Mapping[str, Any]] | None = None) -> np.ndarray:
+        """Scaled simulation errors at the scored samples, shape (P, M) (rows in the
+        order of :meth:`layout`); a diverging member gets large ones."""
+        sims = self.simulate(z, blocks, extra)
         parts = []
         for (a, b), sim in zip(blocks, sims, strict=True):
-            k0 = a + self.n_init - 1
+            k0 = self.first(a)
             for ch in self.channels:
-                y = getattr(self.rec, ch)[k0 + 1:b]
-                parts.append((sim[ch] - y[None, :]) / self.scale[ch])
+                keep = self.fresh[ch][k0 + 1:b]
+                y = getattr(self.rec, ch)[k0 + 1:b][keep]
+                parts.append((sim[ch][:, keep] - y[None, :]) / self.scale[ch])
         r = np.concatenate(parts, axis=1)
         return np.where(np.isfinite(r), r, 1e3)
+
+    def layout(self, blocks: Sequence[tuple[int, int]]
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per residual row: its block, channel (index into ``channels``) and sample."""
+        blk, chan, samp = [], [], []
+        for i, (a, b) in enumerate(blocks):
+            k0 = self.first(a)
+            for c, ch in enumerate(self.channels):
+                k = np.arange(k0 + 1, b)[self.fresh[ch][k0 + 1:b]]
+                blk.append(np.full(k.size, i))
+                chan.append(np.full(k.size, c))
+                samp.append(k)
+        return np.concatenate(blk), np.concatenate(chan), np.concatenate(samp)
 
     def rmse(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> dict[str, float]:
         """Per channel RMSE [SI] over the scored samples of ``blocks``."""
         sims = self.simulate(z, blocks)
         out = {}
         for ch in self.channels:
-            err = np.concatenate([sim[ch][0] - getattr(self.rec, ch)[a + self.n_init:b]
+            err = np.concatenate([sim[ch][0] - getattr(self.rec, ch)[self.first(a) + 1:b]
                                   for (a, b), sim in zip(blocks, sims, strict=True)])
             out[ch] = float(np.sqrt(np.mean(err ** 2)))
         return out
@@ -192,18 +254,12 @@ class SimulationProblem:
         z0 = self.start() if z0 is None else z0
         lo, hi = self.bounds()
         z0 = np.clip(z0, lo, hi)
-        steps = 1e-4 * np.maximum(np.abs(z0), 1e-3)
-        steps = np.where(np.isin(np.arange(z0.size), self._physical()), 1e-4, steps)
 
         def fun(z: np.ndarray) -> np.ndarray:
             return self.residuals(z[None, :], blocks)[0]
 
         def jac(z: np.ndarray) -> np.ndarray:
-            zz = np.repeat(z[None, :], z.size + 1, axis=0)
-            h = np.where(z + steps <= hi, steps, -steps)
-            zz[1:] += np.diag(h)
-            r = self.residuals(zz, blocks)
-            return ((r[1:] - r[0]) / h[:, None]).T
+            return self.jacobian(z, blocks)
 
         if not self.free:
             return z0, 0
@@ -211,7 +267,18 @@ class SimulationProblem:
                             max_nfev=max_nfev, method='trf')
         return sol.x, int(sol.nfev)
 
-    def _physical(self) -> list[int]:
+    def jacobian(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
+        """Forward-difference Jacobian of :meth:`residuals` (one batched simulation)."""
+        _, hi = self.bounds()
+        steps = 1e-4 * np.maximum(np.abs(z), 1e-3)
+        steps = np.where(np.isin(np.arange(z.size), self.physical_indices()), 1e-4, steps)
+        zz = np.repeat(z[None, :], z.size + 1, axis=0)
+        h = np.where(z + steps <= hi, steps, -steps)
+        zz[1:] += np.diag(h)
+        r = self.residuals(zz, blocks)
+        return ((r[1:] - r[0]) / h[:, None]).T
+
+    def physical_indices(self) -> list[int]:
         return [j for j, n in enumerate(self.free) if '.' not in n]
 
     def to_model(self, z: np.ndarray) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
@@ -228,7 +295,11 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
     parameter of the dynamic effects."""
     names = list(MECHANICAL_PARAMS) if model.input_kind == 'torque' else list(VOLTAGE_FIT)
     if model.input_kind == 'voltage' and not rec.has_current:
-        names = ['J', 'B']    # speed alone sees J/K and B/K: K_T, K_b, L_m stay as found
+        # speed alone sees the three coefficients of b0 / (s^2 + a1 s + a0); K_T held as
+        # found sets the scale, and J, B, L_m, K_b reach every (b0, a1, a0) (K_b held
+        # too would pin kV = K_b + R_m B / K_T above K_b: an equation-error K_b too
+        # high would be out of reach)
+        names = ['J', 'B', 'L_m', 'K_b']
     for e, vals in model.effects.items():
         spec = EFFECTS[e]
         if spec.category != 'dynamic':
@@ -239,15 +310,21 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
     return names
 
 
-def refinements(model: SavedModel) -> list[str]:
-    """Effects to try on ``model``, each alone first: the refinements of its effects, and
-    an effect that refinements extend when the model lacks it (an equation-error stage
-    that took asymmetric friction for a load torque never named Coulomb friction)."""
+def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:
+    """Effects to try on ``model``, each alone first: the refinements of its effects, an
+    effect that refinements extend when the model lacks it (an equation-error stage that
+    took asymmetric friction for a load torque never named Coulomb friction), an input
+    delay when the model has none (a latency that one-step errors on held readings hide),
+    and a lag of the speed sensor when both a position and a speed are scored (the
+    position shows the motion unfiltered: a speed that lags it is filtered)."""
     out = [e for e, spec in EFFECTS.items()
            if spec.extends and spec.extends in model.effects and e not in model.effects
            and model.input_kind in spec.kinds]
     bases = {spec.extends for spec in EFFECTS.values() if spec.extends}
-    return out + sorted(b for b in bases if b not in model.effects)
+    out += sorted(b for b in bases if b not in model.effects)
+    out += ['input_delay'] if 'input_delay' not in model.effects else []
+    both = rec is not None and {'position', 'speed'} <= set(sim_channels(rec))
+    return out + (['sensor_lag'] if both and 'sensor_lag' not in model.effects else [])
 
 
 def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
@@ -266,7 +343,7 @@ def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
                   drive_scale: float) -> dict[str, float]:
     """A refinement's start: no change from the model it refines (static friction at the
     Coulomb level plus a little); an added Coulomb friction at 2 % of the largest drive
-    torque ``drive_scale``."""
+    torque ``drive_scale``; a delay of none (its grid search follows)."""
     vals = EFFECTS[effect].defaults()
     tc = effects.get('coulomb_friction', {}).get('T_c', 0.0)
     if effect == 'coulomb_friction':
@@ -275,12 +352,27 @@ def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
         vals = {'dT_c': 0.0, 'dB': 0.0}
     elif effect in ('stiction', 'stribeck_friction'):
         vals['T_s'] = 1.2 * tc
+    elif effect == 'input_delay':
+        vals = {'d': 0.0}
     return vals
+
+
+@dataclass
+class StageSetup:
+    """What every candidate of one stage shares."""
+
+    rec: Recording
+    init_samples: int
+    train: list[tuple[int, int]]
+    held: list[tuple[int, int]]
+    fresh: dict[str, np.ndarray] | None
+    say: Callable[[str], object]
 
 
 def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                      n_blocks: int = 6, min_gain: float = 0.05,
-                     progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+                     progress: Callable[[str], object] | None = None,
+                     halves: bool = True) -> dict[str, Any]:
     """Fit ``model`` and its refinements by simulation error; the JSON block.
 
     Parameters
@@ -295,30 +387,43 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     min_gain : float
         Fraction of the held-out simulation error a refinement must remove.
     progress : callable, optional
+    halves : bool
+        Refit the chosen model on each half of the blocks: the spread of the two is a
+        floor under its error bars (:mod:`.simulation_uncertainty`).
 
     Returns
     -------
     dict
-        ``channels``, ``init_samples``, ``blocks``, ``heldout_blocks``, ``candidates``
-        (each fitted on the training blocks, scored on the held-out ones), ``chosen``,
-        ``model`` (the chosen model refitted on every block: ``input_kind``,
-        ``parameters``, ``effects``) and ``rmse`` (its RMSE on every block).
+        ``channels``, ``init_samples``, ``blocks``, ``heldout_blocks``,
+        ``held_readings`` (the evidence per channel), ``candidates`` (each fitted on the
+        training blocks, scored on the held-out ones), ``chosen``, ``model`` (the chosen
+        model refitted on every block: ``input_kind``, ``parameters``, ``effects``),
+        ``estimates`` (values, error bars, determinacy), ``rmse`` (its RMSE on every
+        block).
     """
     say = progress or (lambda _msg: None)
     blocks = make_blocks(rec, n_blocks, init_samples)
     held = blocks[2::3] if len(blocks) >= 3 else []
     train = [b for b in blocks if b not in held] if held else blocks
+    frames = held_channels(rec, sim_channels(rec))
+    fresh = {ch: fresh_mask(rec.time, np.asarray(getattr(rec, ch), dtype=float),
+                            ev.frame_period, rec.segment_ranges)
+             for ch, ev in frames.items() if ev.found} or None
+    for ch, ev in frames.items():
+        if ev.found:
+            say(f'  held readings on {ch}: {ev.reason}')
+    setup = StageSetup(rec, init_samples, train, held, fresh, say)
     cands: list[SimCandidate] = []
     best: tuple[SimCandidate, np.ndarray, SimulationProblem] | None = None
     gain_needed = (1.0 - min_gain) ** 2    # on the squared error
     base_cost = math.inf
     helpful: list[str] = []
-    singles: list[tuple[str, ...]] = [(e,) for e in refinements(model)]
+    singles: list[tuple[str, ...]] = [(e,) for e in refinements(model, rec)]
     for stage in ('base', 'singles', 'pairs'):
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
         for extra in families:
-            cand, z, prob = _fit_family(rec, model, extra, train, held, init_samples, say)
+            cand, z, prob = _fit_family(setup, model, extra)
             cands.append(cand)
             if cand.failed or not math.isfinite(cand.heldout_cost):
                 continue
@@ -328,35 +433,81 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                 helpful.append(extra[0])
             if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
                 best = (cand, z, prob)
+    out: dict[str, Any] = {
+        'method': 'least squares on the simulation error of each block, simulated from '
+        'the input alone from a state set by its first samples',
+        'channels': list(sim_channels(rec)), 'init_samples': init_samples,
+        'blocks': [list(b) for b in blocks], 'heldout_blocks': [list(b) for b in held],
+        'min_gain': min_gain,
+        'held_readings': {ch: ev.to_dict() for ch, ev in frames.items()}}
     if best is None:
-        return {'channels': list(sim_channels(rec)), 'init_samples': init_samples,
-                'blocks': blocks, 'candidates': [c.to_dict() for c in cands],
-                'chosen': None, 'model': None,
-                'failed': 'no model could be fitted by simulation error'}
+        return {**out, 'candidates': [c.to_dict() for c in cands], 'chosen': None,
+                'model': None, 'failed': 'no model could be fitted by simulation error'}
     chosen, best_z, best_prob = best
+    if fresh:
+        cands.append(_every_sample(setup, best_prob, chosen))
     say(f'simulation error: refitting {chosen.name} on all {len(blocks)} blocks')
     with np.errstate(all='ignore'):
-        z, _ = best_prob.fit(blocks, best_z)
+        try:
+            z, _ = best_prob.fit(blocks, best_z)
+        except FIT_ERRORS as exc:   # keep the training blocks' fit
+            say(f'simulation error: the refit on every block failed ({exc})')
+            z = best_z
         params, effects = best_prob.to_model(z)
         rmse = best_prob.rmse(z, blocks)
-    return {'method': 'least squares on the simulation error of each block, simulated from '
-            'the input alone from a state set by its first samples',
-            'channels': list(best_prob.channels), 'init_samples': init_samples,
-            'blocks': [list(b) for b in blocks], 'heldout_blocks': [list(b) for b in held],
-            'min_gain': min_gain, 'candidates': [c.to_dict() for c in cands],
-            'chosen': chosen.name,
+        try:
+            estimates = stage_estimates(best_prob, z, blocks, halves, say)
+        except FIT_ERRORS as exc:
+            estimates = {'failed': f'no error bars: {type(exc).__name__}: {exc}'}
+    return {**out, 'candidates': [c.to_dict() for c in cands], 'chosen': chosen.name,
+            'gains': _gains(cands, chosen),
             'model': {'input_kind': model.input_kind, 'parameters': params,
                       'effects': effects},
+            'estimates': estimates,
             'friction': friction_summary(params, effects, model.input_kind),
             'rmse': rmse}
 
 
-def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
-                train: list[tuple[int, int]],
-                held: list[tuple[int, int]], init_samples: int,
-                say: Callable[[str], object]
+def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, float]:
+    """Per effect of the chosen model: the share of the held-out simulation error it
+    removes, ``1 - cost with / cost without`` (from the candidate without it). Held
+    readings are a fact of the values (:mod:`.frames`), not a gain; the candidate
+    ``... (every sample)`` shows the chosen model fitted on every sample as logged."""
+    by_name = {c.name: c for c in cands if not c.failed and math.isfinite(c.heldout_cost)}
+    parts = chosen.name.split('+')
+    out: dict[str, float] = {}
+    for e in parts:
+        without = '+'.join(p for p in parts if p != e) or 'linear'
+        if without in by_name and e in EFFECTS:
+            out[e] = 1.0 - chosen.heldout_cost / by_name[without].heldout_cost
+    return out
+
+
+def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandidate
+                  ) -> SimCandidate:
+    """The chosen model fitted on every sample as logged, scored on the held-out fresh
+    samples: what modelling the held readings gains."""
+    plain = SimulationProblem(setup.rec, prob.model, setup.init_samples, prob.free)
+    name = chosen.name + ' (every sample)'
+    setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
+    cand = SimCandidate(name, {}, {})
+    try:
+        with np.errstate(all='ignore'):
+            z, cand.nfev = plain.fit(setup.train)
+            cand.parameters, cand.effects = plain.to_model(z)
+            score_on = setup.held or setup.train
+            cand.heldout_rmse = prob.rmse(z, score_on)
+            cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
+    except FIT_ERRORS as exc:
+        cand.failed = f'{type(exc).__name__}: {exc}'
+    return cand
+
+
+def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
                 ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
-    """``model`` plus the refinements ``extra`` fitted on ``train``, scored on ``held``."""
+    """``model`` plus the refinements ``extra`` fitted on the training blocks, scored on
+    the held-out ones."""
+    rec = setup.rec
     u_max = float(np.max(np.abs(rec.input)))
     scale = u_max if model.input_kind == 'torque' else \
         model.parameters['K_T'] * u_max / model.parameters['R_m']
@@ -364,40 +515,78 @@ def _fit_family(rec: Recording, model: SavedModel, extra: tuple[str, ...],
     for e in extra:   # in order: an added Coulomb friction before its refinements
         effects[e] = _start_values(e, effects, scale)
     m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
-    name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic') or 'linear'
-    prob = SimulationProblem(rec, m, init_samples, free_names(m, rec))
-    say(f'simulation error: fitting {name} on {len(train)} blocks')
+    name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic'
+                    or e == 'input_delay') or 'linear'
+    prob = SimulationProblem(rec, m, setup.init_samples, free_names(m, rec), setup.fresh)
+    setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
     cand = SimCandidate(name, {}, {})
     z = prob.start()
     try:
         with np.errstate(all='ignore'):
-            z, cand.nfev = prob.fit(train)
+            if 'input_delay' in extra:
+                prob, z, cand.nfev = _profile_delay(prob, setup.train)
+            else:
+                z, cand.nfev = prob.fit(setup.train)
             cand.parameters, cand.effects = prob.to_model(z)
-            cand.train_rmse = prob.rmse(z, train)
-            score_on = held or train
-            if held:
-                cand.heldout_rmse = prob.rmse(z, held)
+            cand.train_rmse = prob.rmse(z, setup.train)
+            score_on = setup.held or setup.train
+            if setup.held:
+                cand.heldout_rmse = prob.rmse(z, setup.held)
             cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
-    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+    except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'
     return cand, z, prob
 
 
-def friction_summary(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]],
-                     input_kind: str) -> dict[str, float] | None:
-    """Friction by direction, as axis makers state it: Fc+/Fc- (dry, with a constant
-    load or force offset folded in) and Fv+/Fv- (viscous); None without dry friction."""
-    if 'coulomb_friction' not in effects:
-        return None
-    tc = effects['coulomb_friction']['T_c']
-    tl = effects.get('load_torque', {}).get('T_L', 0.0)
-    asym = effects.get('asymmetric_friction', {})
-    b = params['B']
-    out = {'Fc+': tc + tl, 'Fc-': tc + asym.get('dT_c', 0.0) - tl,
-           'Fv+': b, 'Fv-': b + asym.get('dB', 0.0)}
-    for e in ('stiction', 'stribeck_friction'):
-        if e in effects:
-            out['F_static'] = effects[e]['T_s']
-    if 'stribeck_friction' in effects:
-        out['v_stribeck'] = effects['stribeck_friction']['v_s']
-    return out
+def delay_grid(rec: Recording, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
+    """Whole-sample delays the stage tries: every one up to 12, then about 8 % apart, to
+    :data:`MAX_DELAY_S` or a fifth of the shortest block."""
+    dt = float(np.median(np.diff(rec.time)))
+    shortest = min(b - a for a, b in blocks)
+    top = int(max(1, min(MAX_DELAY_S / dt, shortest / 5)))
+    grid = np.unique(np.concatenate([np.arange(0, min(top, 12) + 1),
+                                     np.rint(np.geomspace(12, max(top, 12), 30))]))
+    return grid[grid <= top]
+
+
+def _with_delay(prob: SimulationProblem, d: float) -> SimulationProblem:
+    """``prob`` with its input delay set to ``d`` samples."""
+    effects = {**prob.model.effects, 'input_delay': {'d': float(d)}}
+    m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
+                   prob.model.source)
+    return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
+
+
+def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]]
+                   ) -> tuple[SimulationProblem, np.ndarray, int]:
+    """The delay by profile: the model refitted (briefly) at each delay of a coarse grid,
+    then at the neighbours of the best, then fully at the best.
+
+    A delay cannot be found at the other parameters' start: a slow pole (a large L_m)
+    that mimicked the delay in the equation-error fit makes every delay look worse there.
+    Returns the problem at the chosen delay, its fit and the evaluations used.
+    """
+    grid = delay_grid(prob.rec, blocks)
+    coarse = grid[:: max(1, grid.size // PROFILE_POINTS)]
+    nfev = 0
+    tried: dict[float, tuple[float, np.ndarray]] = {}
+
+    def at(d: float) -> None:
+        nonlocal nfev
+        if d in tried:
+            return
+        p = _with_delay(prob, d)
+        z, n = p.fit(blocks, max_nfev=PROFILE_NFEV)
+        nfev += n
+        tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
+
+    for d in coarse:
+        at(float(d))
+    best = min(tried, key=lambda k: tried[k][0])
+    i = int(np.searchsorted(grid, best))
+    for j in range(max(0, i - 3), min(grid.size, i + 4)):
+        at(float(grid[j]))
+    best = min(tried, key=lambda k: tried[k][0])
+    p = _with_delay(prob, best)
+    z, n = p.fit(blocks, tried[best][1])
+    return p, z, nfev + n

@@ -1,0 +1,242 @@
+"""Error bars and determinacy of a model fitted on simulation error.
+
+A simulation error is not white: a force the model misses for a moment shifts the whole
+rest of the block, so the residuals of one block move together, and the Gauss-Newton
+covariance (which counts every sample as an independent observation) is far too small.
+The error bars here are the largest of three estimates, each in the search coordinates
+(logs of the physical parameters, effect parameters as they are):
+
+1. Gauss-Newton, ``(J^T W J)^-1`` with each channel's noise level from its residuals;
+2. the block sandwich (:func:`motor_id.identify.uncertainty.robust_covariance`): the
+   spread of the score ``J^T r`` between blocks, each block simulated from its own
+   start, so blocks are nearly independent however correlated the samples within one;
+3. halves: the model refitted on the first and on the second half of the blocks, each
+   from the stage's own start. For two independent halves the difference of their
+   estimates has about twice the variance of each half's, four times the whole
+   record's, so ``|a - b| / 2`` estimates one standard deviation of the estimate from
+   the whole record. It is what a repeat recording would show, and the error bar is
+   never smaller. Starting both from the stage's start (not from the whole-record
+   estimate) also puts the optimiser's own spread into it: simulation errors with dry
+   friction are piecewise smooth, and along a shallow valley (a load torque against
+   asymmetric Coulomb levels: only Fc+ and Fc- are sharp) the fit stops at a point that
+   depends on its path.
+
+A parameter is determined when the data see it: its column of the weighted Jacobian is
+not (numerically) a combination of the others. A voltage plant measured by speed (and
+position) alone never determines J, K_T, K_b, B and L_m one by one: the stage holds K_T
+at the equation-error value, and reports the combinations the data do
+determine, WPILib SysId's ``kS`` (per direction), ``kV`` and ``kA``, with error bars.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+import math
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+
+from motor_id.analysis.friction import friction_summary
+from motor_id.identify.uncertainty import combine, robust_covariance
+
+if TYPE_CHECKING:
+    from motor_id.analysis.simulation_fit import SimulationProblem
+
+RANK_TOL = 1e-7
+"""Singular-value ratio of the column-scaled weighted Jacobian below which a direction
+is not seen."""
+HALF_NFEV = 40
+"""Residual evaluations of each half's refit (it starts at the whole-record estimate)."""
+
+
+def _noise_weights(r: np.ndarray, chan: np.ndarray, n_params: int) -> np.ndarray:
+    """1 / (each channel's residual std) per row."""
+    w = np.empty_like(r)
+    for c in np.unique(chan):
+        m = chan == c
+        dof = max(m.sum() - n_params * m.mean(), 1.0)
+        s = math.sqrt(float(np.sum(r[m] ** 2)) / dof) or 1.0
+        w[m] = 1.0 / s
+    return w
+
+
+def _seen(Jw: np.ndarray) -> np.ndarray:
+    """Per column: not in the numerical null space of the column-scaled Jacobian."""
+    norm = np.linalg.norm(Jw, axis=0)
+    if not Jw.size or not np.any(norm > 0):
+        return np.zeros(Jw.shape[1], dtype=bool)
+    Js = Jw / np.where(norm > 0, norm, 1.0)
+    _, s, Vt = np.linalg.svd(Js, full_matrices=False)
+    rank = int(np.sum(s > RANK_TOL * s[0]))
+    Vn = Vt[rank:].T
+    proj = np.linalg.norm(Vn, axis=1) if Vn.size else np.zeros(Jw.shape[1])
+    return (norm > 0) & (proj < 1e-3)
+
+
+def halves_split(blocks: Sequence[tuple[int, int]]) -> tuple[list[tuple[int, int]],
+                                                              list[tuple[int, int]]]:
+    """The blocks in time order, cut into a first and a second half."""
+    order = sorted(blocks)
+    k = len(order) // 2
+    return order[:k], order[k:]
+
+
+def _halves(prob: SimulationProblem, z: np.ndarray, blocks: Sequence[tuple[int, int]],
+            say: Callable[[str], object]) -> tuple[np.ndarray, np.ndarray] | None:
+    first, second = halves_split(blocks)
+    if not first or not second:
+        return None
+    say(f'simulation error: refitting on each half ({len(first)} and {len(second)} '
+        'blocks) for the error bars')
+    # from the stage's own start, not from z: where the cost has a long shallow valley
+    # (a load torque against asymmetric Coulomb levels) the optimiser stops at a point
+    # that depends on its path, and that spread belongs in the error bar too
+    za, _ = prob.fit(first, max_nfev=HALF_NFEV)
+    zb, _ = prob.fit(second, max_nfev=HALF_NFEV)
+    return za, zb
+
+
+def _si(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
+    """The free parameters of ``z`` in SI units, by name."""
+    params, effects = prob.to_model(z)
+    out: dict[str, float] = {}
+    for name in prob.free:
+        e, _, p = name.partition('.')
+        out[name] = effects[e][p] if p else params[name]
+    return out
+
+
+def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
+                   ) -> dict[str, float]:
+    """WPILib SysId's constants of a voltage plant with its friction effects: ``kV``,
+    ``kA`` (as :func:`motor_id.identify.uncertainty.feedforward`) and the static
+    voltage ``kS`` (Coulomb torque through R_m / K_T, a brush drop, a dead band), per
+    direction when friction is asymmetric (``kS-``, ``kV-``)."""
+    R, K_T, K_b = params['R_m'], params['K_T'], params['K_b']
+    B, J, L = params['B'], params['J'], params['L_m']
+    tc = effects.get('coulomb_friction', {}).get('T_c', 0.0)
+    tl = effects.get('load_torque', {}).get('T_L', 0.0)
+    v0 = effects.get('brush_drop', {}).get('V_b', 0.0) + \
+        effects.get('dead_zone', {}).get('V_dz', 0.0)
+    out = {'kS': v0 + (tc + tl) * R / K_T, 'kV': (R * B + K_T * K_b) / K_T,
+           'kA': (R * J + B * L) / K_T}
+    asym = effects.get('asymmetric_friction')
+    if asym is not None or tl:
+        a = asym or {}
+        out['kS-'] = v0 + (tc + a.get('dT_c', 0.0) - tl) * R / K_T
+        out['kV-'] = (R * (B + a.get('dB', 0.0)) + K_T * K_b) / K_T
+    return out
+
+
+def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
+             halves: tuple[np.ndarray, np.ndarray] | None,
+             fn: Callable[[dict[str, float], dict[str, dict[str, float]]],
+                          Mapping[str, float] | None]) -> list[dict[str, Any]]:
+    """Quantities ``fn(params, effects)`` of the model with delta-method error bars,
+    floored by the halves' spread as the parameters are."""
+
+    def values(zz: np.ndarray) -> dict[str, float]:
+        params, effects = prob.to_model(zz)
+        return dict(fn(params, effects) or {})
+
+    base = values(z)
+    grads = []
+    for j in range(z.size):
+        zp = z.copy()
+        zp[j] += 1e-6
+        grads.append(values(zp))
+    ha = hb = None
+    if halves is not None:
+        ha, hb = values(halves[0]), values(halves[1])
+    out: list[dict[str, Any]] = []
+    for key, val in base.items():
+        g = np.array([(up[key] - val) / 1e-6 for up in grads])
+        std = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        entry: dict[str, Any] = {'name': key, 'value': float(val), 'std_model': std,
+                                 'determined': True}
+        if ha is not None and hb is not None:
+            entry['halves'] = [ha[key], hb[key]]
+            std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
+        entry['std'] = std
+        out.append(entry)
+    return out
+
+
+def stage_estimates(prob: SimulationProblem, z: np.ndarray,
+                    blocks: Sequence[tuple[int, int]], halves: bool = True,
+                    say: Callable[[str], object] | None = None) -> dict[str, Any]:
+    """Values, error bars and determinacy of the free parameters at ``z`` (see the
+    module notes); for a speed-only voltage plant also kS, kV, kA.
+
+    Returns
+    -------
+    dict
+        ``parameters``: ``{name: {value, std, std_model, halves, determined, note}}``
+        (SI; effect parameters as ``effect.param``), ``combinations`` (a list like the
+        fit's), ``method``.
+    """
+    say = say or (lambda _msg: None)
+    r = prob.residuals(z[None, :], blocks)[0]
+    J = prob.jacobian(z, blocks)
+    blk, chan, _ = prob.layout(blocks)
+    w = _noise_weights(r, chan, z.size)
+    Jw, rw = J * w[:, None], r * w
+    d = z.size
+    eye = np.eye(d)
+    H = Jw.T @ Jw
+    cov_gn = np.linalg.pinv(H, rcond=1e-15)
+    n_blocks = int(blk.max()) + 1 if blk.size else 1
+    cov_rob = robust_covariance(Jw, rw, eye, blk, n_blocks) if n_blocks > 1 else cov_gn
+    cov = combine(cov_gn, cov_rob)
+    seen = _seen(Jw)
+    half = _halves(prob, z, blocks, say) if halves else None
+    std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    floor = np.zeros(d) if half is None else \
+        np.maximum(np.abs(half[0] - half[1]) / 2, np.abs(z - (half[0] + half[1]) / 2))
+    scale = np.where(std_z > 0, np.maximum(std_z, floor) / np.where(std_z > 0, std_z, 1.0),
+                     1.0)
+    cov_final = cov * np.outer(scale, scale)
+    values = _si(prob, z)
+    ha = _si(prob, half[0]) if half is not None else None
+    hb = _si(prob, half[1]) if half is not None else None
+    speed_only = prob.kind == 'voltage' and not prob.rec.has_current
+    physical = set(prob.physical_indices())
+    params: dict[str, dict[str, Any]] = {}
+    for j, name in enumerate(prob.free):
+        v = values[name]
+        log = j in physical
+        std_m = abs(v) * std_z[j] if log else std_z[j]
+        std = abs(v) * math.sqrt(max(cov_final[j, j], 0.0)) if log else \
+            math.sqrt(max(cov_final[j, j], 0.0))
+        entry: dict[str, Any] = {'value': v, 'std': float(std), 'std_model': float(std_m),
+                                 'determined': bool(seen[j])}
+        if ha is not None and hb is not None:
+            entry['halves'] = [ha[name], hb[name]]
+        if speed_only and (log or name.startswith(('coulomb_friction', 'load_torque',
+                                                   'asymmetric_friction', 'stiction',
+                                                   'stribeck_friction', 'quadratic_load'))):
+            entry['determined'] = False
+            entry['note'] = ('speed alone determines kS, kV and kA, not this (K_T is held '
+                             'at the equation-error value)')
+        elif not seen[j]:
+            entry['note'] = 'the simulation error does not see it apart from the others'
+        if not entry['determined']:
+            entry['std'] = None
+        params[name] = entry
+    for name in ('K_T',) if speed_only else ():
+        params[name] = {'value': prob.model.parameters[name], 'std': None,
+                        'std_model': None, 'determined': False,
+                        'note': 'held at the equation-error value (speed alone cannot '
+                        'tell it)'}
+    out: dict[str, Any] = {
+        'method': 'the largest of the Gauss-Newton, the block-sandwich and the halves '
+        'standard deviations (halves: |a - b| / 2 of the refits on each half of the '
+        'blocks)',
+        'parameters': params}
+    if prob.kind == 'voltage':
+        out['combinations'] = _derived(prob, z, cov, half, feedforward_of)
+    friction = _derived(prob, z, cov, half, lambda p, e: friction_summary(
+        p, e, prob.kind))
+    if friction and not speed_only:
+        out['friction'] = friction
+    return out
