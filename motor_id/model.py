@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
+import functools
 import json
 import math
 import os
@@ -496,33 +497,107 @@ def _discretize_spectral(F: np.ndarray, G: np.ndarray, dt: np.ndarray
     plant, then ``A = V diag(exp(l dt)) V^-1`` and ``Bd = V diag(dt phi(l dt)) V^-1 G``
     with ``phi(z) = (exp(z) - 1) / z`` for every interval (a jittered record has an
     interval length per sample: one eigen-decomposition instead of one matrix
-    exponential each). Plants with ill-conditioned eigenvectors take the exponential."""
+    exponential each). Plants with ill-conditioned eigenvectors take the exponential.
+    Members of the batch with the same plant (a Jacobian's initial-state and effect
+    columns) are discretised once; the runs of a record reuse the decomposition
+    (:func:`_basis`)."""
     P, n, _ = F.shape
+    m = G.shape[2]
+    first, inverse, good, lam, C, D = _basis('zoh', *_key(F, G))
+    A = np.empty((first.size, dt.size, n, n))
+    Bd = np.empty((first.size, dt.size, n, m))
+    if good.size:
+        z = lam[:, None, :] * dt[None, :, None]          # (p, K, n)
+        ez = np.exp(z)
+        A[good] = (ez @ C).real.reshape(-1, dt.size, n, n)
+        Bd[good] = ((_phi1(z, ez) * dt[None, :, None]) @ D).real.reshape(-1, dt.size, n, m)
+    if good.size < first.size:
+        bad = np.setdiff1d(np.arange(first.size), good)
+        E = expm(_held_input_matrix(F[first[bad]], G[first[bad]], dt))
+        A[bad], Bd[bad] = E[:, :, :n, :n], E[:, :, :n, n:]
+    return (A, Bd) if first.size == P else (A[inverse], Bd[inverse])
+
+
+def _key(F: np.ndarray, G: np.ndarray) -> tuple[bytes, bytes, tuple[int, ...], tuple[int, ...]]:
+    """A batch of plants as the hashable arguments of :func:`_basis`."""
+    F = np.ascontiguousarray(F, dtype=float)
+    G = np.ascontiguousarray(G, dtype=float)
+    return F.tobytes(), G.tobytes(), F.shape, G.shape
+
+
+@functools.lru_cache(maxsize=16)
+def _basis(kind: str, f: bytes, g: bytes, f_shape: tuple[int, ...], g_shape: tuple[int, ...],
+           row: int = 1) -> tuple[np.ndarray, ...]:
+    """The spectral data of a batch of plants (``f``, ``g``: the bytes of F and G).
+
+    Returns ``(first, inverse, good, lam, C, D)``: the distinct plants ``first`` of the
+    batch and each member's among them (``inverse``); the indices ``good`` into ``first``
+    of the plants with well-conditioned eigenvectors (:func:`_eigen`) and their
+    eigenvalues ``lam``; for ``kind`` ``'zoh'`` the outer products ``C[l] = V[:, l]
+    Vi[l, :]`` and ``D[l] = V[:, l] (Vi G)[l, :]`` of F (flattened), for ``'heat'`` the
+    rows ``C[k]`` of state ``row``'s row of exp(M s) and their products ``D`` (see
+    :func:`interval_integrals`). Cached: a record of several runs simulates each
+    batch once per run, and the Jacobian of a fit evaluates the plant of its centre
+    again.
+    """
+    F = np.frombuffer(f).reshape(f_shape)
+    G = np.frombuffer(g).reshape(g_shape)
+    first, inverse = _distinct_plants(F, G)
+    F, G = F[first], G[first]
+    n, m = F.shape[1], G.shape[2]
+    if kind == 'zoh':
+        good, lam, V, Vi = _eigen(F)
+        Vt = np.swapaxes(V, -1, -2)[:, :, :, None]
+        C = (Vt * Vi[:, :, None, :]).reshape(-1, n, n * n)
+        D = (Vt * (Vi @ G[good])[:, :, None, :]).reshape(-1, n, n * m)
+        return first, inverse, good, lam, C, D
+    good, lam, W, Wi = _eigen(_held_input_matrix(F, G, np.ones(1))[:, 0])
+    d = n + m
+    U = W[:, row, :, None] * Wi                               # (p, d, d)
+    ka, kb = np.triu_indices(d)                               # Q's terms ab and ba
+    UU = U[:, ka, :, None] * U[:, kb, None, :]
+    UU = UU + np.where((ka != kb)[:, None, None], np.swapaxes(UU, -1, -2), 0.0)
+    return first, inverse, good, lam, U, UU.reshape(-1, ka.size, d * d)
+
+
+def _distinct_plants(F: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(first, inverse)``: the batch members with distinct ``(F, G)`` and, for every
+    member, its plant among them (``F[first][inverse]`` is ``F``)."""
+    P = F.shape[0]
+    if P > 1:
+        FG = np.concatenate([F.reshape(P, -1), G.reshape(P, -1)], axis=1)
+        _, first, inverse = np.unique(FG, axis=0, return_index=True, return_inverse=True)
+        if first.size < P:
+            return first, inverse.ravel()
+    return np.arange(P), np.arange(P)   # all distinct: in their own order
+
+
+def _eigen(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(good, lam, V, V^-1)``: the eigen-decompositions ``F = V diag(lam) V^-1`` of the
+    plants ``good`` (indices into the batch) whose eigenvectors are conditioned better
+    than :data:`SPECTRAL_MAX_COND`; the others (nearly repeated or defective
+    eigenvalues) are left to the matrix exponential."""
+    P = F.shape[0]
     lam, V = np.linalg.eig(F)
     ok = np.isfinite(lam).all(axis=1) & np.isfinite(V).all(axis=(1, 2))
     cond = np.full(P, np.inf)
     cond[ok] = np.linalg.cond(V[ok])
     good = np.flatnonzero(cond < SPECTRAL_MAX_COND)
-    A = np.empty((P, dt.size, n, n))
-    Bd = np.empty((P, dt.size, n, G.shape[2]))
-    if good.size:
-        Vg = V[good]
-        Vi = np.linalg.inv(Vg)
-        z = lam[good][:, None, :] * dt[None, :, None]          # (p, K, n)
-        ez = np.exp(z)
-        small = np.abs(z) < 1e-4
-        with np.errstate(divide='ignore', invalid='ignore'):
-            phi = np.where(small, 1.0 + z / 2.0 + z * z / 6.0,
-                           (ez - 1.0) / np.where(small, 1.0, z))
-        A[good] = ((Vg[:, None] * ez[:, :, None, :]) @ Vi[:, None]).real
-        ViG = (Vi @ G[good])[:, None]
-        Bd[good] = ((Vg[:, None] * (phi * dt[None, :, None])[:, :, None, :]) @ ViG).real
-    bad = np.setdiff1d(np.arange(P), good)
-    if bad.size:
-        E = expm(_held_input_matrix(F[bad], G[bad], dt))
-        A[bad] = E[:, :, :n, :n]
-        Bd[bad] = E[:, :, :n, n:]
-    return A, Bd
+    Vg = V[good]
+    return good, lam[good], Vg, np.linalg.inv(Vg)
+
+
+def _phi1(z: np.ndarray, ez: np.ndarray | None = None) -> np.ndarray:
+    """``(exp(z) - 1) / z`` elementwise (1 at z = 0; a series near it); ``ez``: exp(z)
+    when already at hand."""
+    ez = np.exp(z) if ez is None else ez
+    with np.errstate(divide='ignore', invalid='ignore'):
+        phi = (ez - 1.0) / z
+    small = np.abs(z) < 1e-4
+    if small.any():
+        zs = z[small]
+        phi[small] = 1.0 + zs / 2.0 + zs * zs / 6.0
+    return phi
 
 
 def _held_input_matrix(F: np.ndarray, G: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -544,7 +619,11 @@ def interval_integrals(F: np.ndarray, G: np.ndarray, dt: ArrayLike, row: int = 1
     With the input held, ``z = [x, u]`` evolves as ``dz/ds = M z``, ``M = [[F, G], [0, 0]]``,
     so state ``row`` is ``c' exp(M s) z0``. Returned: ``m = int_0^dt c' exp(M s) ds`` (its
     integral is ``m . z0``) and ``Q = int_0^dt exp(M s)' c c' exp(M s) ds`` (the integral of
-    its square is ``z0' Q z0``, Van Loan's block exponential).
+    its square is ``z0' Q z0``): Van Loan's block exponentials for a few interval lengths;
+    from :data:`SPECTRAL_MIN_INTERVALS` on (a jittered record) one eigen-decomposition
+    ``M = W diag(mu) W^-1`` per plant, with which ``c' exp(M s)`` is a sum of exponentials
+    ``exp(mu_k s) U[k]`` and both integrals are closed forms (also where ``exp(-M' dt)``
+    of Van Loan's form overflows: a stiff plant).
 
     Parameters
     ----------
@@ -561,6 +640,44 @@ def interval_integrals(F: np.ndarray, G: np.ndarray, dt: ArrayLike, row: int = 1
     Q : ndarray, shape (P, K, n + m, n + m)
     """
     dt = np.atleast_1d(np.asarray(dt, dtype=float))
+    P, n, _ = F.shape
+    d = n + G.shape[2]
+    if dt.size < SPECTRAL_MIN_INTERVALS:
+        return _interval_integrals_expm(F, G, dt, row)
+    # a state that drives no other (the position) is left out of M: it would make M's
+    # zero eigenvalue defective, and its entries of m and Q are zero
+    drives = np.any(F != 0.0, axis=(0, 1))
+    drives[row] = True
+    if not drives.all():
+        keep = np.concatenate([np.flatnonzero(drives), np.arange(n, d)])
+        r = int(np.sum(drives[:row]))
+        mk, Qk = interval_integrals(F[:, drives][:, :, drives], G[:, drives], dt, r)
+        m = np.zeros((P, dt.size, d))
+        Q = np.zeros((P, dt.size, d, d))
+        m[:, :, keep] = mk
+        Q[:, :, keep[:, None], keep] = Qk
+        return m, Q
+    first, inverse, good, mu, U, UU = _basis('heat', *_key(F, G), row)
+    m = np.empty((first.size, dt.size, d))
+    Q = np.empty((first.size, dt.size, d, d))
+    if good.size:
+        # state row of exp(M s) is sum_k exp(mu_k s) U[k], so m = sum_k int exp(mu_k s) ds
+        # U[k] and Q = sum_kl int exp((mu_k + mu_l) s) ds U[k]' U[l] (UU: those products)
+        z = mu[:, None, :] * dt[None, :, None]                    # (p, K, d)
+        ez = np.exp(z)
+        m[good] = ((_phi1(z, ez) * dt[None, :, None]) @ U).real
+        ka, kb = np.triu_indices(d)
+        phi2 = _phi1(z[:, :, ka] + z[:, :, kb], ez[:, :, ka] * ez[:, :, kb])
+        Q[good] = ((phi2 * dt[None, :, None]) @ UU).real.reshape(-1, dt.size, d, d)
+    if good.size < first.size:
+        bad = np.setdiff1d(np.arange(first.size), good)
+        m[bad], Q[bad] = _interval_integrals_expm(F[first[bad]], G[first[bad]], dt, row)
+    return (m, Q) if first.size == P else (m[inverse], Q[inverse])
+
+
+def _interval_integrals_expm(F: np.ndarray, G: np.ndarray, dt: np.ndarray, row: int
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`interval_integrals` by two block matrix exponentials per interval."""
     P, n, _ = F.shape
     d = n + G.shape[2]
     K = dt.shape[0]

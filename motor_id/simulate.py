@@ -11,6 +11,7 @@ quantisation).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+import functools
 import time
 from typing import Any, cast, TYPE_CHECKING
 
@@ -98,8 +99,15 @@ def interval_table(t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     dts : ndarray, shape (K,)
     idx : ndarray of int, shape (N-1,)
     """
-    t = np.asarray(t, dtype=float)
-    dt = np.diff(t)
+    t = np.ascontiguousarray(t, dtype=float)
+    return _interval_table(t.tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _interval_table(stamps: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`interval_table` of the time stamps held in ``stamps`` (cached: a fit
+    simulates the same record, or the same runs of it, thousands of times)."""
+    dt = np.diff(np.frombuffer(stamps))
     if dt.size == 0:
         return np.array([1.0]), np.zeros(0, dtype=np.int64)
     if np.ptp(dt) <= REGULAR_RTOL * np.mean(dt):

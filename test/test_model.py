@@ -116,3 +116,67 @@ def test_many_interval_lengths_discretise_by_eigenvalues_as_exactly_as_expm():
             scale_b = np.abs(E[:, :, :n, n:]).max(axis=(1, 2, 3))[:, None, None, None]
             assert np.max(np.abs(A - E[:, :, :n, :n]) / scale_a) < 1e-9, (kind, pos)
             assert np.max(np.abs(Bd - E[:, :, :n, n:]) / scale_b) < 1e-9, (kind, pos)
+
+
+def test_a_batch_with_repeated_plants_discretises_each_member_as_expm():
+    """Members that share a plant (a Jacobian's initial-state columns) are discretised
+    once and handed back in the batch's own order, also around a plant that falls back
+    to the exponential; the decomposition cached for one run serves the next."""
+    from motor_id.linalg import expm
+    from motor_id.model import _held_input_matrix, SPECTRAL_MIN_INTERVALS
+    rng = np.random.default_rng(5)
+    P = 6
+    th = {'J': 10 ** rng.uniform(-4, 0, P), 'K_T': 10 ** rng.uniform(-2, 0, P),
+          'K_b': 10 ** rng.uniform(-2, 0, P), 'B': 10 ** rng.uniform(-5, -1, P),
+          'L_m': 10 ** rng.uniform(-3, -1, P), 'R_m': 10 ** rng.uniform(-1, 1, P)}
+    F, G = continuous_matrices(th, 'voltage')
+    order = np.array([3, 0, 3, 5, 1, 0, 2, 4, 4, 5])   # repeats, not sorted
+    F, G = F[order], G[order]
+    F[6] = np.diag([-50.0, -50.0])                      # repeated eigenvalue: fallback
+    for _ in range(2):                                  # the second from the cache
+        dt = np.sort(rng.uniform(2.6e-3, 7.4e-3, 3 * SPECTRAL_MIN_INTERVALS))
+        A, Bd = discretize(F, G, dt)
+        E = expm(_held_input_matrix(F, G, dt))
+        np.testing.assert_allclose(A, E[:, :, :2, :2], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(Bd / np.abs(E[:, :, :2, 2:]).max(),
+                                   E[:, :, :2, 2:] / np.abs(E[:, :, :2, 2:]).max(),
+                                   rtol=0, atol=1e-9)
+
+
+def test_interval_integrals_over_many_interval_lengths_match_quadrature():
+    """A jittered record takes the eigen-decomposition of M for the heating integrals:
+    each interval's m and Q match a quadrature of the current (and its square), with the
+    two-mass shaft, with the position state (left out of M: it would make M defective)
+    and on a stiff plant where Van Loan's exponential of -M' loses its accuracy."""
+    from scipy.linalg import expm
+
+    from motor_id.model import interval_integrals, SPECTRAL_MIN_INTERVALS
+    from motor_id.simulate import with_position
+    par = {'J': [3.5e-5, 7.7e-4, 1e-5], 'K_T': [0.098, 0.91, 0.05],
+           'K_b': [0.098, 0.0138, 0.05], 'B': [2.4e-5, 3.3e-3, 1e-6],
+           'L_m': [1.9e-3, 0.0557, 1e-4], 'R_m': [3.8, 1.0, 2.0]}
+    rng = np.random.default_rng(7)
+    dt = np.sort(rng.uniform(1e-3, 8e-3, 2 * SPECTRAL_MIN_INTERVALS))
+    x, w = np.polynomial.legendre.leggauss(40)
+    for res, pos in ((None, False), (None, True),
+                     ({'r': [1.0] * 3, 'f_r': [4.0] * 3, 'zeta': [0.05] * 3}, False)):
+        F, G = continuous_matrices(par, 'voltage', res)
+        if pos:
+            F, G = with_position(F, G)
+        m, Q = interval_integrals(F, G, dt)
+        d = F.shape[1] + G.shape[2]
+        for p in range(F.shape[0]):
+            M = np.zeros((d, d))
+            M[:F.shape[1], :F.shape[1]], M[:F.shape[1], F.shape[1]:] = F[p], G[p]
+            for k in (0, dt.size - 1):
+                edges = np.linspace(0.0, dt[k], 9)
+                mq, Qq = np.zeros(d), np.zeros((d, d))
+                for a, b in zip(edges[:-1], edges[1:], strict=True):
+                    for xi, wi in zip(x, w, strict=True):
+                        r = expm(M * (0.5 * (a + b) + 0.5 * (b - a) * xi))[1]
+                        mq += 0.5 * (b - a) * wi * r
+                        Qq += 0.5 * (b - a) * wi * np.outer(r, r)
+                np.testing.assert_allclose(m[p, k], mq, rtol=0,
+                                           atol=1e-9 * np.abs(mq).max())
+                np.testing.assert_allclose(Q[p, k], Qq, rtol=0,
+                                           atol=1e-8 * np.abs(Qq).max())
