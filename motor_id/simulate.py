@@ -18,15 +18,9 @@ from typing import Any, cast, TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motor_id.effects import EFFECTS, validate_effects
 from motor_id.errors import ConfigError
-from motor_id.model import (
-    continuous_matrices,
-    discretize,
-    EFFECTS,
-    interval_integrals,
-    Plant,
-    validate_effects,
-)
+from motor_id.model import continuous_matrices, discretize, interval_integrals, Plant
 from motor_id.simulate_kernels import (
     _kernel,
     _linear2_regular_kernel,

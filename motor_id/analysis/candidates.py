@@ -1,6 +1,6 @@
 """Candidate fits: each effect of the catalogue warm-started on the data's own scale.
 
-Every candidate starts from a grid of its parameters (the :class:`motor_id.model.
+Every candidate starts from a grid of its parameters (the :class:`motor_id.effects.
 EffectParam` start grids, on this recording's scales) simulated in one batch at the
 reference model's parameters; the best distinct points start a least-squares refinement
 of the physical and effect parameters. A fit that cannot produce a finite model (an
@@ -20,9 +20,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.analysis.report import ModelScore
+from motor_id.effects import EFFECTS
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
-from motor_id.model import EFFECTS
 from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
@@ -49,7 +49,7 @@ def grid_only(effect: str) -> tuple[str, ...]:
 
 def data_scales(rec: Recording, physical: Mapping[str, float], R_m: float | None, T: float,
                 dt: float, max_delay: int, counted: bool = False) -> dict[str, float]:
-    """The scales of :data:`motor_id.model.SCALES` measured on one recording.
+    """The scales of :data:`motor_id.effects.SCALES` measured on one recording.
 
     ``counted``: the speed sits on an encoder grid (a count difference per period).
     """

@@ -7,7 +7,7 @@ by at least ``CONSISTENT min_gain`` and improves the sub-blocks beyond chance (o
 when the held-out blocks are blind to a misfit the training blocks show, cuts the
 training error by ``4 min_gain`` without worsening the held-out error), beats it
 in BIC (with the sample count reduced for residual autocorrelation), has no parameter
-at a search limit and is plausible (:meth:`motor_id.model.EffectSpec.implausible`).
+at a search limit and is plausible (:meth:`motor_id.effects.EffectSpec.implausible`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.model import EFFECTS
+from motor_id.effects import EFFECTS
 
 if TYPE_CHECKING:
     from motor_id.analysis.heldout import HeldOutSplit
