@@ -314,8 +314,9 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
 
     Each run ``[a, b)`` of ``segments`` is simulated on its own, from its own initial
     state: ``x0`` holds one block of ``n0`` values per run side by side (shape
-    ``(n_runs * n0,)`` or ``(P, n_runs * n0)``). Without ``segments`` this is
-    :func:`simulate_batch`.
+    ``(n_runs * n0,)`` or ``(P, n_runs * n0)``). Members that differ only in the
+    initial states of other runs (a Jacobian's initial-state columns) are simulated
+    once on this one. Without ``segments`` this is :func:`simulate_batch`.
 
     Returns
     -------
@@ -324,16 +325,42 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
     """
     if not segments or len(segments) == 1:
         return simulate_batch(theta, t, u, input_kind, method, effects, x0)
+    effects = effects or {}
     x0 = None if x0 is None else np.asarray(x0, dtype=float)
     n0 = None if x0 is None else x0.shape[-1] // len(segments)
+    members = _member_table(theta, effects) \
+        if x0 is not None and x0.ndim == 2 and np.ndim(u) == 1 else None
     parts = []
     for k, (a, b) in enumerate(segments):
         xk = None if x0 is None else np.ascontiguousarray(
             x0[..., k * cast(int, n0):(k + 1) * cast(int, n0)])
+        if members is not None and xk is not None and xk.shape[0] == members.shape[0]:
+            _, first, inverse = np.unique(np.concatenate([members, xk], axis=1), axis=0,
+                                          return_index=True, return_inverse=True)
+            if first.size < xk.shape[0]:
+                part = simulate_batch(_take(theta, first), t[a:b], u[a:b], input_kind,
+                                      method, {e: _take(v, first) for e, v in effects.items()},
+                                      xk[first])
+                parts.append({c: v[inverse.ravel()] for c, v in part.items()
+                              if c in ('speed', 'current')})
+                continue
         parts.append(simulate_batch(theta, t[a:b], u[..., a:b], input_kind, method,
                                     effects, xk))
     return {c: np.concatenate([p[c] for p in parts], axis=1)
             for c in ('speed', 'current') if c in parts[0]}
+
+
+def _member_table(theta: Mapping[str, ArrayLike],
+                  effects: Mapping[str, Mapping[str, ArrayLike]]) -> np.ndarray | None:
+    """Every batch parameter as a column, one row per member (None for one member)."""
+    values = list(theta.values()) + [v for d in effects.values() for v in d.values()]
+    P = batch_size({str(k): v for k, v in enumerate(values)})
+    return np.column_stack([_as_batch(v, P) for v in values]) if P > 1 else None
+
+
+def _take(values: Mapping[str, ArrayLike], rows: np.ndarray) -> dict[str, ArrayLike]:
+    """The batch parameters of the members ``rows`` (scalars as they are)."""
+    return {k: (np.asarray(v)[rows] if np.ndim(v) else v) for k, v in values.items()}
 
 
 def interval_mean(y: ArrayLike) -> np.ndarray:

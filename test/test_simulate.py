@@ -194,3 +194,28 @@ def test_sensor_lag_of_a_speed_ramp_is_the_continuous_filter_output():
     slope = torque / J
     exact = slope * (t - tau_s * (1.0 - np.exp(-t / tau_s)))
     np.testing.assert_allclose(out['speed'][0], exact, rtol=1e-9, atol=1e-12)
+
+
+def test_runs_simulate_members_that_differ_only_elsewhere_once_and_exactly():
+    """A Jacobian's initial-state columns change one run each: on the other runs those
+    members are simulated once, and every member's output is bit for bit its own
+    simulation (jittered runs, a friction effect, a member with other parameters)."""
+    from motor_id.simulate import simulate_runs
+    rng = np.random.default_rng(4)
+    t = np.concatenate([np.cumsum(rng.uniform(4e-3, 6e-3, n)) + 10.0 * k
+                        for k, n in enumerate((120, 90, 60))])
+    segments = [(0, 120), (120, 210), (210, 270)]
+    u = np.where(np.sin(3.0 * t) > 0, 6.0, -6.0)
+    p = PAPER_MOTOR.to_dict()
+    x0 = np.zeros((5, 6))
+    x0[1, 0], x0[2, 3], x0[3, 5] = 1.0, -2.0, 0.1        # each moves one run's start
+    theta = {k: np.full(5, v) for k, v in p.items()}
+    theta['J'][4] *= 1.1                                  # and one other plant
+    effects = {'coulomb_friction': {'T_c': np.full(5, 0.05)}}
+    out = simulate_runs(theta, t, u, effects=effects, x0=x0, segments=segments)
+    for m in range(5):
+        one = simulate_runs({k: v[m] for k, v in theta.items()}, t, u,
+                            effects={'coulomb_friction': {'T_c': 0.05}}, x0=x0[m],
+                            segments=segments)
+        np.testing.assert_array_equal(out['speed'][m], one['speed'][0])
+        np.testing.assert_array_equal(out['current'][m], one['current'][0])

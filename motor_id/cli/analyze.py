@@ -5,6 +5,7 @@ import os
 import sys
 
 from motor_id.analysis import DiscrepancyAnalysis, plot_report
+from motor_id.analysis.workers import usable_cores
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 
@@ -26,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='comma-separated effects to try (default: all that apply)')
     parser.add_argument('--min-gain', type=float, default=0.05,
                         help='smallest held-out gain that counts (default 0.05)')
+    parser.add_argument('--jobs', '-j', type=int, metavar='N',
+                        help='processes for the candidate fits (default: every usable core; '
+                             'the results are the same)')
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
     add_data_arguments(parser)
 
@@ -50,9 +54,12 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.resistance_tolerance <= 100:
         raise ConfigError('--resistance-tolerance takes a percentage in (0, 100], got '
                           f'{args.resistance_tolerance:g}')
+    if args.jobs is not None and args.jobs < 1:
+        raise ConfigError(f'--jobs takes a number of processes >= 1, got {args.jobs}')
     ana = DiscrepancyAnalysis(R_m=args.resistance, candidates=cands, random_state=args.seed,
                               min_gain=args.min_gain,
-                              R_m_tolerance=args.resistance_tolerance / 100.0)
+                              R_m_tolerance=args.resistance_tolerance / 100.0,
+                              jobs=args.jobs or usable_cores())
     ana.fit(rec, progress=progress)
     rep = ana.report_
     print(rep.summary())

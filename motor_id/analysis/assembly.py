@@ -1,0 +1,165 @@
+"""The report of an analysis, assembled from the chosen model and everything tried.
+
+The linear and the chosen model refitted on all data (:func:`.outcome.final_fits`), the
+headline parameters with the measurement grids', the residual diagnostics and the
+steady-state map, the held-out scheme, the models as good as the chosen one with the
+experiment that would separate them, and the adequacy of the chosen model with the
+warnings the record gives.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TYPE_CHECKING
+
+import numpy as np
+
+from motor_id.analysis import outcome, selection
+from motor_id.analysis.candidates import dynamic_effects
+from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
+from motor_id.analysis.report import DiscrepancyReport
+from motor_id.identify import determinacy
+from motor_id.metrics import normalised_fit
+
+if TYPE_CHECKING:
+    from motor_id.analysis.context import RecordContext
+    from motor_id.analysis.report import ModelScore
+    from motor_id.identify import Identifier
+
+
+def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
+                 ranked: list[ModelScore], say: Callable[[str], object], *, n_blocks: int,
+                 min_gain: float, ambiguity: float, unexplained: bool) -> DiscrepancyReport:
+    """The :class:`DiscrepancyReport` of one analysed record.
+
+    Parameters
+    ----------
+    ctx : RecordContext
+    base, chosen : ModelScore
+        The linear model and the chosen one (``base`` itself when no effect counts).
+    ranked : list of ModelScore
+        Every model tried, the chosen first.
+    say : callable
+        ``say(message)`` for the final fits.
+    n_blocks, min_gain, ambiguity
+        As :class:`.analyzer.DiscrepancyAnalysis`.
+    unexplained : bool
+        The chosen model leaves structure (held-out error above the noise floors).
+    """
+    rec = ctx.rec
+    full_base, full = outcome.final_fits(ctx.fitter, base, chosen, say)
+    params = outcome.parameters(chosen, base, full)
+    for m in ctx.measurement:
+        params.update(m.parameters)
+    dyn = 'none' if chosen is base else chosen.name
+    names = ([] if chosen is base else [dyn]) + [m.name for m in ctx.measurement]
+    verdict = '+'.join(names) if names else 'none'
+    chosen_d = _chosen_block(chosen, base, full, dyn)
+    idyn: dict[str, Any] | None = None
+    if rec.input_kind == 'torque':
+        idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)
+    diag, points = _diagnostics(ctx, full_base, full, chosen, base)
+    bres = full_base.result_
+    baseline = {'parameters': bres.to_dict()['parameters'], 'fit': bres.fit,
+                'heldout_error': base.heldout_error}
+    split = ctx.split
+    plot_data = {'time': rec.time, 'channels': split.channels, 'ys': split.ys,
+                 'base': base.prediction['preds'], 'chosen': chosen.prediction['preds'],
+                 'test': split.test, 'points': points}
+    failed = [{'name': s.name, 'reason': s.failed} for s in ranked if s.failed]
+    ambiguous = [] if chosen is base else selection.ambiguous(
+        chosen, ranked, ambiguity, rec.input_kind, ctx.one_way)
+    adequate, warnings = _adequacy(ctx, chosen, verdict, params)
+    return DiscrepancyReport(
+        verdict=verdict, effects=list(ctx.measurement) + list(ranked),
+        unexplained=unexplained, ambiguous_with=ambiguous, parameters=params,
+        baseline=baseline, chosen=chosen_d, diagnostics=diag,
+        heldout=_heldout_block(ctx, base, chosen, n_blocks, min_gain),
+        input_kind=rec.input_kind, channels=split.channels,
+        measurement=ctx.measurement_evidence, failed=failed, inverse_dynamics=idyn,
+        plot_data=plot_data, adequate=adequate, warnings=warnings)
+
+
+def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None, dyn: str
+                  ) -> dict[str, Any]:
+    """The report's ``chosen`` entry: name, estimator, effect values and the fit."""
+    chosen_d: dict[str, Any] = {
+        'name': dyn, 'estimator': 'output error (simulation)',
+        'effects': {} if chosen is base else chosen.effects,
+        'fit': full.result_.fit if (full is not None and chosen is not base) else None}
+    if full is not None and chosen is not base:
+        chosen_d['effects'] = {e: {p: (v['value'] if isinstance(v, dict) else v)
+                                   for p, v in vals.items()}
+                               for e, vals in dynamic_effects(full.result_.effects).items()}
+    return chosen_d
+
+
+def _heldout_block(ctx: RecordContext, base: ModelScore, chosen: ModelScore, n_blocks: int,
+                   min_gain: float) -> dict[str, Any]:
+    """The report's ``heldout`` entry: the split's scheme and the errors on it."""
+    split = ctx.split
+    held = list(range(2, n_blocks, 3))
+    scheme = (f'{len(ctx.rec.segment_ranges)} separate runs; the last is held out whole'
+              if split.by_run else
+              f'{n_blocks} blocks, blocks {held} held out (the simulation runs '
+              'through them)')
+    return {'scheme': scheme, 'by_run': split.by_run, 'fraction': float(np.mean(split.test)),
+            'blocks': split.blocks, 'base_error': base.heldout_error,
+            'final_error': chosen.heldout_error, 'noise_floor': split.floor,
+            'min_gain': min_gain, 'resistance': ctx.resistance}
+
+
+def _diagnostics(ctx: RecordContext, full_base: Identifier, full: Identifier | None,
+                 chosen: ModelScore, base: ModelScore
+                 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """Residual diagnostics before and after, the noise floors and the steady-state map
+    with the linear and the chosen model's mean speed on each plateau."""
+    rec, split = ctx.rec, ctx.split
+    after = full.result_.prediction if (full is not None and chosen is not base) \
+        else None
+    diag = residual_block(rec, split.channels, full_base.result_.prediction, after)
+    diag['noise_floor'] = split.floor
+    diag['channel_noise_floor'] = split.channel_floors
+    if ctx.electrical is not None:
+        diag['electrical'] = ctx.electrical
+    points = steady_state_map(rec)
+    k = split.channels.index('speed')
+    for p in points:
+        a, b = p['start'], p['stop']
+        p['speed_linear'] = float(np.mean(full_base.result_.prediction['speed'][a:b]))
+        if chosen is not base:
+            p['speed_chosen'] = float(np.mean(chosen.prediction['preds'][k][a:b]))
+    diag['steady_state'] = {**map_summary(points), 'points': points}
+    return diag, points
+
+
+def _adequacy(ctx: RecordContext, chosen: ModelScore, verdict: str, params: dict[str, Any]
+              ) -> tuple[bool, list[str]]:
+    """``(adequate, warnings)``: the chosen model's held-out fit of the speed, the
+    steady-state evidence the verdict leaves out, one-direction data."""
+    split = ctx.split
+    k = split.channels.index('speed')
+    y = split.ys[k][split.test]
+    yh = np.asarray(chosen.prediction['preds'][k])[split.test]
+    fit = normalised_fit(y, yh)
+    adequate, warnings = determinacy.adequacy(
+        {'speed': fit}, hint='no named effect explains this record (a load that '
+        'changes along it, a second input?)')
+    if warnings:
+        warnings[0] = warnings[0].replace('the model explains',
+                                          'the chosen model explains (held out)')
+    if not adequate:
+        for p in params.values():
+            if isinstance(p, dict) and p.get('determined') and not p.get('grid'):
+                p['particular_value'] = p.get('value')
+                p['value'], p['std'], p['determined'] = None, None, False
+                p['reason'] = 'model inadequate'
+    steady = ctx.steady
+    if steady and not any(e in verdict for e in ('coulomb_friction', 'dead_zone', 'brush_drop')):
+        warnings.append('the steady states show a static offset both ways (zero speed '
+                        f'at input {steady[0]:.3g} and {steady[1]:.3g}): '
+                        'Coulomb friction or a dead band that the verdict does not name')
+    if ctx.one_way:
+        warnings.append('the speed kept one sign: the model holds for this direction '
+                        'only')
+    return adequate, warnings

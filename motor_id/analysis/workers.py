@@ -1,0 +1,106 @@
+"""Candidate fits on several processes: the same results as one after the other, sooner.
+
+The candidates of one step of the search (every effect alone, the runners-up restarted
+from the leader, the extensions of the chosen model) are independent fits of one
+:class:`.candidates.CandidateFitter`. With ``jobs > 1`` they run on forked worker
+processes that inherit the fitter (its record and split are not copied per task); each
+task carries the fitter's few settings that change after the linear fit, so a worker
+never fits with stale ones. Results come back in task order. Fork is used only where
+the platform offers it; a caller in a multi-threaded process (a ROS node) keeps the
+default of one job.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+import multiprocessing
+import multiprocessing.pool
+import os
+from typing import Any, TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from motor_id.analysis.candidates import CandidateFitter
+    from motor_id.analysis.report import ModelScore
+
+SETTINGS = ('scales', 'extra_starts', 'physical_bounds', 'spread', 'reading')
+"""The fitter's attributes that the linear fit sets; sent with every task."""
+
+_FITTER: CandidateFitter | None = None
+"""The fitter a worker process inherited when it was forked."""
+
+
+@dataclass(frozen=True)
+class FitTask:
+    """One call of :meth:`.candidates.CandidateFitter.fit`."""
+
+    name: str
+    ref: ModelScore
+    prior: ModelScore | None = None
+    seed: ModelScore | None = None
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the platform tells)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:   # no sched_getaffinity (macOS, Windows)
+        return os.cpu_count() or 1
+
+
+class FitPool:
+    """Runs :class:`FitTask` lists on ``jobs`` processes (one: in this process).
+
+    Parameters
+    ----------
+    fitter : CandidateFitter
+    jobs : int
+        Worker processes; 1 fits in the calling process. The workers start at the
+        first list of two or more tasks and stop at :meth:`close`.
+    """
+
+    def __init__(self, fitter: CandidateFitter, jobs: int = 1) -> None:
+        self.fitter = fitter
+        self.jobs = jobs if 'fork' in multiprocessing.get_all_start_methods() else 1
+        self._pool: multiprocessing.pool.Pool | None = None
+
+    def map(self, tasks: Sequence[FitTask]) -> Iterator[ModelScore]:
+        """The fitted candidates of ``tasks``, in order, each as soon as it is done."""
+        if self.jobs <= 1 or len(tasks) < 2:
+            for t in tasks:
+                yield self.fitter.fit(t.name, t.ref, prior=t.prior, seed=t.seed)
+            return
+        settings = {k: getattr(self.fitter, k) for k in SETTINGS}
+        yield from self._workers().imap(_fit, [(settings, t) for t in tasks])
+
+    def _workers(self) -> multiprocessing.pool.Pool:
+        global _FITTER
+        if self._pool is None:
+            _FITTER = self.fitter   # inherited by the workers forked from now on
+            self._pool = multiprocessing.get_context('fork').Pool(self.jobs)
+        return self._pool
+
+    def close(self) -> None:
+        """Stop the workers (if any were started)."""
+        global _FITTER
+        if self._pool is not None:
+            self._pool.close()
+            self._pool.join()
+            self._pool = None
+            _FITTER = None
+
+    def __enter__(self) -> FitPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _fit(job: tuple[dict[str, Any], FitTask]) -> ModelScore:
+    """A worker's task: the inherited fitter, brought up to date, fits one candidate."""
+    settings, t = job
+    if _FITTER is None:   # pragma: no cover - only reached in a forked worker
+        raise RuntimeError('a fit worker without its fitter (not started by fork)')
+    for k, v in settings.items():
+        setattr(_FITTER, k, v)
+    return _FITTER.fit(t.name, t.ref, prior=t.prior, seed=t.seed)
