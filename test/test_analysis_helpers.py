@@ -118,6 +118,42 @@ def test_spread_starts_walk_the_finest_axis_of_a_flat_grid():
     assert _spread({'x': np.array([1.0, 2.0])}, 0, np.ones(2)) == []
 
 
+def test_spread_starts_run_only_while_the_refinement_has_not_found_the_effect():
+    """A grid that cannot rank its points adds spread starts; once the refinement from
+    its best points cuts the reference's squared training error to FOUND they are left
+    out, else they follow the best points in order (the best start wins)."""
+    from motor_id.analysis import candidates
+    from motor_id.analysis.report import ModelScore
+
+    def fitter_with(errors):
+        fitted = []
+
+        class Stub(CandidateFitter):
+            def grid_best(self, ref, name, grid, fixed_effects=None, top=1):
+                return [{'T_c': 1.0}, {'T_c': 2.0}], [{'T_c': 3.0}, {'T_c': 4.0}]
+
+            def fit_model(self, effects, free, start, weight=True):
+                fitted.append(effects['coulomb_friction']['T_c'])
+                return effects
+
+            def score(self, name, est, n_extra, t0):
+                return ModelScore(name=name, effects=est,
+                                  train_error=errors[est['coulomb_friction']['T_c']])
+
+        stub = Stub.__new__(Stub)
+        stub.scales, stub.extra_starts, stub.starts = {'torque': 1.0}, {}, 2
+        return stub, fitted
+
+    ref = ModelScore(name='linear', effects={}, train_error=1.0)
+    found = np.sqrt(candidates.FOUND)
+    stub, fitted = fitter_with({1.0: 0.99 * found, 2.0: 1.0, 3.0: 0.1, 4.0: 0.5})
+    assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.99 * found)
+    assert fitted == [1.0, 2.0]
+    stub, fitted = fitter_with({1.0: 1.01 * found, 2.0: 1.0, 3.0: 0.5, 4.0: 0.1})
+    assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.1)
+    assert fitted == [1.0, 2.0, 3.0, 4.0]
+
+
 def test_sign_test_of_held_out_sub_blocks():
     from motor_id.analysis.selection import sign_test
     assert sign_test(12, 12) == pytest.approx(2.0 ** -12)

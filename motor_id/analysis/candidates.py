@@ -33,6 +33,12 @@ FLAT = 0.95 ** 2
 """A start grid whose best point does not cut the reference's training error by 5 % (the
 squared error by this factor) cannot rank its points (see :func:`_spread`)."""
 
+FOUND = 0.8
+"""The refinement from the best grid points has found the effect when it cuts the
+reference's squared training error to this fraction (the error by 11 %, twice the cut
+that lets the grid rank its points): the spread starts of a grid that could not rank are
+then not needed (on the hidden-effect sweep none of them did better from there)."""
+
 CANDIDATE_NFEV = 25
 """Residual evaluations of a candidate's refinement: enough to rank it (most converge in
 5-15; a fit still crawling along a friction kink at 25 gains little more by 60, and the
@@ -81,6 +87,12 @@ def _distinct(grid: Mapping[str, np.ndarray], a: int, b: int) -> bool:
         if np.sign(v[a]) != np.sign(v[b]) or max(x, y) > 2 * min(x, y):
             return True
     return False
+
+
+def _found(best: ModelScore | None, ref: ModelScore) -> bool:
+    """True when ``best`` cuts the squared training error of ``ref`` to :data:`FOUND`."""
+    return best is not None and math.isfinite(best.train_error) and \
+        best.train_error ** 2 <= FOUND * ref.train_error ** 2
 
 
 def _spread(grid: Mapping[str, np.ndarray], best: int, cost: np.ndarray, n: int = 3
@@ -272,23 +284,32 @@ class CandidateFitter:
             return self._fit_integer(name, base, fixed_eff, free_prior, t0)
         grid = EFFECTS[name].start_grid(self.scales)
         # an effect added to a fitted model starts from its best grid point only
-        rows = self.grid_best(base, name, grid, fixed_eff,
-                              top=1 if prior is not None else self.starts)
+        rows, spread = self.grid_best(base, name, grid, fixed_eff,
+                                      top=1 if prior is not None else self.starts)
         extra = self.extra_starts.get(name)
-        if extra and set(extra) == set(rows[0] if rows else extra):
-            rows.append({p: float(np.clip(v, *self.bounds_for(f'{name}.{p}')))
-                         for p, v in extra.items()})
-        best = None
+        best: ModelScore | None = None
         for row in rows:  # a few distinct starts: some effects have local minima
-            eff = {**fixed_eff, name: row}
-            free = free_prior + [f'{name}.{p}' for p in row]
-            est = self.fit_model(eff, free, self.start(base, eff))
-            s = self.score(name, est, base.n_extra + len(row), t0)
-            if best is None or s.train_error < best.train_error:
-                best = s
+            best = self._fit_row(name, row, base, fixed_eff, free_prior, t0, best)
+        if not _found(best, base):
+            for row in spread:
+                best = self._fit_row(name, row, base, fixed_eff, free_prior, t0, best)
+        if extra and set(extra) == set(rows[0] if rows else extra):
+            best = self._fit_row(name, {p: float(np.clip(v, *self.bounds_for(f'{name}.{p}')))
+                                        for p, v in extra.items()},
+                                 base, fixed_eff, free_prior, t0, best)
         if best is None:
             raise ArithmeticError('every start point of the grid gives a non-finite cost')
         return best
+
+    def _fit_row(self, name: str, row: Mapping[str, float], base: ModelScore,
+                 fixed_eff: Mapping[str, Mapping[str, float]], free_prior: Sequence[str],
+                 t0: float, best: ModelScore | None) -> ModelScore:
+        """The refinement from one start ``row``, or ``best`` when that stays better."""
+        eff = {**fixed_eff, name: dict(row)}
+        free = list(free_prior) + [f'{name}.{p}' for p in row]
+        est = self.fit_model(eff, free, self.start(base, eff))
+        s = self.score(name, est, base.n_extra + len(row), t0)
+        return s if best is None or s.train_error < best.train_error else best
 
     def _fit_integer(self, name: str, base: ModelScore,
                      fixed_eff: Mapping[str, Mapping[str, float]], free_prior: Sequence[str],
@@ -297,7 +318,7 @@ class CandidateFitter:
         pname = grid_only(name)[0]
         grid = EFFECTS[name].start_grid(self.scales)
         lo, hi = int(grid[pname].min()), int(grid[pname].max())
-        rows = self.grid_best(base, name, grid, fixed_eff, top=2)
+        rows, spread = self.grid_best(base, name, grid, fixed_eff, top=2)
         tried: dict[int, ModelScore] = {}
 
         def fit_at(d: int) -> ModelScore | None:
@@ -309,6 +330,9 @@ class CandidateFitter:
 
         for row in rows:
             fit_at(int(row[pname]))
+        if not tried or not _found(min(tried.values(), key=lambda s: s.train_error), base):
+            for row in spread:
+                fit_at(int(row[pname]))
         if not tried:
             raise ArithmeticError('every delay of the grid gives a non-finite cost')
         while True:  # the grid ran at the reference parameters: climb to the best d
@@ -320,8 +344,9 @@ class CandidateFitter:
 
     def grid_best(self, ref: ModelScore, name: str, grid: Mapping[str, np.ndarray],
                   fixed_effects: Mapping[str, Mapping[str, float]] | None = None, top: int = 1
-                  ) -> list[dict[str, float]]:
-        """Start rows ``[{param: value}]``: the best ``top`` distinct grid points."""
+                  ) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
+        """Start rows ``[{param: value}]``: the best ``top`` distinct grid points, and the
+        spread rows (:func:`_spread`) where the grid cannot rank its points."""
         P = next(iter(grid.values())).size
         effects: dict[str, Mapping[str, ArrayLike]] = {
             **self.reading, **{e: dict(v) for e, v in (fixed_effects or {}).items()}}
@@ -343,10 +368,12 @@ class CandidateFitter:
                 break
             if all(_distinct(grid, k, j) for j in picked):
                 picked.append(k)
+        spread: list[int] = []
         if picked and self.spread and ref.train_error > 0 and \
                 cost[picked[0]] >= FLAT * ref.train_error ** 2 * len(self.split.channels):
-            picked += _spread(grid, picked[0], cost)
-        return [{p: float(v[k]) for p, v in grid.items()} for k in picked]
+            spread = _spread(grid, picked[0], cost)
+        return ([{p: float(v[k]) for p, v in grid.items()} for k in picked],
+                [{p: float(v[k]) for p, v in grid.items()} for k in spread])
 
     # --------------------------------------------------------------- linear model
     def fit_linear(self, generations: int) -> ModelScore:
