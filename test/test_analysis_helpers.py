@@ -118,10 +118,10 @@ def test_spread_starts_walk_the_finest_axis_of_a_flat_grid():
     assert _spread({'x': np.array([1.0, 2.0])}, 0, np.ones(2)) == []
 
 
-def test_spread_starts_run_only_while_the_refinement_has_not_found_the_effect():
-    """A grid that cannot rank its points adds spread starts; once the refinement from
-    its best points cuts the reference's squared training error to FOUND they are left
-    out, else they follow the best points in order (the best start wins)."""
+def test_further_starts_run_only_while_no_refinement_has_found_the_effect():
+    """The best grid points, then (a grid that cannot rank its points) the spread starts
+    are refined in turn until one cuts the reference's squared training error to FOUND;
+    the best of those refined wins."""
     from motor_id.analysis import candidates
     from motor_id.analysis.report import ModelScore
 
@@ -146,10 +146,13 @@ def test_spread_starts_run_only_while_the_refinement_has_not_found_the_effect():
 
     ref = ModelScore(name='linear', effects={}, train_error=1.0)
     found = np.sqrt(candidates.FOUND)
-    stub, fitted = fitter_with({1.0: 0.99 * found, 2.0: 1.0, 3.0: 0.1, 4.0: 0.5})
+    stub, fitted = fitter_with({1.0: 0.99 * found, 2.0: 0.1, 3.0: 0.1, 4.0: 0.1})
     assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.99 * found)
+    assert fitted == [1.0]
+    stub, fitted = fitter_with({1.0: 1.01 * found, 2.0: 0.5, 3.0: 0.1, 4.0: 0.1})
+    assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.5)
     assert fitted == [1.0, 2.0]
-    stub, fitted = fitter_with({1.0: 1.01 * found, 2.0: 1.0, 3.0: 0.5, 4.0: 0.1})
+    stub, fitted = fitter_with({1.0: 1.01 * found, 2.0: 1.0, 3.0: 0.95, 4.0: 0.1})
     assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.1)
     assert fitted == [1.0, 2.0, 3.0, 4.0]
 

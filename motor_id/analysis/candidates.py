@@ -34,10 +34,11 @@ FLAT = 0.95 ** 2
 squared error by this factor) cannot rank its points (see :func:`_spread`)."""
 
 FOUND = 0.8
-"""The refinement from the best grid points has found the effect when it cuts the
-reference's squared training error to this fraction (the error by 11 %, twice the cut
-that lets the grid rank its points): the spread starts of a grid that could not rank are
-then not needed (on the hidden-effect sweep none of them did better from there)."""
+"""A refinement has found the effect when it cuts the reference's squared training error
+to this fraction (the error by 11 %, twice the cut that lets the grid rank its points):
+the further grid starts, and the spread starts of a grid that could not rank, are then
+left out (on the hidden-effect sweep none of them did better from there: 0 of 38 second
+starts, 0 of 22 spread starts)."""
 
 CANDIDATE_NFEV = 25
 """Residual evaluations of a candidate's refinement: enough to rank it (most converge in
@@ -288,11 +289,10 @@ class CandidateFitter:
                                       top=1 if prior is not None else self.starts)
         extra = self.extra_starts.get(name)
         best: ModelScore | None = None
-        for row in rows:  # a few distinct starts: some effects have local minima
+        for row in rows + spread:  # a few distinct starts: some effects have local minima
+            if _found(best, base):
+                break
             best = self._fit_row(name, row, base, fixed_eff, free_prior, t0, best)
-        if not _found(best, base):
-            for row in spread:
-                best = self._fit_row(name, row, base, fixed_eff, free_prior, t0, best)
         if extra and set(extra) == set(rows[0] if rows else extra):
             best = self._fit_row(name, {p: float(np.clip(v, *self.bounds_for(f'{name}.{p}')))
                                         for p, v in extra.items()},
@@ -328,11 +328,10 @@ class CandidateFitter:
                 tried[d] = self.score(name, est, base.n_extra + 1, t0)
             return tried.get(d)
 
-        for row in rows:
+        for row in rows + spread:
+            if tried and _found(min(tried.values(), key=lambda s: s.train_error), base):
+                break
             fit_at(int(row[pname]))
-        if not tried or not _found(min(tried.values(), key=lambda s: s.train_error), base):
-            for row in spread:
-                fit_at(int(row[pname]))
         if not tried:
             raise ArithmeticError('every delay of the grid gives a non-finite cost')
         while True:  # the grid ran at the reference parameters: climb to the best d
