@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import multiprocessing
 import multiprocessing.pool
 import os
+import signal
 from typing import Any, TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -77,14 +78,19 @@ class FitPool:
         global _FITTER
         if self._pool is None:
             _FITTER = self.fitter   # inherited by the workers forked from now on
-            self._pool = multiprocessing.get_context('fork').Pool(self.jobs)
+            self._pool = multiprocessing.get_context('fork').Pool(self.jobs,
+                                                                   initializer=_worker_start)
         return self._pool
 
-    def close(self) -> None:
-        """Stop the workers (if any were started)."""
+    def close(self, abort: bool = False) -> None:
+        """Stop the workers (if any were started); ``abort``: at once, mid-task (an
+        exception or Ctrl-C is on its way), instead of after their last task."""
         global _FITTER
         if self._pool is not None:
-            self._pool.close()
+            if abort:
+                self._pool.terminate()
+            else:
+                self._pool.close()
             self._pool.join()
             self._pool = None
             _FITTER = None
@@ -92,8 +98,13 @@ class FitPool:
     def __enter__(self) -> FitPool:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
+        self.close(abort=exc_type is not None)
+
+
+def _worker_start() -> None:
+    """A worker leaves Ctrl-C to the caller, which stops the pool (no worker traceback)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _fit(job: tuple[dict[str, Any], FitTask]) -> ModelScore:
