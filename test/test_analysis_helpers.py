@@ -120,8 +120,9 @@ def test_spread_starts_walk_the_finest_axis_of_a_flat_grid():
 
 def test_further_starts_run_only_while_no_refinement_has_found_the_effect():
     """The best grid points, then (a grid that cannot rank its points) the spread starts
-    are refined in turn until one cuts the reference's squared training error to FOUND;
-    the best of those refined wins."""
+    are refined in turn until one cuts the reference's squared training error to FOUND,
+    or (a one-parameter effect) the best points' refinements agree to SETTLED; the best
+    of those refined wins."""
     from motor_id.analysis import candidates
     from motor_id.analysis.report import ModelScore
 
@@ -155,6 +156,11 @@ def test_further_starts_run_only_while_no_refinement_has_found_the_effect():
     stub, fitted = fitter_with({1.0: 1.01 * found, 2.0: 1.0, 3.0: 0.95, 4.0: 0.1})
     assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.1)
     assert fitted == [1.0, 2.0, 3.0, 4.0]
+    # a one-parameter effect whose two best points end at one minimum: no spread starts
+    stub, fitted = fitter_with({1.0: 0.95, 2.0: 0.95 * (1 + candidates.SETTLED / 2),
+                                3.0: 0.1, 4.0: 0.1})
+    assert stub.fit('coulomb_friction', ref).train_error == pytest.approx(0.95)
+    assert fitted == [1.0, 2.0]
 
 
 def test_sign_test_of_held_out_sub_blocks():
