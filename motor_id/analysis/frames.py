@@ -23,7 +23,7 @@ one sample per frame period (a frame arrived and said the same).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, field, fields
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
@@ -52,10 +52,13 @@ class FrameEvidence:
     fresh_share: float
     """Share of the samples that carry a new reading."""
     reason: str
+    fresh: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool), repr=False)
+    """Per sample: it carries a new reading (:func:`fresh_mask`; all True when no held
+    readings were found). Not part of :meth:`to_dict`."""
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        out = asdict(self)
+        """JSON-ready (without the per-sample mask)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != 'fresh'}
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
                 for k, v in out.items()}
 
@@ -112,7 +115,8 @@ def frame_evidence(time: np.ndarray, y: np.ndarray, channel: str = 'speed',
     repeated = float(np.mean(r)) if r.size else 0.0
     if g.size < MIN_CHANGES or not np.isfinite(dt) or dt <= 0:
         return FrameEvidence(channel, False, repeated, float('nan'), float('nan'),
-                             float('nan'), 1.0, f'fewer than {MIN_CHANGES} value changes')
+                             float('nan'), 1.0, f'fewer than {MIN_CHANGES} value changes',
+                             np.ones(y.size, dtype=bool))
     period = float(np.median(g))
     q1, q3 = np.percentile(g, [25, 75])
     spread = float((q3 - q1) / period) if period > 0 else float('inf')
@@ -131,7 +135,7 @@ def frame_evidence(time: np.ndarray, y: np.ndarray, channel: str = 'speed',
     return FrameEvidence(channel, found, repeated, period, frames, spread,
                          float(np.mean(fresh)), reason or
                          f'{100 * repeated:.0f} % of the moving samples repeat; a new '
-                         f'value every {1e3 * period:.1f} ms ({frames:.1f} samples)')
+                         f'value every {1e3 * period:.1f} ms ({frames:.1f} samples)', fresh)
 
 
 def fresh_mask(time: np.ndarray, y: np.ndarray, period: float,

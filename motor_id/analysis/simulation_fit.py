@@ -31,7 +31,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 from scipy.optimize import least_squares
 
-from motor_id.analysis.frames import fresh_mask, held_channels
+from motor_id.analysis.frames import held_channels
 from motor_id.analysis.friction import friction_summary
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.identify.validation import initial_state_at, SavedModel
@@ -95,10 +95,11 @@ def sim_channels(rec: Recording) -> tuple[str, ...]:
 def _at_rest(rec: Recording, k: int) -> bool:
     """The axis is at rest at sample ``k``: no input, a speed reading of zero (to a
     millionth of its spread) and, where measured, no current."""
-    tol = 1e-6 * (float(np.std(rec.speed)) or 1.0)
-    return bool(rec.input[k] == 0 and abs(rec.speed[k]) <= tol
-                and (rec.current is None or abs(rec.current[k]) <= 1e-6 *
-                     (float(np.std(rec.current)) or 1.0)))
+    def still(x: np.ndarray) -> bool:
+        return bool(abs(x[k]) <= 1e-6 * (float(np.std(x)) or 1.0))
+
+    return bool(rec.input[k] == 0) and still(rec.speed) and \
+        (rec.current is None or still(rec.current))
 
 
 def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[int, int]]:
@@ -406,9 +407,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     held = blocks[2::3] if len(blocks) >= 3 else []
     train = [b for b in blocks if b not in held] if held else blocks
     frames = held_channels(rec, sim_channels(rec))
-    fresh = {ch: fresh_mask(rec.time, np.asarray(getattr(rec, ch), dtype=float),
-                            ev.frame_period, rec.segment_ranges)
-             for ch, ev in frames.items() if ev.found} or None
+    fresh = {ch: ev.fresh for ch, ev in frames.items() if ev.found} or None
     for ch, ev in frames.items():
         if ev.found:
             say(f'  held readings on {ch}: {ev.reason}')

@@ -37,6 +37,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 
 from motor_id.analysis.friction import friction_summary
+from motor_id.effects import EFFECTS
 from motor_id.identify.uncertainty import combine, robust_covariance
 
 if TYPE_CHECKING:
@@ -71,6 +72,13 @@ def _seen(Jw: np.ndarray) -> np.ndarray:
     Vn = Vt[rank:].T
     proj = np.linalg.norm(Vn, axis=1) if Vn.size else np.zeros(Jw.shape[1])
     return (norm > 0) & (proj < 1e-3)
+
+
+def _torque_scaled(name: str) -> bool:
+    """``effect.param`` of an effect with a torque in it (catalogue scale ``torque...``):
+    its SI values follow K_T's, which speed alone does not fix."""
+    e, _, p = name.partition('.')
+    return bool(p) and any(q.scale.startswith('torque') for q in EFFECTS[e].params)
 
 
 def halves_split(blocks: Sequence[tuple[int, int]]) -> tuple[list[tuple[int, int]],
@@ -193,9 +201,7 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
     std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
     floor = np.zeros(d) if half is None else \
         np.maximum(np.abs(half[0] - half[1]) / 2, np.abs(z - (half[0] + half[1]) / 2))
-    scale = np.where(std_z > 0, np.maximum(std_z, floor) / np.where(std_z > 0, std_z, 1.0),
-                     1.0)
-    cov_final = cov * np.outer(scale, scale)
+    std_final = np.maximum(std_z, floor)
     values = _si(prob, z)
     ha = _si(prob, half[0]) if half is not None else None
     hb = _si(prob, half[1]) if half is not None else None
@@ -206,15 +212,12 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
         v = values[name]
         log = j in physical
         std_m = abs(v) * std_z[j] if log else std_z[j]
-        std = abs(v) * math.sqrt(max(cov_final[j, j], 0.0)) if log else \
-            math.sqrt(max(cov_final[j, j], 0.0))
+        std = abs(v) * std_final[j] if log else std_final[j]
         entry: dict[str, Any] = {'value': v, 'std': float(std), 'std_model': float(std_m),
                                  'determined': bool(seen[j])}
         if ha is not None and hb is not None:
             entry['halves'] = [ha[name], hb[name]]
-        if speed_only and (log or name.startswith(('coulomb_friction', 'load_torque',
-                                                   'asymmetric_friction', 'stiction',
-                                                   'stribeck_friction', 'quadratic_load'))):
+        if speed_only and (log or _torque_scaled(name)):
             entry['determined'] = False
             entry['note'] = ('speed alone determines kS, kV and kA, not this (K_T is held '
                              'at the equation-error value)')
