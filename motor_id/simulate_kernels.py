@@ -40,13 +40,13 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, fr, T_L, k_q, V_b, k_h, tau_th, tau
             dt = dts[c]
             w = x[0]
             v = u[p, k]
-            if voltage:
-                i = x[1]
-                if V_b[p] != 0.0:
-                    if i > 0.0:
-                        v -= V_b[p]
-                    elif i < 0.0:
-                        v += V_b[p]
+            si = 0.0   # the direction of the current that carries the brush drop
+            if voltage and V_b[p] != 0.0:
+                if x[1] > 0.0:
+                    si = 1.0
+                elif x[1] < 0.0:
+                    si = -1.0
+                v -= V_b[p] * si
             tau = -T_L[p] - k_q[p] * w * abs(w)
             if w < 0.0:
                 tau -= fr[p, 2] * w   # extra viscous friction in the negative direction
@@ -70,6 +70,30 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, fr, T_L, k_q, V_b, k_h, tau_th, tau
                 for m in range(n):
                     acc += A[p, c, j, m] * x[m]
                 xn[j] = acc
+            if voltage and V_b[p] != 0.0:
+                # the brushes conduct only while the drive beats the drop (dry friction
+                # at the current level): from zero current the drop of the drive's
+                # direction is applied if the current still flows with it; a current
+                # that reverses within the interval goes on only if it beats the other
+                # direction's drop too. Else it ends at zero: the winding sees the
+                # voltage that leaves it there, the drop takes the rest.
+                dv = 0.0
+                s = 0.0
+                if si == 0.0 and xn[1] != 0.0:
+                    s = 1.0 if xn[1] > 0.0 else -1.0
+                    dv = -V_b[p] * s
+                elif xn[1] * si < 0.0:
+                    s = -si
+                    dv = 2.0 * V_b[p] * si
+                if s != 0.0:
+                    g = Bd[p, c, 1, 0]
+                    held = (xn[1] + g * dv) * s <= 0.0 and g != 0.0
+                    if held:
+                        dv = -xn[1] / g
+                    for j in range(n):
+                        xn[j] += Bd[p, c, j, 0] * dv
+                    if held:
+                        xn[1] = 0.0
             if heat != 0.0:
                 # copper loss i^2 R: the heating rate grows with the resistance itself
                 dR += dt * (k_h[p] * heat * (1.0 + dR / R0[p]) - dR / tau_th[p])

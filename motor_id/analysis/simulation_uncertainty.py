@@ -10,7 +10,8 @@ The error bars here are the largest of three estimates, each in the search coord
 2. the block sandwich (:func:`motor_id.identify.uncertainty.robust_covariance`): the
    spread of the score ``J^T r`` between blocks, each block simulated from its own
    start, so blocks are nearly independent however correlated the samples within one;
-3. halves: the model refitted on the first and on the second half of the blocks, each
+3. halves: the model refitted on the first and on the second half of the blocks
+   (:func:`halves_split`: of each run, so each half is like a repeat recording), each
    from the stage's own start. For two independent halves the difference of their
    estimates has about twice the variance of each half's, four times the whole
    record's, so ``|a - b| / 2`` estimates one standard deviation of the estimate from
@@ -81,17 +82,37 @@ def _torque_scaled(name: str) -> bool:
     return bool(p) and any(q.scale.startswith('torque') for q in EFFECTS[e].params)
 
 
-def halves_split(blocks: Sequence[tuple[int, int]]) -> tuple[list[tuple[int, int]],
-                                                              list[tuple[int, int]]]:
-    """The blocks in time order, cut into a first and a second half."""
-    order = sorted(blocks)
-    k = len(order) // 2
-    return order[:k], order[k:]
+def halves_split(blocks: Sequence[tuple[int, int]],
+                 runs: Sequence[tuple[int, int]] | None = None
+                 ) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """Two halves of the blocks, each like a repeat recording of the whole.
+
+    Within each run the blocks in time order are cut into a first and a second half, so a
+    record of one run splits into its earlier and its later half (a drift between them
+    shows). A run's middle block (an odd count, a run of one block) goes to the two sides
+    in turn: a WPILib SysId log of two ramps and two step tests gives each half a ramp
+    each way and one step test, where cutting the record at its middle left one half
+    with ramps only, and so without the acceleration (kA) that only steps show.
+    """
+    runs = list(runs) if runs else [(min(a for a, _ in blocks), max(b for _, b in blocks))] \
+        if blocks else []
+    first: list[tuple[int, int]] = []
+    second: list[tuple[int, int]] = []
+    turn = 0
+    for lo, hi in runs:
+        own = sorted(b for b in blocks if lo <= b[0] < hi)
+        k = len(own) // 2
+        first += own[:k]
+        second += own[len(own) - k:]
+        if len(own) % 2:
+            (first if turn % 2 == 0 else second).append(own[k])
+            turn += 1
+    return sorted(first), sorted(second)
 
 
 def _halves(prob: SimulationProblem, z: np.ndarray, blocks: Sequence[tuple[int, int]],
             say: Callable[[str], object]) -> tuple[np.ndarray, np.ndarray] | None:
-    first, second = halves_split(blocks)
+    first, second = halves_split(blocks, prob.rec.segment_ranges)
     if not first or not second:
         return None
     say(f'simulation error: refitting on each half ({len(first)} and {len(second)} '
