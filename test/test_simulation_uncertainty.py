@@ -105,7 +105,9 @@ def test_emps_halves_agree_within_the_error_bars_each_reports():
     each from the same equation-error start: every parameter and friction level each
     half reports with an error bar agrees with the other half's within 3 combined
     standard deviations (before the halves' floor, the model-only error bars missed
-    the load torque and the Coulomb asymmetry by 4-5 of them)."""
+    the load torque and the Coulomb asymmetry by 4-5 of them; largest z now 2.5, the
+    extra viscous friction of negative motion). The load and the Coulomb level are not
+    determined apart once the friction is asymmetric: only Fc+ and Fc- are."""
     from motor_id.data.importers import load_emps
     rec = load_emps(EMPS)
     start = SavedModel('torque', {'J': 95.13, 'B': 203.4},
@@ -114,7 +116,7 @@ def test_emps_halves_agree_within_the_error_bars_each_reports():
     n = len(rec)
     a, b = (simulation_stage(part, start, 20)['estimates']
             for part in (rec.slice(0, n // 2), rec.slice(n // 2, n)))
-    checked = 0
+    checked = set()
     for group in ('parameters', 'friction'):
         ea = a[group] if group == 'parameters' else {e['name']: e for e in a[group]}
         eb = b[group] if group == 'parameters' else {e['name']: e for e in b[group]}
@@ -124,5 +126,13 @@ def test_emps_halves_agree_within_the_error_bars_each_reports():
                 continue
             z = abs(x['value'] - y['value']) / math.hypot(x['std'], y['std'])
             assert z < 3, (name, x, y)
-            checked += 1
-    assert checked >= 8
+            checked.add(name)
+    assert {'J', 'B', 'Fc+', 'Fc-', 'Fv+', 'Fv-'} <= checked, checked
+    for est in (a, b):
+        # with asymmetric Coulomb levels and no static level a constant load slides
+        # along a line that changes nothing simulated: reported, not determined
+        if 'asymmetric_friction.dT_c' in est['parameters'] and \
+                'stiction.T_s' not in est['parameters'] and \
+                'stribeck_friction.T_s' not in est['parameters']:
+            assert est['parameters']['load_torque.T_L']['std'] is None
+            assert not est['parameters']['coulomb_friction.T_c']['determined']

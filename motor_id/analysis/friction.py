@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+from motor_id.effects import EFFECTS
+
 
 def friction_summary(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]],
                      input_kind: str) -> dict[str, float] | None:
@@ -23,3 +25,18 @@ def friction_summary(params: Mapping[str, float], effects: Mapping[str, Mapping[
     if 'stribeck_friction' in effects:
         out['v_stribeck'] = effects['stribeck_friction']['v_s']
     return out
+
+
+def folded_load(effects: Mapping[str, Mapping[str, float]]) -> bool:
+    """A constant load is not separable from asymmetric Coulomb levels.
+
+    Moving, the axis feels ``T_c + T_L`` forward and ``T_c + dT_c - T_L`` backward; at
+    rest it breaks away at the same two levels. Only ``Fc+`` and ``Fc-`` are determined,
+    and ``(T_c, dT_c, T_L)`` can slide along a line that changes nothing simulated,
+    unless a static level (stiction, Stribeck friction: break-away at ``T_s +- T_L``)
+    tells the load apart.
+    """
+    static = any(e in EFFECTS and 'T_s' in {q.name for q in EFFECTS[e].params}
+                 for e in effects)
+    return {'coulomb_friction', 'asymmetric_friction', 'load_torque'} <= set(effects) \
+        and not static

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from motor_id.analysis.frames import held_channels
-from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.friction import folded_load, friction_summary
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.identify.validation import initial_state_at, SavedModel
 from motor_id.model import EFFECTS, MECHANICAL_PARAMS
@@ -71,13 +71,16 @@ class SimCandidate:
     heldout_cost: float = math.inf
     nfev: int = 0
     failed: str = ''
+    polished_from: str = ''
+    """A larger candidate this one was refitted from (:func:`_polish`), if any."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
         return {'name': self.name, 'parameters': self.parameters, 'effects': self.effects,
                 'train_rmse': self.train_rmse, 'heldout_rmse': self.heldout_rmse,
                 'heldout_cost': _finite(self.heldout_cost), 'nfev': self.nfev,
-                **({'failed': self.failed} if self.failed else {})}
+                **({'failed': self.failed} if self.failed else {}),
+                **({'polished_from': self.polished_from} if self.polished_from else {})}
 
 
 def _finite(v: float) -> float | None:
@@ -293,7 +296,9 @@ class SimulationProblem:
 
 def free_names(model: SavedModel, rec: Recording) -> list[str]:
     """Parameters the stage fits: the plant's (R_m stays as given) and every continuous
-    parameter of the dynamic effects."""
+    parameter of the dynamic effects, but a constant load that asymmetric Coulomb levels
+    fold in (:func:`.friction.folded_load`: held at its start, the friction levels
+    carry it)."""
     names = list(MECHANICAL_PARAMS) if model.input_kind == 'torque' else list(VOLTAGE_FIT)
     if model.input_kind == 'voltage' and not rec.has_current:
         # speed alone sees the three coefficients of b0 / (s^2 + a1 s + a0); K_T held as
@@ -301,12 +306,13 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
         # too would pin kV = K_b + R_m B / K_T above K_b: an equation-error K_b too
         # high would be out of reach)
         names = ['J', 'B', 'L_m', 'K_b']
+    held = {'load_torque.T_L'} if folded_load(model.effects) else set()
     for e, vals in model.effects.items():
         spec = EFFECTS[e]
         if spec.category != 'dynamic':
             continue
         for p in spec.params:
-            if p.spacing != 'integer' and p.name in vals:
+            if p.spacing != 'integer' and p.name in vals and f'{e}.{p.name}' not in held:
                 names.append(f'{e}.{p.name}')
     return names
 
@@ -415,23 +421,32 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     cands: list[SimCandidate] = []
     best: tuple[SimCandidate, np.ndarray, SimulationProblem] | None = None
     gain_needed = (1.0 - min_gain) ** 2    # on the squared error
-    base_cost = math.inf
     helpful: list[str] = []
     singles: list[tuple[str, ...]] = [(e,) for e in refinements(model, rec)]
+    single_costs: dict[str, float] = {}
+    fitted: dict[tuple[str, ...], tuple[float, dict[str, float]]] = {}
+    """Per family fitted so far: its held-out cost and its values by free name."""
+    best_family: tuple[str, ...] = ()
     for stage in ('base', 'singles', 'pairs'):
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
         for extra in families:
-            cand, z, prob = _fit_family(setup, model, extra)
+            cand, z, prob = _fit_family(setup, model, extra, _warm_start(fitted, extra))
             cands.append(cand)
             if cand.failed or not math.isfinite(cand.heldout_cost):
                 continue
-            if stage == 'base':
-                base_cost = cand.heldout_cost
-            elif stage == 'singles' and cand.heldout_cost < gain_needed * base_cost:
-                helpful.append(extra[0])
+            fitted[extra] = (cand.heldout_cost, dict(zip(prob.free, z, strict=True)))
+            if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
+                best = _polish(setup, best, cand, z, prob)
+                fitted[best_family] = (best[0].heldout_cost,
+                                       dict(zip(best[2].free, best[1], strict=True)))
+            if stage == 'singles':
+                single_costs[extra[0]] = cand.heldout_cost
             if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
-                best = (cand, z, prob)
+                best, best_family = (cand, z, prob), extra
+        if stage == 'singles':   # judged against the base as polished by them all
+            helpful = [e for e, c in single_costs.items()
+                       if c < gain_needed * cands[0].heldout_cost]
     out: dict[str, Any] = {
         'method': 'least squares on the simulation error of each block, simulated from '
         'the input alone from a state set by its first samples',
@@ -482,6 +497,57 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
     return out
 
 
+def _warm_start(fitted: Mapping[tuple[str, ...], tuple[float, dict[str, float]]],
+                extra: tuple[str, ...]) -> dict[str, float]:
+    """Start values for the family ``extra`` from the fitted families it contains (the
+    base, and for a pair each of its effects alone), the best fitted last so its values
+    win: a larger model starts no worse than the best smaller one found, where every
+    family started from the equation-error values and a refinement could end above the
+    model it refines."""
+    nested = [f for f in fitted if set(f) < set(extra)]
+    out: dict[str, float] = {}
+    for f in sorted(nested, key=lambda f: -fitted[f][0]):
+        out.update(fitted[f][1])
+    return out
+
+
+def _polish(setup: StageSetup, best: tuple[SimCandidate, np.ndarray, SimulationProblem],
+            cand: SimCandidate, z: np.ndarray, prob: SimulationProblem
+            ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
+    """``best`` refitted from where ``cand``, a model that contains it, ended.
+
+    With dry friction the simulation error is only piecewise smooth, and a fit stops at
+    a point that depends on its path: a candidate can beat the model it refines with an
+    extra parameter that does nothing (a static level below the Coulomb level), because
+    its other parameters took a better path. Refitted from the candidate's values of the
+    parameters they share, the smaller model shows what the path was worth; the gain
+    that remains is the effect's. The refit replaces ``best`` only where it is better.
+    """
+    b_cand, b_z, b_prob = best
+    if not set(b_cand.name.split('+')) < set(cand.name.split('+')):
+        return best
+    where = dict(zip(prob.free, z, strict=True))
+    z0 = np.array([where.get(n, v) for n, v in zip(b_prob.free, b_z, strict=True)])
+    setup.say(f'simulation error: refitting {b_cand.name} from where {cand.name} ended')
+    try:
+        with np.errstate(all='ignore'):
+            z1, nfev = b_prob.fit(setup.train, z0)
+            score_on = setup.held or setup.train
+            cost = float(np.mean(b_prob.residuals(z1[None, :], score_on) ** 2))
+    except FIT_ERRORS:
+        return best
+    if not cost < b_cand.heldout_cost:
+        return best
+    b_cand.parameters, b_cand.effects = b_prob.to_model(z1)
+    b_cand.train_rmse = b_prob.rmse(z1, setup.train)
+    if setup.held:
+        b_cand.heldout_rmse = b_prob.rmse(z1, setup.held)
+    b_cand.heldout_cost = cost
+    b_cand.nfev += nfev
+    b_cand.polished_from = cand.name
+    return b_cand, z1, b_prob
+
+
 def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandidate
                   ) -> SimCandidate:
     """The chosen model fitted on every sample as logged, scored on the held-out fresh
@@ -502,10 +568,12 @@ def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandida
     return cand
 
 
-def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
+def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
+                warm: Mapping[str, float] | None = None
                 ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
-    """``model`` plus the refinements ``extra`` fitted on the training blocks, scored on
-    the held-out ones."""
+    """``model`` plus the refinements ``extra`` fitted on the training blocks (from the
+    values ``warm`` by free name where given, else the model's and the refinements'
+    no-change starts), scored on the held-out ones."""
     rec = setup.rec
     u_max = float(np.max(np.abs(rec.input)))
     scale = u_max if model.input_kind == 'torque' else \
@@ -519,13 +587,14 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
     prob = SimulationProblem(rec, m, setup.init_samples, free_names(m, rec), setup.fresh)
     setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
     cand = SimCandidate(name, {}, {})
-    z = prob.start()
+    z = np.array([(warm or {}).get(n, v) for n, v in zip(prob.free, prob.start(),
+                                                          strict=True)])
     try:
         with np.errstate(all='ignore'):
             if 'input_delay' in extra:
-                prob, z, cand.nfev = _profile_delay(prob, setup.train)
+                prob, z, cand.nfev = _profile_delay(prob, setup.train, z)
             else:
-                z, cand.nfev = prob.fit(setup.train)
+                z, cand.nfev = prob.fit(setup.train, z)
             cand.parameters, cand.effects = prob.to_model(z)
             cand.train_rmse = prob.rmse(z, setup.train)
             score_on = setup.held or setup.train
@@ -556,8 +625,8 @@ def _with_delay(prob: SimulationProblem, d: float) -> SimulationProblem:
     return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
 
 
-def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]]
-                   ) -> tuple[SimulationProblem, np.ndarray, int]:
+def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
+                   z0: np.ndarray | None = None) -> tuple[SimulationProblem, np.ndarray, int]:
     """The delay by profile: the model refitted (briefly) at each delay of a coarse grid,
     then at the neighbours of the best, then fully at the best.
 
@@ -575,7 +644,7 @@ def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]]
         if d in tried:
             return
         p = _with_delay(prob, d)
-        z, n = p.fit(blocks, max_nfev=PROFILE_NFEV)
+        z, n = p.fit(blocks, z0, max_nfev=PROFILE_NFEV)
         nfev += n
         tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
 

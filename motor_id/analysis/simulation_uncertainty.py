@@ -37,7 +37,7 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.friction import folded_load, friction_summary
 from motor_id.effects import EFFECTS
 from motor_id.identify.uncertainty import combine, robust_covariance
 
@@ -247,6 +247,17 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
         if not entry['determined']:
             entry['std'] = None
         params[name] = entry
+    if folded_load(prob.model.effects):
+        for name in ('coulomb_friction.T_c', 'asymmetric_friction.dT_c'):
+            if name in params and params[name]['determined']:
+                params[name].update(determined=False, std=None, note=(
+                    'only as Fc+ and Fc- (see friction): a constant load folds into them'))
+        params['load_torque.T_L'] = {
+            'value': prob.model.effects['load_torque']['T_L'], 'std': None,
+            'std_model': None, 'determined': False,
+            'note': 'held at the equation-error value: a constant load and asymmetric '
+            'Coulomb levels act alike (only Fc+ = T_c + T_L and Fc- = T_c + dT_c - T_L '
+            'are determined)'}
     for name in ('K_T',) if speed_only else ():
         params[name] = {'value': prob.model.parameters[name], 'std': None,
                         'std_model': None, 'determined': False,
