@@ -124,9 +124,10 @@ def estimate_level_false_alarms(spec, drift_rows, fleet_rows, n_motors, seed=5):
     from dataclasses import replace
 
     from motor_id.fleet.drift import DriftRule
+    from motor_id.model import PARAM_NAMES
     from motor_id.testing.fleet_gen import motor_truths
     rel = {}
-    for p in ('J', 'K_T', 'B', 'L_m', 'R_m'):
+    for p in (p for p in PARAM_NAMES if p != 'K_b'):   # K_b = K_T in the generator
         v = [r[f'{p}_std'] / r[p] for r in fleet_rows if r.get(p) and r.get(f'{p}_std')]
         rel[p] = float(np.median(v)) if v else 0.0
     big = replace(spec, robots=n_motors // len(spec.motors), drifts=(), days=spec.days)
@@ -277,5 +278,4 @@ def main(argv=None):
 
 
 if __name__ == '__main__':
-    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     sys.exit(main())

@@ -29,6 +29,7 @@ def rows_counter_client(domain):
     from std_msgs.msg import Float64MultiArray
     from std_srvs.srv import Trigger
 
+    from motor_id.contracts import SEQ
     from motor_id.nodes import messages
     from motor_id.testing.client import RosClient
 
@@ -61,7 +62,7 @@ def rows_counter_client(domain):
                     self.first_rx = time.monotonic()
                 self.rows += rows.shape[0]
                 self.batches += 1
-                seq = rows[:, 0].astype(np.int64)
+                seq = rows[:, SEQ].astype(np.int64)
                 if self.seq_first is None:
                     self.seq_first = int(seq[0])
                 elif seq[0] != self.seq_last + 1:

@@ -26,6 +26,7 @@ from rosproc import (
     wait_for,
 )
 
+from motor_id.identify.space import VOLTAGE_FREE
 from motor_id.model import MotorParams, PAPER_MOTOR
 
 TITLE = 'Streaming: card-sim -> driver -> identifier at 1 kHz'
@@ -157,7 +158,7 @@ def _identify_calls(client, procs, t0, calls_at):
                       'response_s': t_resp - t_call,
                       'estimate_s': (t_est - t_call) if t_est else None,
                       'message': resp.message.splitlines()[0] if resp.message else '',
-                      'estimate': {k: num(est, k) for k in ('J', 'K_T', 'K_b', 'B', 'L_m')}})
+                      'estimate': {k: num(est, k) for k in VOLTAGE_FREE}})
     return calls, cpu_idle
 
 

@@ -46,6 +46,8 @@ FLAG_NAMES = {FLAG_CURRENT: 'current', FLAG_PROFILE: 'profile',
 # Topics (relative names: they land under the node's namespace).
 SAMPLES_TOPIC = 'samples'
 CHANNEL_TOPICS = ('voltage', 'speed', 'current')
+CHANNEL_COLUMNS = dict(zip(CHANNEL_TOPICS, (INPUT, SPEED, CURRENT), strict=True))
+"""The sample column each channel topic carries."""
 JOINT_STATES_TOPIC = 'joint_states'
 VOLTAGE_COMMAND_TOPIC = 'voltage_command'
 DIAGNOSTICS_TOPIC = '/diagnostics'
@@ -77,8 +79,45 @@ UNITS = {
     'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad',
 }
 """SI units of the parameters and channels of a voltage plant."""
-TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N m (or N)'}
+TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N m (or N)',
+                'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'}
 """Units that differ for a torque- (or force-) input plant."""
+
+
+def units_of(input_kind: str = 'voltage') -> dict[str, str]:
+    """SI units by parameter (and channel) name for a ``voltage`` or ``torque`` plant."""
+    units = dict(UNITS)
+    if input_kind == 'torque':
+        units.update(TORQUE_UNITS)
+    return units
+
+
+def channel_units(input_kind: str = 'voltage', linear: bool = False,
+                  position: bool = False) -> dict[str, str]:
+    """Units of a recording's channels by sample column name (a bag's ``meta['units']``).
+
+    Parameters
+    ----------
+    input_kind : {'voltage', 'torque'}
+        The input is a voltage [V], or a torque [N m] (a force [N] on a linear axis).
+    linear : bool
+        A linear axis: speed in m/s (and position in m).
+    position : bool
+        Add the unit of a measured position.
+
+    Returns
+    -------
+    dict
+        ``t``, ``voltage`` (the input column), ``speed``, ``current``, ``flags`` [and
+        ``position``].
+    """
+    force = 'N' if linear else 'N m'
+    units = {'t': UNITS['time'], 'voltage': UNITS['input'] if input_kind == 'voltage' else force,
+             'speed': 'm/s' if linear else UNITS['speed'], 'current': UNITS['current'],
+             'flags': '1'}
+    if position:
+        units['position'] = 'm' if linear else 'rad'
+    return units
 
 
 def profile_span(flags: ArrayLike) -> tuple[int, int] | None:

@@ -9,6 +9,8 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
+from motor_id.contracts import channel_units
+
 if TYPE_CHECKING:
     from motor_id.identify.result import IdentificationResult
 
@@ -83,7 +85,7 @@ def _plot_outputs(result: IdentificationResult, row: Any) -> None:
     pred = result.prediction
     channels = list(result.channels)
     t = pred['time']
-    units = {'speed': 'rad/s', 'current': 'A'}
+    units = channel_units()
     for k, ch in enumerate(channels[:2]):
         ax = row[k]
         ax.plot(t, pred[ch + '_measured'], lw=1.0, label='measured')

@@ -41,7 +41,8 @@ def client(request, ros_domain):
 @pytest.fixture
 def launch(tmp_path, ros_domain):
     """Start node processes (``launch(name, args, **env)``); all are ended at the end."""
-    from motor_id.testing.ros import Process, ros_env
+    from motor_id.testing.procs import Process
+    from motor_id.testing.ros import ros_env
     procs = []
 
     def start(name, args, **env):

@@ -13,9 +13,10 @@ from motor_id.analysis import (
 )
 from motor_id.analysis.candidates import _spread, CandidateFitter
 from motor_id.analysis.heldout import HeldOutSplit
+from motor_id.effects import EFFECTS, SCALES
 from motor_id.excitation import bipolar_steps, multisine
 from motor_id.identify.estimator import WIDEN
-from motor_id.model import EFFECTS, MotorParams, Plant, SCALES
+from motor_id.model import MotorParams, Plant
 from motor_id.simulate import simulate_recording
 
 SI_MOTOR = MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3)

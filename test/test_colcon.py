@@ -9,7 +9,8 @@ import time
 
 import pytest
 
-from motor_id.testing.ros import domain_id, REPO, ros_env
+from motor_id.testing.procs import domain_id
+from motor_id.testing.ros import REPO, ros_env
 
 COLCON = shutil.which('colcon') or os.path.join(os.path.dirname(sys.executable), 'colcon')
 

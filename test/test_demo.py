@@ -7,7 +7,8 @@ import sys
 
 import pytest
 
-from motor_id.testing.ros import domain_id, REPO, ros_env
+from motor_id.testing.procs import domain_id
+from motor_id.testing.ros import REPO, ros_env
 
 
 @pytest.fixture(scope='module')

@@ -16,7 +16,8 @@ from motor_id.card.profile import profile_samples
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.nodes import messages
 from motor_id.nodes.driver import PARAMETERS
-from motor_id.testing.ros import latest_status, REPO, rows_of, stop_cleanly, wait_until
+from motor_id.testing.procs import wait_until
+from motor_id.testing.ros import latest_status, REPO, rows_of, stop_cleanly
 
 DRIVER = 'motor_id: driver'
 BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)

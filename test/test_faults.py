@@ -33,8 +33,8 @@ from motor_id.excitation import make_excitation
 from motor_id.model import MotorParams, Plant
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
+from motor_id.testing.procs import domain_id, wait_until
 from motor_id.testing.ros import (
-    domain_id,
     latest_status,
     publish_samples,
     REPO,
@@ -42,7 +42,6 @@ from motor_id.testing.ros import (
     rows_of,
     samples_publisher,
     stop_cleanly,
-    wait_until,
 )
 
 DOMAIN = domain_id(__name__)

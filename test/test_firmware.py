@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from motor_id.card import protocol as pr
-from motor_id.card.simulator import VirtualCard
 from motor_id.card.stream import CommandParser
+from motor_id.card.virtual_card import VirtualCard
 from motor_id.errors import ConfigError, ProtocolError
 from motor_id.excitation import make_excitation
 

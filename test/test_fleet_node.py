@@ -9,7 +9,8 @@ from motor_id.excitation import paper_steps
 from motor_id.model import Plant
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from motor_id.testing.ros import publish_samples, stop_cleanly, wait_until
+from motor_id.testing.procs import wait_until
+from motor_id.testing.ros import publish_samples, stop_cleanly
 
 
 def _paper_rows():

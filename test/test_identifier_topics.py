@@ -84,7 +84,7 @@ def test_identifier_recovers_the_motor_from_joint_states_and_commands(client, la
     from std_srvs.srv import Trigger
 
     from motor_id.nodes import messages
-    from motor_id.testing.ros import wait_until
+    from motor_id.testing.procs import wait_until
     ident = launch('identifier', identifier_args(
         'input:=topics', f'joint_name:={JOINT}', f'align:={align}', 'window_s:=1000.0',
         'generations:=60', 'hardware_id:=robot_arm/wrist'))
@@ -130,7 +130,7 @@ def test_estimates_become_parameters_and_users_cannot_set_them(client, launch):
     from rcl_interfaces.srv import GetParameters, SetParameters
     from std_srvs.srv import Trigger
 
-    from motor_id.testing.ros import wait_until
+    from motor_id.testing.procs import wait_until
     ident = launch('identifier', identifier_args(
         'input:=topics', f'joint_name:={JOINT}', 'window_s:=1000.0', 'generations:=40'))
     ident.wait_for('identifier ready', 60.0)

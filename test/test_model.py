@@ -4,17 +4,15 @@ import numpy as np
 import pytest
 from scipy.signal import cont2discrete
 
+from motor_id.effects import EFFECTS, parse_effect_args, validate_effects
 from motor_id.errors import ConfigError
 from motor_id.model import (
     continuous_matrices,
     discretize,
-    EFFECTS,
     MotorParams,
     PAPER_MOTOR,
-    parse_effect_args,
     Plant,
     transfer_coefficients,
-    validate_effects,
 )
 
 

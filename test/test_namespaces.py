@@ -7,7 +7,7 @@ import pytest
 
 from motor_id.contracts import FLAG_PROFILE_END, FLAGS
 from motor_id.model import MotorParams
-from motor_id.testing.ros import wait_until
+from motor_id.testing.procs import wait_until
 
 MOTORS = {
     'left': MotorParams(J=0.052, K_T=0.66, K_b=0.66, B=0.002, L_m=0.0345, R_m=2.3),

@@ -10,7 +10,7 @@ from rclpy.executors import MultiThreadedExecutor, SingleThreadedExecutor
 from std_msgs.msg import Float64
 
 from motor_id.nodes.common import StopSignal, TopicWatch
-from motor_id.testing.ros import domain_id
+from motor_id.testing.procs import domain_id
 
 
 @pytest.fixture

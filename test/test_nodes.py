@@ -13,19 +13,13 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from motor_id.bag import read_recording, read_samples
-from motor_id.card.protocol import FLAG_PROFILE_END
+from motor_id.contracts import FLAG_PROFILE_END
 from motor_id.excitation import paper_steps
 from motor_id.model import MotorParams, Plant, transfer_coefficients
 from motor_id.nodes import messages
 from motor_id.simulate import simulate_recording
-from motor_id.testing.ros import (
-    latest_status,
-    publish_samples,
-    REPO,
-    rows_of,
-    stop_cleanly,
-    wait_until,
-)
+from motor_id.testing.procs import wait_until
+from motor_id.testing.ros import latest_status, publish_samples, REPO, rows_of, stop_cleanly
 
 T = np.arange(4000) * 0.01
 

@@ -392,7 +392,8 @@ def test_replay_rate_republishes_the_mapped_recording(tmp_path, rec):
     """`replay BAG --rate X` with mapping flags: a live subscriber gets the mapped rows."""
     from motor_id.nodes import messages
     from motor_id.testing.client import RosClient
-    from motor_id.testing.ros import domain_id, Process, ros_env, rows_of, wait_until
+    from motor_id.testing.procs import domain_id, Process, wait_until
+    from motor_id.testing.ros import ros_env, rows_of
     bag = write_robot_bag(tmp_path / 'live', rec.slice(0, 300), 'sqlite3')
     domain = domain_id('test_rosbag_input')
     client = RosClient(domain)

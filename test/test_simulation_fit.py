@@ -25,7 +25,7 @@ from scipy.integrate import cumulative_trapezoid
 from motor_id.analysis import DiscrepancyAnalysis
 from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.bag import BagWriter, read_recording, write_recording
-from motor_id.bag.writer import default_units
+from motor_id.contracts import channel_units
 from motor_id.errors import BagError, DataError
 from motor_id.excitation import paper_steps
 from motor_id.identify.validation import SavedModel, validate
@@ -415,7 +415,7 @@ def write_bag(path, rec, position_batches):
     """A bag of ``rec``'s samples and the given ``(seq, position)`` batches."""
     with BagWriter(path) as bag:
         bag.write_meta({'input_kind': rec.input_kind,
-                        'units': default_units(rec.input_kind)}, 0)
+                        'units': channel_units(rec.input_kind)}, 0)
         bag.write_samples(rec.sample_rows(), 1_000)
         for seq, pos in position_batches:
             bag.write_positions(seq, pos, 2_000)
@@ -444,7 +444,7 @@ def test_bag_position_with_a_wrong_layout_is_a_bag_error(tmp_path):
     rec = position_recording(n=30, seed=3)
     path = tmp_path / 'bad.mcap'
     with BagWriter(path) as bag:
-        bag.write_meta({'input_kind': 'torque', 'units': default_units('torque')}, 0)
+        bag.write_meta({'input_kind': 'torque', 'units': channel_units('torque')}, 0)
         bag.write_samples(rec.sample_rows(), 1_000)
         bag.write(POSITION_TOPIC, 'std_msgs/msg/Float64MultiArray',
                   {'layout': {'dim': [{'label': 'samples', 'size': 10, 'stride': 30},

@@ -192,7 +192,7 @@ def test_a_delay_is_implausible_when_the_speed_answers_at_once():
     motor = isim.draw_motor(rng, 'servo')
     T = 0.01
     cmd = isim.make_excitation('steps', 2000, T, 0.5 * motor.V_supply, motor.tau_m, rng)
-    from motor_id.analysis.heldout import noise_floor
+    from motor_id.metrics import noise_floor
     speed, cur, _ = isim.simulate(motor, cmd, T, {}, (0.005, 0.005), rng)
     rec = Recording(np.arange(cmd.size) * T, cmd, speed, cur, 'voltage')
     assert selection.responds_at_once(rec, noise_floor(rec.speed))

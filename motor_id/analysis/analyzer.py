@@ -25,7 +25,7 @@ from motor_id.analysis.assembly import build_report
 from motor_id.analysis.candidates import CandidateFitter, data_scales, FIT_ERRORS
 from motor_id.analysis.context import RecordContext
 from motor_id.analysis.diagnostics import map_summary, steady_state_map
-from motor_id.analysis.heldout import HeldOutSplit, noise_floor
+from motor_id.analysis.heldout import HeldOutSplit
 from motor_id.analysis.inverse_dynamics import electrical_evidence
 from motor_id.analysis.measurement import find_measurement_effects
 from motor_id.analysis.search import CandidateSearch
@@ -34,6 +34,7 @@ from motor_id.analysis.workers import FitPool
 from motor_id.effects import EFFECTS
 from motor_id.errors import ConfigError, DataError, IdentificationError
 from motor_id.identify.validation import SavedModel
+from motor_id.metrics import noise_floor
 
 if TYPE_CHECKING:
     from motor_id.analysis.report import ModelScore

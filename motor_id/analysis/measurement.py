@@ -36,7 +36,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motor_id.model import EFFECTS
+from motor_id.effects import EFFECTS
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording

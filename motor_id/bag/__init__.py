@@ -48,14 +48,13 @@ from motor_id.bag.writer import (
     COMPRESSIONS,
     DEFAULT_CHUNK_SIZE,
     DEFAULT_FLUSH_INTERVAL,
-    default_units,
     library_string,
     write_recording,
 )
 
 __all__ = [
     'bag_info', 'BagWriter', 'COMPRESSIONS', 'DEFAULT_CHUNK_SIZE', 'DEFAULT_FLUSH_INTERVAL',
-    'default_qos', 'default_units', 'DIAGNOSTIC_ARRAY', 'FLOAT64', 'FLOAT64_MULTI_ARRAY',
+    'default_qos', 'DIAGNOSTIC_ARRAY', 'FLOAT64', 'FLOAT64_MULTI_ARRAY',
     'library_string', 'message_definition', 'qos_profile', 'read_any_recording', 'read_meta',
     'read_recording', 'read_samples', 'recover', 'samples_recording', 'sorted_samples',
     'STRING', 'type_hash', 'write_recording',

@@ -42,6 +42,7 @@ from motor_id.contracts import (
     SAMPLE_COLUMNS,
     SEQ,
     seq_step,
+    T,
 )
 from motor_id.errors import BagError
 from motor_id.recording import Recording
@@ -181,7 +182,7 @@ def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict
     rows, log_ns = rows[keep], log_ns[keep]
     seq = rows[:, SEQ]
     gaps = [{'after_seq': int(seq[k]), 'missing': int(seq[k + 1] - seq[k] - 1),
-             't_before': float(rows[k, 1]), 't_after': float(rows[k + 1, 1])}
+             't_before': float(rows[k, T]), 't_after': float(rows[k + 1, T])}
             for k in np.flatnonzero(seq_step(seq[:-1], seq[1:]) > 1)]
     out = {name: rows[:, j].copy() for j, name in enumerate(SAMPLE_COLUMNS)}
     out.update(log_time_ns=log_ns, gaps=gaps, duplicates=int(np.count_nonzero(~keep)))

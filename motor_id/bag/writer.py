@@ -43,9 +43,11 @@ from motor_id.contracts import (
     BAG_SAMPLES_TOPIC,
     BATCH_LABEL,
     CHANNEL_TOPICS,
+    channel_units,
     POSITION_LABEL,
     SAMPLE_COLUMNS,
     SAMPLES_LABEL,
+    SEQ,
 )
 from motor_id.errors import BagError, ConfigError
 from motor_id.recording import Recording
@@ -400,12 +402,6 @@ def _version(dist: str) -> str:
         return 'unknown'
 
 
-def default_units(input_kind: str) -> dict[str, str]:
-    """Units of the sample columns for a plant kind (rotary motor)."""
-    return {'t': 's', 'voltage': 'V' if input_kind == 'voltage' else 'N m',
-            'speed': 'rad/s', 'current': 'A', 'flags': '1'}
-
-
 def write_recording(rec: Recording, path: str | os.PathLike[str],
                     meta: dict[str, Any] | None = None, batch: int = 50, start_ns: int = 0,
                     channels: bool = False, **writer_kw: Any) -> dict[str, Any]:
@@ -443,14 +439,14 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     info = {k: v for k, v in rec.meta.items() if k not in ('bag', 'gaps')}
     info.update(meta or {})
     info['input_kind'] = rec.input_kind
-    info.setdefault('units', default_units(rec.input_kind))
+    info.setdefault('units', channel_units(rec.input_kind))
     with BagWriter(path, **writer_kw) as bag:
         bag.write_meta(info, int(start_ns))
         for k0 in range(0, n, int(batch)):
             k1 = min(n, k0 + int(batch))
             bag.write_samples(rows[k0:k1], int(log_ns[k1 - 1]))
             if rec.position is not None:
-                bag.write_positions(rows[k0:k1, 0], rec.position[k0:k1], int(log_ns[k1 - 1]))
+                bag.write_positions(rows[k0:k1, SEQ], rec.position[k0:k1], int(log_ns[k1 - 1]))
             if channels:
                 for k in range(k0, k1):
                     bag.write_channel('voltage', rec.input[k], int(log_ns[k]))

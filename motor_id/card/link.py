@@ -15,18 +15,11 @@ from typing import Any
 
 import serial
 
-from motor_id.card.protocol import (
-    Command,
-    encode_command,
-    FLAG_STARTUP,
-    MAX_FRAME,
-    OVERHEAD,
-    Reply,
-    Sample,
-)
+from motor_id.card.protocol import Command, encode_command, MAX_FRAME, OVERHEAD, Reply, Sample
 from motor_id.card.sequence import SequenceTracker
 from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
+from motor_id.contracts import FLAG_STARTUP
 from motor_id.errors import ConfigError, MotorIdError, ProtocolError
 
 GARBLED_BYTES = 4 * MAX_FRAME

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from motor_id.card.protocol import Command, Sample, SetVoltage, Stop
-from motor_id.contracts import FLAG_LIMIT
+from motor_id.contracts import channel_units, FLAG_LIMIT
 from motor_id.errors import ConfigError, MotorIdError
 
 _F32_EPS = float(np.finfo(np.float32).eps)
@@ -111,7 +111,7 @@ class Trip:
 
     def describe(self) -> str:
         """One line for people."""
-        unit = {'voltage': 'V', 'speed': 'rad/s', 'current': 'A'}[self.limit]
+        unit = channel_units()[self.limit]
         return (f'{self.limit} limit: |{self.value:.4g}| {unit} > {self.threshold:g} {unit} '
                 f'at seq {self.seq}')
 

@@ -3,7 +3,7 @@
 * :class:`VirtualCard` is the card's behaviour without any I/O: it answers commands and
   produces :class:`~motor_id.card.protocol.Sample` objects in card time. The plant is
   advanced with :func:`motor_id.simulate.simulate_batch`, the same code the fitter
-  uses, so every named effect of :data:`motor_id.model.EFFECTS` behaves identically.
+  uses, so every named effect of :data:`motor_id.effects.EFFECTS` behaves identically.
 * :class:`motor_id.card.simulator.CardSimulator` serves it on a pseudo-terminal and
   :mod:`motor_id.card.faults` corrupts its frames.
 
@@ -32,9 +32,6 @@ import numpy as np
 from motor_id.card.profile import MAX_PROFILE_SAMPLES, profile_length, profile_samples
 from motor_id.card.protocol import (
     Command,
-    FLAG_PROFILE,
-    FLAG_PROFILE_END,
-    FLAG_STARTUP,
     Ping,
     Reply,
     Sample,
@@ -43,6 +40,7 @@ from motor_id.card.protocol import (
     StartProfile,
     Stop,
 )
+from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END, FLAG_STARTUP
 from motor_id.errors import ConfigError
 from motor_id.excitation import PROFILES
 from motor_id.model import DISCRETISATIONS, Plant

@@ -6,7 +6,8 @@ import signal
 import threading
 from typing import Any
 
-from motor_id.card.simulator import CardSimulator, FaultConfig
+from motor_id.card.faults import FaultConfig
+from motor_id.card.simulator import CardSimulator
 from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.errors import ConfigError
 from motor_id.model import DISCRETISATIONS

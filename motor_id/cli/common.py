@@ -2,8 +2,9 @@
 
 from collections.abc import Iterable
 
+from motor_id.effects import parse_effect_args
 from motor_id.errors import ConfigError
-from motor_id.model import parse_effect_args, Plant
+from motor_id.model import Plant
 
 
 def plant_from_args(params_path: str | None, effect_items: Iterable[str] | None) -> Plant:

@@ -14,9 +14,9 @@ import yaml
 
 from motor_id import pipeline
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
+from motor_id.effects import EFFECTS, parse_effect_args
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
-from motor_id.model import EFFECTS, parse_effect_args
 from motor_id.report import plot_fit, write_json
 from motor_id.simulate import warm_up
 

@@ -9,6 +9,7 @@ from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.data.csv_io import write_csv
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
+from motor_id.model import DISCRETISATIONS
 from motor_id.simulate import simulate_recording
 
 
@@ -25,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="noise std as fractions of each channel's std, e.g. 0.005,0.01")
     parser.add_argument('--effect', action='append', default=[], metavar='NAME[=VALUE]',
                         help='add a named effect (repeatable), e.g. coulomb_friction=0.2')
-    parser.add_argument('--method', choices=('zoh', 'euler'), default='zoh')
+    parser.add_argument('--method', choices=DISCRETISATIONS, default='zoh')
     parser.add_argument('--no-current', action='store_true', help='omit the current column')
     parser.add_argument('--seed', type=int, default=0)
 

@@ -5,6 +5,7 @@ loops     the loop checks on the full model (margins, crossovers, closed-loop ba
 export    a design from the fit JSON, and as ROS parameters
 """
 
+from motor_id.contracts import INPUT_KINDS
 from motor_id.controller.design import (
     BANDWIDTH_RATIO,
     controller_constants,
@@ -12,7 +13,6 @@ from motor_id.controller.design import (
     CONVENTION,
     design_controller,
     FD_RELATIVE_STEP,
-    INPUT_KINDS,
     KS_SOURCES,
     SAMPLE_FRACTION,
     time_constants,

@@ -13,12 +13,14 @@ from typing import Any
 
 import numpy as np
 
-from motor_id.contracts import INPUT_KINDS
+from motor_id.contracts import INPUT_KINDS, units_of
 from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
 from motor_id.errors import ConfigError
+from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 
-VOLTAGE_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
-TORQUE_NAMES = ('J', 'B')
+VOLTAGE_NAMES = PARAM_NAMES
+TORQUE_NAMES = MECHANICAL_PARAMS
+"""The parameters a design reads, for a voltage and a torque plant (the model's names)."""
 CONVENTION = 'WPILib SysId: V = kS sgn(w) + kV w + kA dw/dt'
 KS_SOURCES = ('coulomb_friction', 'brush_drop', 'coulomb_friction+brush_drop', 'measured',
               'user')
@@ -486,13 +488,12 @@ def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, flo
         notes.insert(0, f'kS = 0: no static friction given (pass kS = {how})')
     if not has_cov:
         notes.append('no covariance given: std is null')
+    units = {k: units_of(input_kind)[k] for k in ('kS', 'kV', 'kA')}
     if input_kind == 'voltage':
-        units = {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
         speed_units = {'kp': 'A s/rad', 'ki': 'A/rad'}
         assert bandwidths[0] is not None   # a voltage plant has a current loop
         zero_ratio = bandwidths[0] / bandwidths[1]
     else:
-        units = {'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'}
         speed_units = {'kp': 'N m s/rad', 'ki': 'N m/rad'}
         zero_ratio = TORQUE_ZERO_RATIO
         notes.append('torque plant: kV = B and kA = J in input units per rad/s and per '

@@ -6,6 +6,7 @@ import os
 import numpy as np
 from numpy.typing import NDArray
 
+from motor_id.contracts import channel_units
 from motor_id.data.csv_io import read_csv
 from motor_id.data.sysid import load_sysid
 from motor_id.errors import ConfigError, DataError
@@ -122,8 +123,7 @@ def load_emps(path: str | os.PathLike[str]) -> Recording:
         'time_note': f'exact 1 ms grid; the file t deviates by <= {jitter:.2g} s',
         'gtau': gtau, 'kp': float(col['kp'][0]), 'kv': float(col['kv'][0]),
         'reference': EMPS_REFERENCE,
-        'units': {'t': 's', 'voltage': 'N', 'speed': 'm/s', 'current': 'A', 'flags': '1',
-                  'position': 'm'},
+        'units': channel_units('torque', linear=True, position=True),
         'parameter_meaning': {'J': 'moving mass M [kg]', 'B': 'viscous friction Fv [N s/m]'},
     }
     return Recording(time, force, speed, input_kind='torque', meta=meta,
@@ -224,7 +224,7 @@ def load_dunker(path: str | os.PathLike[str], motor: int = 1) -> Recording:
         'current_quantum_A': 0.0256,
         'sign_from_setpoint': int(np.count_nonzero((vel == 0) & (setvel != 0) & (cur > 0))),
         'sign_held': int(np.count_nonzero((vel == 0) & (setvel == 0) & (cur > 0))),
-        'units': {'t': 's', 'voltage': 'N m', 'speed': 'rad/s', 'current': 'A', 'flags': '1'},
+        'units': channel_units('torque'),
     }
     return Recording(t_ms * 1e-3, torque, vel, input_kind='torque', meta=meta)
 

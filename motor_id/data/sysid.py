@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.contracts import channel_units
 from motor_id.errors import DataError
 from motor_id.recording import Recording
 
@@ -124,8 +125,8 @@ def load_sysid(path: str | os.PathLike[str], joint: str | None = None) -> Record
                   'log_to_si': scale},
         'segment_names': names,
         'segment_offsets': [float(x) for x in rec.meta.get('segment_offsets', [0.0])],
-        'units': {'t': 's', 'voltage': 'V', 'speed': 'm/s' if linear else 'rad/s',
-                  'position': 'm' if linear else 'rad'},
+        'units': {k: u for k, u in channel_units('voltage', linear, position=True).items()
+                  if k not in ('current', 'flags')},
     }
     if warnings:
         rec.meta['warnings'] = warnings

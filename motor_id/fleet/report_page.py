@@ -14,6 +14,9 @@ from motor_id.fleet.drift import DriftRule
 from motor_id.fleet.history import histories, Row, UNITS
 from motor_id.model import PARAM_NAMES
 
+GLANCE = ('K_T', 'R_m', 'B')
+"""The latest values the glance table shows per motor: what drifts as a motor wears."""
+
 _CSS = """
 body{font:14px/1.4 system-ui,sans-serif;margin:1.5em;color:#222;max-width:1200px}
 h1{font-size:1.5em}h2{font-size:1.2em;margin-top:2em;border-bottom:1px solid #ccc}
@@ -136,8 +139,8 @@ def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
 def _glance_table(order: list[tuple[str, str]],
                   status: dict[tuple[str, str], dict[str, Any]],
                   counts: dict[tuple[str, str], list[Row]]) -> str:
-    head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', 'K_T', 'R_m',
-            'B', 'recordings', 'last recording', 'failed')
+    head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', *GLANCE,
+            'recordings', 'last recording', 'failed')
     out = ['<table id="glance-table" class="sortable"><thead><tr>'
            + ''.join(f'<th>{h}</th>' for h in head) + '</tr></thead><tbody>']
     for key in order:
@@ -151,7 +154,7 @@ def _glance_table(order: list[tuple[str, str]],
                  '<span class="badge ok">ok</span>')
         params = ', '.join(d['parameter'] for d in s['drifts'])
         latest = ''.join(
-            f'<td class="num">{_g(last.get(p))}</td>' for p in ('K_T', 'R_m', 'B'))
+            f'<td class="num">{_g(last.get(p))}</td>' for p in GLANCE)
         anchor = _anchor(key)
         out.append(
             f'<tr class="{cls}" data-robot="{_e(key[0])}" data-motor="{_e(key[1])}">'

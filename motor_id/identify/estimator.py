@@ -65,7 +65,7 @@ class Identifier:
         Output channels to fit; default all measured (``paper``: speed only).
     effects : dict, optional
         ``{effect: {param: value}}`` terms included in the model (from
-        :data:`motor_id.model.EFFECTS`).
+        :data:`motor_id.effects.EFFECTS`).
     free_effects : sequence of str, optional
         ``'effect.param'`` entries of ``effects`` to estimate.
     start : dict, optional

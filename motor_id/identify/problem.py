@@ -19,12 +19,14 @@ from motor_id.errors import ConfigError, DataError
 from motor_id.identify.space import ParameterSpace
 from motor_id.identify.units import InternalUnits
 from motor_id.metrics import noise_floor
+from motor_id.model import DISCRETISATIONS
 from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
 
-METHODS = ('zoh', 'euler', 'paper')
+METHODS = (*DISCRETISATIONS, 'paper')
+"""How a fit discretises the model: the model's discretisations, or the paper's Elman net."""
 FAILED_RESIDUAL = 1e6       # weighted residual given to a diverging simulation
 
 
@@ -238,7 +240,8 @@ class IdentificationProblem(ParameterSpace):
 
     def output_residuals(self, z: np.ndarray) -> np.ndarray:
         """Simulated minus measured outputs (unweighted) at search vector z."""
-        return self.simulate(self.from_z(z[None, :]))[0] - self.y
+        r: np.ndarray = self.simulate(self.from_z(z[None, :]))[0] - self.y
+        return r
 
     # ------------------------------------------------------ least squares in z
     def z_bounds(self, size: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -286,7 +289,8 @@ class IdentificationProblem(ParameterSpace):
             row = np.zeros((d, 1))
             row[j, 0] = np.exp(z[j]) / std  # d/dz of (exp(z) - mean) / std
             Jt = np.concatenate([Jt, row], axis=1)
-        return Jt.T
+        J: np.ndarray = Jt.T
+        return J
 
     def refine(self, z0: np.ndarray, weights: np.ndarray, max_nfev: int = 60) -> Any:
         """Bounded least squares (trust region) from search vector z0."""

@@ -9,13 +9,15 @@ from typing import cast
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motor_id.effects import EFFECTS
 from motor_id.errors import ConfigError
 from motor_id.ga import Bounds
 from motor_id.identify.units import InternalUnits
-from motor_id.model import EFFECTS, PARAM_NAMES, transfer_coefficients
+from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES, transfer_coefficients
 
-VOLTAGE_FREE = ('J', 'K_T', 'K_b', 'B', 'L_m')
-TORQUE_FREE = ('J', 'B')
+VOLTAGE_FREE = tuple(name for name in PARAM_NAMES if name != 'R_m')
+"""Free by default on a voltage plant: all but R_m, which is given (with a prior)."""
+TORQUE_FREE = MECHANICAL_PARAMS
 DEFAULT_BOUNDS = {
     'J': (1e-6, 10.0), 'K_T': (1e-3, 10.0), 'K_b': (1e-3, 10.0), 'B': (1e-7, 1.0),
     'L_m': (1e-5, 1.0),
@@ -217,7 +219,8 @@ class ParameterSpace:
                 if n not in start:
                     raise ConfigError(f'start values lack {n!r}')
                 vals.append(self.units.to_internal(n, start[n]))
-        return np.clip(np.array(vals, dtype=float), self.bounds.low, self.bounds.high)
+        out: np.ndarray = np.clip(np.array(vals, dtype=float), self.bounds.low, self.bounds.high)
+        return out
 
     def values_at(self, z: np.ndarray) -> dict[str, float]:
         """Full ``{name: value}`` of the physical parameters at free vector z (internal)."""

@@ -19,9 +19,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.contracts import INPUT_KINDS
+from motor_id.effects import EFFECTS
 from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
-from motor_id.model import EFFECTS, MECHANICAL_PARAMS, PARAM_NAMES
+from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
 from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
 
@@ -36,7 +37,7 @@ class SavedModel:
     source: str = ''
 
     @classmethod
-    def from_report(cls, report: dict, source: str = '', use_simulation: bool = True
+    def from_report(cls, report: dict[str, Any], source: str = '', use_simulation: bool = True
                     ) -> SavedModel:
         """Read the JSON of ``motor-id fit`` or ``motor-id analyze``.
 
@@ -81,7 +82,7 @@ class SavedModel:
         return cls(kind, params, effects, source)
 
 
-def _effects(report: dict) -> dict[str, dict[str, float]]:
+def _effects(report: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Named effects of a fit report (``effects``) or of an analyze report (the chosen
     model's effects and the speed reading)."""
     out: dict[str, dict[str, float]] = {}

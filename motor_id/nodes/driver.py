@@ -21,11 +21,12 @@ from motor_id.card.link import CardLink, SampleClock
 from motor_id.card.protocol import Sample, Stop
 from motor_id.card.session import EXTERNAL, Session
 from motor_id.card.supervisor import Limits
-from motor_id.contracts import INPUT_KINDS, JOINT_STATES_TOPIC
+from motor_id.contracts import CHANNEL_COLUMNS, channel_units, INPUT_KINDS, JOINT_STATES_TOPIC
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.excitation import PROFILES
 from motor_id.nodes import messages
-from motor_id.nodes.common import declare_parameters, ParamSpec, RCLError, run_node
+from motor_id.nodes.common import declare_parameters, ParamSpec, run_node
+from motor_id.nodes.rclshim import RCLError
 
 COMMAND_QOS = qos_profile_sensor_data
 """``voltage_command``: best effort, so reliable and best-effort publishers both match."""
@@ -168,8 +169,7 @@ class DriverNode(Node):
                            'excitation': s['excitation'], 'amplitude': s['amplitude'],
                            'seed': s['seed'], 'duration': s['duration'],
                            'sample_period': s['sample_period']},
-            'units': {'t': 's', 'voltage': 'V' if s['input_kind'] == 'voltage' else 'N m',
-                      'speed': 'rad/s', 'current': 'A'}}
+            'units': channel_units(s['input_kind'])}
         if s['meta_file']:
             try:
                 with open(s['meta_file']) as fh:
@@ -220,8 +220,7 @@ class DriverNode(Node):
                 self.link.fault('record_failed', f'recording failed: {exc}', 'error')
         self._publish(self.samples_pub, messages.rows_to_msg(rows))
         for name, pub in self.channel_pubs.items():
-            col = {'voltage': 2, 'speed': 3, 'current': 4}[name]
-            for value in rows[:, col]:
+            for value in rows[:, CHANNEL_COLUMNS[name]]:
                 if not (name == 'current' and math.isnan(value)):
                     self._publish(pub, messages.float_msg(value))
         for x in batch:

@@ -18,7 +18,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from motor_id import pipeline
-from motor_id.contracts import INPUT_KINDS
+from motor_id.contracts import INPUT_KINDS, units_of
 from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
@@ -326,7 +326,7 @@ class IdentifierNode(Node):
                       'seq_last': rec.meta['seq_last'], 't_first': float(rec.time[0]),
                       't_last': float(rec.time[-1]), 'gaps_skipped': len(snap.gaps)},
                 extra={'hardware_id': self.hardware_id,
-                       'units': messages.units_of(rec.input_kind)})
+                       'units': units_of(rec.input_kind)})
         except MotorIdError as exc:
             return self._failed(str(exc))
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:

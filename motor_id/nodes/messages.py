@@ -24,8 +24,7 @@ from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the
     REPORT_TOPIC,
     SAMPLES_DEPTH,
     SAMPLES_TOPIC,
-    TORQUE_UNITS,
-    UNITS,
+    units_of,
     VOLTAGE_COMMAND_TOPIC,
 )
 from motor_id.contracts import SAMPLE_COLUMNS as COLUMNS
@@ -135,11 +134,6 @@ def float_msg(value: float) -> Float64:
     return Float64(data=float(value))
 
 
-def string_msg(text: str) -> String:
-    """A ``std_msgs/String``."""
-    return String(data=str(text))
-
-
 def _fmt(value: Any) -> str:
     if value is None:
         return ''
@@ -165,14 +159,6 @@ def diagnostic_array(stamp: Any, statuses: Iterable[DiagnosticStatus]) -> Diagno
     msg.header.stamp = stamp
     msg.status = list(statuses)
     return msg
-
-
-def units_of(input_kind: str = 'voltage') -> dict[str, str]:
-    """SI units by parameter name for a ``voltage`` or ``torque`` plant."""
-    units = dict(UNITS)
-    if input_kind == 'torque':
-        units.update(TORQUE_UNITS)
-    return units
 
 
 def estimate_values(report: Mapping[str, Any]) -> dict[str, Any]:

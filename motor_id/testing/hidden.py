@@ -1,6 +1,6 @@
 """Seeded hidden-effect cases: a perturbed paper motor, one named effect, an excitation, noise.
 
-Each case draws, from its own seed: an effect of :data:`motor_id.model.EFFECTS` (or none),
+Each case draws, from its own seed: an effect of :data:`motor_id.effects.EFFECTS` (or none),
 a magnitude inside that effect's *detectable range*, a motor (the paper's motor with every
 parameter perturbed, K_T = K_b as SI units demand), an excitation profile and its
 amplitude. It simulates the voltage-driven motor with speed and current measured and adds
@@ -47,9 +47,10 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.effects import EFFECTS
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
-from motor_id.model import EFFECTS, MotorParams, PAPER_MOTOR, Plant
+from motor_id.model import MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
 from motor_id.simulate import on_grid, simulate_batch
 
