@@ -9,9 +9,9 @@ from typing import Any, TextIO
 from motor_id.contracts import INPUT_KINDS
 from motor_id.data.csv_io import parse_columns
 from motor_id.data.load import load_recording
-from motor_id.data.mapping import load_profile, Mapping
+from motor_id.data.mapping import load_profile, mapping_settings, PROFILE_KEYS
 from motor_id.data.shift import detect_shift, shift_input
-from motor_id.errors import ConfigError, DataError
+from motor_id.errors import DataError
 from motor_id.recording import Recording
 
 DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), a rosbag2 recording (an '
@@ -68,22 +68,11 @@ def settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """
     prof = getattr(args, 'profile', None)
     merged = load_profile(prof) if isinstance(prof, str) and prof else {}
-    for key in ('input', 'speed', 'current', 'joint', 'effort_is', 'align', 'input_kind',
-                'shift', 'columns'):
+    for key in PROFILE_KEYS:
         value = getattr(args, key, None)
         if value is not None:
             merged[key] = value
-    mapping = Mapping(input=merged.get('input'), speed=merged.get('speed'),
-                      current=merged.get('current'),
-                      joint=None if merged.get('joint') is None else str(merged['joint']),
-                      effort_is=merged.get('effort_is'), align=merged.get('align') or 'hold',
-                      input_kind=merged.get('input_kind'))
-    shift = merged.get('shift')
-    if shift is not None and (isinstance(shift, bool) or not isinstance(shift, int)):
-        raise ConfigError(f'shift must be a whole number of samples, got {shift!r}')
-    if merged.get('input_kind') not in (None, 'voltage', 'torque'):
-        raise ConfigError(f'input_kind must be voltage or torque, got '
-                          f'{merged["input_kind"]!r}')
+    mapping, shift = mapping_settings(merged, f'--profile {prof}' if prof else 'options')
     return {'columns': parse_columns(merged.get('columns')),
             'input_kind': merged.get('input_kind'), 'shift': shift, 'mapping': mapping}
 

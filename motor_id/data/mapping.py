@@ -157,6 +157,48 @@ def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     return check_keys(data, f'--profile {path}', PROFILE_KEYS)
 
 
+def mapping_settings(settings: dict[str, Any], where: str) -> tuple[Mapping, int | None]:
+    """The bag mapping and the input shift that a profile's keys describe.
+
+    The one reading of :data:`PROFILE_KEYS` (``columns`` aside): ``--profile`` with the
+    flags over it, and every motor of a fleet profile.
+
+    Parameters
+    ----------
+    settings : dict
+        Profile keys to values (missing or None: not set).
+    where : str
+        Where the settings come from, for messages.
+
+    Returns
+    -------
+    mapping : Mapping
+        ``joint`` as text (YAML reads an index as a number), ``align`` ``'hold'`` unless
+        set.
+    shift : int or None
+        Samples the input is shifted by (:func:`motor_id.data.shift.shift_input`).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``where``: a shift that is not a whole number, an unknown plant kind.
+    """
+    shift = settings.get('shift')
+    if shift is not None and (isinstance(shift, bool) or not isinstance(shift, int)):
+        raise ConfigError(f'{where}: shift must be a whole number of samples, got {shift!r}')
+    kind = settings.get('input_kind')
+    if kind is not None and kind not in INPUT_KINDS:
+        raise ConfigError(f'{where}: input_kind must be {" or ".join(INPUT_KINDS)}, got '
+                          f'{kind!r}')
+    joint = settings.get('joint')
+    mapping = Mapping(input=settings.get('input'), speed=settings.get('speed'),
+                      current=settings.get('current'),
+                      joint=None if joint is None else str(joint),
+                      effort_is=settings.get('effort_is'),
+                      align=settings.get('align') or 'hold', input_kind=kind)
+    return mapping, shift
+
+
 def check_keys(entry: Any, where: str, known: Sequence[str]) -> dict[str, Any]:
     """A profile mapping with ``-`` in keys read as ``_``; ConfigError naming ``where``
     for a non-mapping or an unknown key."""

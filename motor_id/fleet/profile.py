@@ -25,7 +25,13 @@ import json
 import math
 from typing import Any
 
-from motor_id.data.mapping import check_keys, Mapping, PROFILE_KEYS, read_yaml
+from motor_id.data.mapping import (
+    check_keys,
+    Mapping,
+    mapping_settings,
+    PROFILE_KEYS,
+    read_yaml,
+)
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 
@@ -55,9 +61,7 @@ class MotorSpec:
 
     def mapping(self) -> Mapping:
         """The bag mapping of :mod:`motor_id.data.rosbag`."""
-        return Mapping(input=self.input, speed=self.speed, current=self.current,
-                       joint=self.joint, effort_is=self.effort_is, align=self.align,
-                       input_kind=self.input_kind)
+        return mapping_settings(asdict(self), f'motor {self.name}')[0]
 
 
 @dataclass(frozen=True)
@@ -140,12 +144,9 @@ def _motor(name: str, d: dict[str, Any], where: str) -> MotorSpec:
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
                               or not math.isfinite(v) or v <= 0):
             raise ConfigError(f'{where}: {key} must be a number > 0, got {v!r}')
-    shift = d.get('shift')
-    if shift is not None and (isinstance(shift, bool) or not isinstance(shift, int)):
-        raise ConfigError(f'{where}: shift must be a whole number of samples, got {shift!r}')
     for key in ('fix', 'bounds'):
         if not isinstance(d.get(key) or {}, dict):
             raise ConfigError(f'{where}: {key} must be a mapping NAME: VALUE')
-    if d.get('joint') is not None:
-        d['joint'] = str(d['joint'])
+    mapping, _ = mapping_settings(d, where)
+    d.update(mapping.to_dict())
     return MotorSpec(name=name, **{k: v for k, v in d.items() if v is not None})
