@@ -39,7 +39,7 @@ import numpy as np
 
 from motor_id.analysis.friction import folded_load, friction_summary
 from motor_id.effects import EFFECTS
-from motor_id.identify.uncertainty import combine, robust_covariance
+from motor_id.identify.uncertainty import combine, delta_method, robust_covariance
 
 if TYPE_CHECKING:
     from motor_id.analysis.simulation_fit import SimulationProblem
@@ -168,19 +168,13 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
         params, effects = prob.to_model(zz)
         return dict(fn(params, effects) or {})
 
-    base = values(z)
-    grads = []
-    for j in range(z.size):
-        zp = z.copy()
-        zp[j] += 1e-6
-        grads.append(values(zp))
+    base, std_model = delta_method(values, z, cov)
     ha = hb = None
     if halves is not None:
         ha, hb = values(halves[0]), values(halves[1])
     out: list[dict[str, Any]] = []
     for key, val in base.items():
-        g = np.array([(up[key] - val) / 1e-6 for up in grads])
-        std = float(np.sqrt(max(g @ cov @ g, 0.0)))
+        std = std_model[key]
         entry: dict[str, Any] = {'name': key, 'value': float(val), 'std_model': std,
                                  'determined': True}
         if ha is not None and hb is not None:

@@ -8,7 +8,7 @@ a prior on R_m is one more observation, a unit row in that map.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
@@ -42,7 +42,8 @@ def noise_levels(problem: IdentificationProblem, z: np.ndarray) -> tuple[list[fl
 
 def _log_coefficients(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
     with np.errstate(all='ignore'):
-        return np.log(np.abs(np.array(list(problem.coefficients(z).values()))))
+        out: np.ndarray = np.log(np.abs(np.array(list(problem.coefficients(z).values()))))
+    return out
 
 
 def structural_jacobian(problem: IdentificationProblem, z: np.ndarray, prior: bool = True
@@ -184,7 +185,8 @@ def robust_covariance(J: np.ndarray, r: np.ndarray, Vr: np.ndarray, ids: np.ndar
     if J.shape[0] > n:
         meat += Jr[n:].T @ Jr[n:]
     Hinv = np.linalg.pinv(Jr.T @ Jr, rcond=1e-15)
-    return Vr @ (Hinv @ meat @ Hinv) @ Vr.T
+    out: np.ndarray = Vr @ (Hinv @ meat @ Hinv) @ Vr.T
+    return out
 
 
 def combine(cov_gn: np.ndarray, cov_rob: np.ndarray) -> np.ndarray:
@@ -195,7 +197,8 @@ def combine(cov_gn: np.ndarray, cov_rob: np.ndarray) -> np.ndarray:
     base, s_base = (cov_rob, s_rob) if np.all(s_rob[s_gn > 0] > 0) else (cov_gn, s_gn)
     s = np.maximum(s_gn, s_rob)
     scale = np.divide(s, s_base, out=np.zeros_like(s), where=s_base > 0)
-    return base * np.outer(scale, scale)
+    out: np.ndarray = base * np.outer(scale, scale)
+    return out
 
 
 def undetermined_directions(names: Sequence[str], Vn: np.ndarray, determined: np.ndarray,
@@ -241,6 +244,50 @@ def feedforward(v: Mapping[str, float]) -> dict[str, float]:
             'kA': (v['R_m'] * v['J'] + v['B'] * v['L_m']) / v['K_T']}
 
 
+DELTA_STEP = 1e-6
+"""Forward-difference step of :func:`delta_method` in the search coordinates."""
+
+
+def delta_method(fn: Callable[[np.ndarray], Mapping[str, float]], z: np.ndarray,
+                 cov: np.ndarray, n: int | None = None
+                 ) -> tuple[dict[str, float], dict[str, float]]:
+    """Values of ``fn`` at ``z`` and their delta-method standard deviations.
+
+    Parameters
+    ----------
+    fn : callable
+        Search coordinates to named quantities.
+    z : ndarray, shape (d,)
+        Where to evaluate (search coordinates).
+    cov : ndarray, shape (d, d)
+        Covariance of ``z``.
+    n : int, optional
+        Differentiate in the first ``n`` coordinates only (default all); the others are
+        held, their entries of the gradient are 0.
+
+    Returns
+    -------
+    values : dict
+        ``fn(z)``.
+    std : dict
+        ``sqrt(g^T cov g)`` per quantity, ``g`` its forward-difference gradient (step
+        :data:`DELTA_STEP`).
+    """
+    base = dict(fn(z))
+    ups = []
+    for j in range(z.size if n is None else n):
+        zp = z.copy()
+        zp[j] += DELTA_STEP
+        ups.append(fn(zp))
+    std = {}
+    for key, val in base.items():
+        g = np.zeros(z.size)
+        for j, up in enumerate(ups):
+            g[j] = (up[key] - val) / DELTA_STEP
+        std[key] = float(np.sqrt(max(g @ cov @ g, 0.0)))
+    return base, std
+
+
 def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.ndarray
                  ) -> list[dict[str, Any]]:
     """The transfer-function coefficients (SI), with delta-method standard errors; for a
@@ -254,21 +301,9 @@ def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.nda
                 out.update(feedforward(v))
         return out
 
-    base = values(z_best)
-    out: list[dict[str, Any]] = []
-    grads = []
-    for j in range(len(problem.free)):
-        h = 1e-6
-        zp = z_best.copy()
-        zp[j] += h
-        grads.append(values(zp))
-    for key, val in base.items():
-        g = np.zeros(z_best.size)
-        for j, up in enumerate(grads):
-            g[j] = (up[key] - val) / 1e-6
-        std = max(float(np.sqrt(max(g @ cov @ g, 0.0))), 1e-6 * abs(float(val)))
-        out.append({'name': key, 'value': float(val), 'std': std, 'determined': True})
-    return out
+    base, std = delta_method(values, z_best, cov, len(problem.free))
+    return [{'name': key, 'value': float(val), 'std': max(std[key], 1e-6 * abs(float(val))),
+             'determined': True} for key, val in base.items()]
 
 
 def at_bound(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
@@ -281,7 +316,8 @@ def at_bound(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
     lo, hi = problem.z_bounds()
     tol = AT_BOUND * (hi - lo)
     low_open = ~problem.log_mask(d) & (lo == 0.0)
-    return ((z[:d] <= lo + tol) & ~low_open) | (z[:d] >= hi - tol)
+    out: np.ndarray = ((z[:d] <= lo + tol) & ~low_open) | (z[:d] >= hi - tol)
+    return out
 
 
 def r_m_sensitivity(problem: IdentificationProblem, z: np.ndarray, weights: np.ndarray,
@@ -295,7 +331,7 @@ def r_m_sensitivity(problem: IdentificationProblem, z: np.ndarray, weights: np.n
     h = 1e-4
     up = problem.weighted_residuals(z, weights, {'R_m': r * np.exp(h)})
     down = problem.weighted_residuals(z, weights, {'R_m': r * np.exp(-h)})
-    dz = -cov @ (J.T @ ((up - down) / (2 * h)))
+    dz: np.ndarray = -cov @ (J.T @ ((up - down) / (2 * h)))
     return dz
 
 
