@@ -96,7 +96,7 @@ class Plant:
 
     params: MotorParams = field(default_factory=MotorParams)
     input_kind: str = 'voltage'
-    effects: dict = field(default_factory=dict)
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.input_kind not in INPUT_KINDS:
@@ -358,7 +358,7 @@ def _phi1(z: np.ndarray, ez: np.ndarray | None = None) -> np.ndarray:
     when already at hand."""
     ez = np.exp(z) if ez is None else ez
     with np.errstate(divide='ignore', invalid='ignore'):
-        phi = (ez - 1.0) / z
+        phi: np.ndarray = (ez - 1.0) / z
     small = np.abs(z) < 1e-4
     if small.any():
         zs = z[small]

@@ -74,7 +74,7 @@ def inductance_bound(L_m: float, R_m: float, period: float, noise: float) -> flo
     return limit if L_m < limit else None
 
 
-def mark_undetermined(est: Any, reason: str, bound: dict | None = None) -> None:
+def mark_undetermined(est: Any, reason: str, bound: dict[str, Any] | None = None) -> None:
     """Turn an :class:`~motor_id.identify.result.Estimate` into "not determined"."""
     if est.value is not None:
         est.particular_value = est.value
@@ -86,7 +86,8 @@ def mark_undetermined(est: Any, reason: str, bound: dict | None = None) -> None:
         est.bound = bound
 
 
-def practical(params: dict, period: float, noise: dict, R_m: float | None) -> list[str]:
+def practical(params: dict[str, Any], period: float, noise: dict[str, Any], R_m: float | None
+              ) -> list[str]:
     """Mark parameters the record does not determine in practice; return warnings.
 
     Parameters
@@ -129,7 +130,7 @@ def practical(params: dict, period: float, noise: dict, R_m: float | None) -> li
 HINT = 'look for what the record contains that the model lacks (motor-id analyze)'
 
 
-def adequacy(fit_percent: dict, primary: str = 'speed',
+def adequacy(fit_percent: dict[str, Any], primary: str = 'speed',
              hint: str = HINT) -> tuple[bool, list[str]]:
     """``(adequate, warnings)`` from the fit % of each channel.
 

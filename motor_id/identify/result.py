@@ -51,24 +51,24 @@ class IdentificationResult:
 
     method: str
     input_kind: str
-    channels: tuple
+    channels: tuple[str, ...]
     parameters: dict[str, Estimate]
-    identifiable_combinations: list
-    undetermined_directions: list
-    identifiability: dict
-    fit: dict
-    ga: dict
-    refinement: dict
-    assumptions: dict
-    effects: dict = field(default_factory=dict)
-    prediction: dict = field(default_factory=dict, repr=False)
+    identifiable_combinations: list[dict[str, Any]]
+    undetermined_directions: list[dict[str, Any]]
+    identifiability: dict[str, Any]
+    fit: dict[str, Any]
+    ga: dict[str, Any]
+    refinement: dict[str, Any]
+    assumptions: dict[str, Any]
+    effects: dict[str, Any] = field(default_factory=dict)
+    prediction: dict[str, Any] = field(default_factory=dict, repr=False)
     seconds: float = 0.0
     resistance: dict[str, Any] | None = None
     r_m_sensitivity: dict[str, float | None] | None = None
     parameter_covariance: dict[str, Any] | None = None
     units: dict[str, Any] | None = None
     adequate: bool = True
-    warnings: list = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON shape documented in the README (extra keys beyond the contract)."""

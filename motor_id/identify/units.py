@@ -132,11 +132,13 @@ class InternalUnits:
 
     def signal(self, x: ArrayLike, quantity: str) -> np.ndarray:
         """A measured signal (time, input, speed, current) in internal units."""
-        return np.ldexp(np.asarray(x, dtype=float), -self.exponents[quantity])
+        out: np.ndarray = np.ldexp(np.asarray(x, dtype=float), -self.exponents[quantity])
+        return out
 
     def physical_signal(self, x: ArrayLike, quantity: str) -> np.ndarray:
         """An internal signal back in the data's units."""
-        return np.ldexp(np.asarray(x, dtype=float), self.exponents[quantity])
+        out: np.ndarray = np.ldexp(np.asarray(x, dtype=float), self.exponents[quantity])
+        return out
 
     def to_dict(self) -> dict[str, Any] | None:
         """JSON block, or None when nothing was rescaled."""
