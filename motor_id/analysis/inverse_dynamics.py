@@ -112,10 +112,6 @@ def _mechanical_columns(w: np.ndarray, t: np.ndarray, terms: Sequence[str]
     return cols
 
 
-ELECTRICAL_TERMS = ('resistance_drift', 'brush_drop', 'dead_zone')
-"""Voltage-side effects the electrical equation error tells apart."""
-
-
 def _heating_regressor(t: np.ndarray, i: np.ndarray, tau: float) -> np.ndarray:
     """First-order lag of i^2 from zero (a winding that starts cold) times i."""
     from scipy.signal import lfilter

@@ -171,10 +171,6 @@ class FleetTruth:
     truth: dict[tuple[str, str], list[MotorTruth]]
     profile: dict[str, Any]
 
-    def drift_of(self, robot: str, motor: str) -> list[Drift]:
-        """The drifts of one motor."""
-        return [d for d in self.spec.drifts if d.robot == robot and d.motor == motor]
-
 
 # --------------------------------------------------------------------------- physics
 def _system(p: MotorTruth) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
