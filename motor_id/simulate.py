@@ -23,6 +23,7 @@ from motor_id.errors import ConfigError
 from motor_id.model import continuous_matrices, discretize, interval_integrals, Plant
 from motor_id.simulate_kernels import (
     _kernel,
+    _linear2_kernel,
     _linear2_regular_kernel,
     _linear_kernel,
     compiled,
@@ -59,7 +60,7 @@ def warm_up() -> dict[str, Any]:
     install), in numba's user-wide cache directory; the environment variable
     ``NUMBA_CACHE_DIR`` overrides both. Any edit of that module makes numba compile once
     more. Every simulation reaches the kernels with C-contiguous arrays of fixed dtypes,
-    so each kernel has one signature and the three small simulations below cover all
+    so each kernel has one signature and the four small simulations below cover all
     of them.
     """
     t0 = time.perf_counter()
@@ -76,6 +77,7 @@ def warm_up() -> dict[str, Any]:
     with event.install_recorder('numba:compile') as recorder:
         simulate_batch(p, t[:3], u[:3])  # regular grid, no effects
         simulate_batch(p, t, u)  # irregular grid
+        simulate_batch(p, t, u, 'torque')  # a one-state plant
         simulate_batch(p, t, u, effects={'coulomb_friction': {'T_c': 0.0}})
     ours = {id(compiled(f)) for f in KERNELS}
     fresh = sum(1 for _, ev in recorder.buffer  # (time, event) pairs
@@ -246,6 +248,8 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     if not kernel_effects & set(effects) and not position:
         if n == 2 and dts.size == 1:
             X = compiled(_linear2_regular_kernel)(A, Bd, ueff, x0b)
+        elif n == 2:
+            X = compiled(_linear2_kernel)(A, Bd, idx, ueff, x0b)
         else:
             X = compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
         # state-major from the kernel: each channel is one contiguous (P, N) block

@@ -190,7 +190,27 @@ def _linear2_regular_kernel(A, Bd, u, x0):
     return out
 
 
-KERNELS = (_kernel, _linear_kernel, _linear2_regular_kernel)
+def _linear2_kernel(A, Bd, idx, u, x0):
+    """Fast path for the two-state plant on an irregular grid (a jittered log): each
+    interval's matrices by its index ``idx``; (2, P, N)."""
+    P, N = u.shape
+    out = np.empty((2, P, N))
+    for p in range(P):
+        w = x0[p, 0]
+        i = x0[p, 1]
+        for k in range(N):
+            out[0, p, k] = w
+            out[1, p, k] = i
+            if k == N - 1:
+                break
+            c = idx[k]
+            v = u[p, k]
+            w, i = (A[p, c, 0, 0] * w + A[p, c, 0, 1] * i + Bd[p, c, 0, 0] * v,
+                    A[p, c, 1, 0] * w + A[p, c, 1, 1] * i + Bd[p, c, 1, 0] * v)
+    return out
+
+
+KERNELS = (_kernel, _linear_kernel, _linear2_regular_kernel, _linear2_kernel)
 """The loops numba compiles (plain Python here; see :func:`motor_id.simulate.warm_up`)."""
 
 _COMPILED: dict[str, Any] = {}
