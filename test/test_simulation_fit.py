@@ -468,3 +468,18 @@ def test_stage_adds_coulomb_friction_the_equation_error_stage_took_for_a_load():
     other = axis_record(122)
     err = validate(SavedModel.from_report(rep), other, 20).channels['position']['rmse']
     assert err < 0.01 * np.ptp(other.position), err
+
+
+def test_a_larger_family_starts_from_the_best_fitted_family_it_contains():
+    from motor_id.analysis.simulation_fit import _warm_start
+    fitted = {(): (4.0, {'J': 1.0, 'coulomb_friction.T_c': 0.5}),
+              ('stiction',): (3.0, {'J': 2.0, 'coulomb_friction.T_c': 0.6,
+                                    'stiction.T_s': 0.9}),
+              ('asymmetric_friction',): (1.0, {'J': 3.0, 'coulomb_friction.T_c': 0.7,
+                                               'asymmetric_friction.dB': 0.1})}
+    assert _warm_start(fitted, ('stiction',)) == fitted[()][1]
+    pair = _warm_start(fitted, ('asymmetric_friction', 'stiction'))
+    # the best contained family's values win; each effect keeps its own single's values
+    assert pair == {'J': 3.0, 'coulomb_friction.T_c': 0.7, 'stiction.T_s': 0.9,
+                    'asymmetric_friction.dB': 0.1}
+    assert _warm_start({}, ('stiction',)) == {}
