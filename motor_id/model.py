@@ -12,7 +12,7 @@ Two plant kinds share this module:
   then J is a mass and B a viscous coefficient in N s/m).
 
 Every non-linear or extra physical term is a named *effect* of the catalogue
-:data:`motor_id.effects.EFFECTS` (also importable from here, as before); the simulator
+:data:`motor_id.effects.EFFECTS`; the simulator
 (card), the fitter and the discrepancy analysis all use this one catalogue.
 """
 
@@ -30,21 +30,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.contracts import INPUT_KINDS, UNITS
-from motor_id.effects import (
-    EffectParam,
-    EFFECTS,
-    EffectSpec,
-    parse_effect_args,
-    SCALES,
-    validate_effects,
-)
+from motor_id.effects import validate_effects
 from motor_id.errors import ConfigError
 from motor_id.linalg import expm
 
-__all__ = ['continuous_matrices', 'DISCRETISATIONS', 'discretize', 'EFFECTS', 'EffectParam',
-           'EffectSpec', 'interval_integrals', 'MECHANICAL_PARAMS', 'MotorParams', 'n_states',
-           'PAPER_MOTOR', 'PARAM_NAMES', 'PARAM_UNITS', 'parse_effect_args', 'Plant',
-           'SCALES', 'transfer_coefficients', 'validate_effects']
+__all__ = ['continuous_matrices', 'DISCRETISATIONS', 'discretize', 'interval_integrals',
+           'MECHANICAL_PARAMS', 'MotorParams', 'n_states', 'PAPER_MOTOR', 'PARAM_NAMES',
+           'PARAM_UNITS', 'Plant', 'transfer_coefficients']
 
 PARAM_NAMES = ('J', 'K_T', 'K_b', 'B', 'L_m', 'R_m')
 PARAM_UNITS = {name: UNITS[name] for name in PARAM_NAMES}

@@ -197,7 +197,7 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     input_kind : {'voltage', 'torque'}
     method : {'zoh', 'euler'}
     effects : dict, optional
-        ``{effect: {param: scalar or (P,) array}}`` from :data:`motor_id.model.EFFECTS`.
+        ``{effect: {param: scalar or (P,) array}}`` from :data:`motor_id.effects.EFFECTS`.
     x0 : array_like, shape (n,) or (P, n), optional
         Initial state; zeros when omitted. With ``position`` the position is the last
         state.

@@ -30,12 +30,7 @@ benchmarks."""
 EVERYWHERE = sorted(p for folder in ('motor_id', 'test', 'benchmarks')
                     for p in (ROOT / folder).rglob('*.py'))
 """Where an import must name a word's home."""
-PENDING = {
-    ('motor_id/analysis/simulation_fit.py', 'parameter names'):
-        'VOLTAGE_FIT copies identify.space.VOLTAGE_FREE',
-    ('motor_id/analysis/simulation_fit.py', 'import EFFECTS from motor_id.model'):
-        'home: motor_id.effects',
-}
+PENDING: dict[tuple[str, str], str] = {}
 """Known copies still to be removed: ``(module, what)``; the test fails once one is gone,
 so that its entry goes too."""
 

@@ -10,7 +10,7 @@ This stage starts from the analysis' chosen model and
    from a state set by its first ``init_samples`` samples (the benchmark protocol);
 2. refits the model by least squares on the blocks' simulation error of the channels the
    benchmark scores (position where it is measured; else speed and current);
-3. tries the refinements of its effects (:attr:`motor_id.model.EffectSpec.extends`:
+3. tries the refinements of its effects (:attr:`motor_id.effects.EffectSpec.extends`:
    asymmetric, Stribeck and static friction refine Coulomb friction), each fitted on the
    training blocks and judged on the held-out blocks (every third), and keeps one only
    when it cuts the held-out simulation error by ``min_gain``;
@@ -29,28 +29,23 @@ import math
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from motor_id.analysis.frames import held_channels
-from motor_id.analysis.friction import folded_load, friction_summary
+from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.simulation_problem import (
+    FIT_ERRORS,
+    free_names,
+    make_blocks,
+    sim_channels,
+    SimulationProblem,
+)
 from motor_id.analysis.simulation_uncertainty import stage_estimates
-from motor_id.identify.validation import initial_state_at, SavedModel
-from motor_id.model import EFFECTS, MECHANICAL_PARAMS
-from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
+from motor_id.effects import EFFECTS
+from motor_id.identify.validation import SavedModel
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
 
-MIN_BLOCK = 50
-"""Fewest samples of a block after its initial ones."""
-MAX_NFEV = 60
-"""Residual evaluations of one candidate's least-squares fit (each one Jacobian is one
-batched simulation of all the perturbed parameter sets)."""
-FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
-VOLTAGE_FIT = ('J', 'K_T', 'K_b', 'B', 'L_m')
-LOG_REACH = math.log(1e6)
-"""A physical parameter is simulated within this (log) distance of its start: a fit that
-drifts towards L_m = 0 meets a flat cost instead of a singular model."""
 PROFILE_POINTS = 10
 """Delays of the coarse profile (:func:`_profile_delay`)."""
 PROFILE_NFEV = 15
@@ -85,236 +80,6 @@ class SimCandidate:
 
 def _finite(v: float) -> float | None:
     return float(v) if math.isfinite(v) else None
-
-
-def sim_channels(rec: Recording) -> tuple[str, ...]:
-    """The channels the stage scores: the measured ones, position first; a speed that
-    the importer derived from the position (``meta['speed_estimate']``) is left out."""
-    if rec.has_position and 'speed_estimate' in rec.meta:
-        return ('position',) + rec.channels()[1:]
-    return (('position',) if rec.has_position else ()) + rec.channels()
-
-
-def _at_rest(rec: Recording, k: int) -> bool:
-    """The axis is at rest at sample ``k``: no input, a speed reading of zero (to a
-    millionth of its spread) and, where measured, no current."""
-    def still(x: np.ndarray) -> bool:
-        return bool(abs(x[k]) <= 1e-6 * (float(np.std(x)) or 1.0))
-
-    return bool(rec.input[k] == 0) and still(rec.speed) and \
-        (rec.current is None or still(rec.current))
-
-
-def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[int, int]]:
-    """Contiguous ``[start, stop)`` blocks inside each run, about ``n_blocks`` in all.
-
-    A run too short for a block of :data:`MIN_BLOCK` scored samples is one block.
-    """
-    runs = rec.segment_ranges
-    total = sum(b - a for a, b in runs)
-    out: list[tuple[int, int]] = []
-    for a, b in runs:
-        k = max(1, round(n_blocks * (b - a) / total))
-        k = max(1, min(k, (b - a) // (MIN_BLOCK + init_samples)))
-        edges = np.linspace(a, b, k + 1).round().astype(int)
-        out += [(int(x), int(y)) for x, y in itertools.pairwise(edges)
-                if y - x > init_samples + 1]
-    return out
-
-
-class SimulationProblem:
-    """Simulation error of a model family on the blocks of one recording."""
-
-    def __init__(self, rec: Recording, model: SavedModel, init_samples: int,
-                 free: Sequence[str], fresh: Mapping[str, np.ndarray] | None = None
-                 ) -> None:
-        self.rec = rec
-        self.model = model
-        self.n_init = init_samples
-        self.free = list(free)
-        self.channels = sim_channels(rec)
-        self.scale = {ch: float(np.std(getattr(rec, ch))) or 1.0 for ch in self.channels}
-        self.kind = model.input_kind
-        self.n_states = 1 + (model.input_kind == 'voltage') + rec.has_position
-        self.fresh = {ch: np.ones(len(rec), dtype=bool) if fresh is None or ch not in fresh
-                      else np.asarray(fresh[ch], dtype=bool) for ch in self.channels}
-        """Per channel: the samples scored (held readings: the fresh ones)."""
-        self._start = self._start_vector()
-        starts = {a for a, _ in rec.segment_ranges}
-        self._rest = {a for a in starts if _at_rest(rec, a)}
-
-    def first(self, a: int) -> int:
-        """The sample a block from ``a`` is simulated from: after its initial samples, or
-        its first sample when it opens a run at rest (at rest, the state is known from
-        that one sample, and what follows, a step's delay included, is the model's to
-        predict)."""
-        return a if a in self._rest else a + self.n_init - 1
-
-    # parameter vector <-> model
-    def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
-        """``z`` of shape (P, n) -> batch parameters and effects."""
-        theta: dict[str, Any] = dict(self.model.parameters)
-        effects: dict[str, dict[str, Any]] = {e: dict(v) for e, v in self.model.effects.items()}
-        for j, name in enumerate(self.free):
-            e, _, p = name.partition('.')
-            if p:
-                effects[e][p] = z[:, j]
-            else:   # physical parameters: log scale, within a factor 1e6 of the start
-                theta[name] = np.exp(np.clip(z[:, j], self._start[j] - LOG_REACH,
-                                             self._start[j] + LOG_REACH))
-        return theta, effects
-
-    def start(self) -> np.ndarray:
-        """The model's own values as a parameter vector."""
-        return self._start.copy()
-
-    def _start_vector(self) -> np.ndarray:
-        out = []
-        for name in self.free:
-            e, _, p = name.partition('.')
-            out.append(self.model.effects[e][p] if p else math.log(self.model.parameters[name]))
-        return np.array(out, dtype=float)
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Allowed ranges: the catalogue's for effect parameters; the physical ones are
-        free (their logs: positive values; a finite bound would change the
-        trust-region scaling of every step, and cost the fit its best minimum)."""
-        lo, hi = [], []
-        for name in self.free:
-            e, _, p = name.partition('.')
-            if p:
-                spec = {q.name: q for q in EFFECTS[e].params}[p]
-                lo.append(spec.low)
-                hi.append(spec.high)
-            else:
-                lo.append(-np.inf)
-                hi.append(np.inf)
-        return np.array(lo), np.array(hi)
-
-    def simulate(self, z: np.ndarray, blocks: Sequence[tuple[int, int]],
-                 extra: Mapping[str, Mapping[str, Any]] | None = None
-                 ) -> list[dict[str, np.ndarray]]:
-        """Per block: ``{channel: (P, n_scored)}`` simulated from the block's own start;
-        ``extra`` overrides effect parameters (arrays of shape (P,) for a batch)."""
-        z = np.atleast_2d(z)
-        P = z.shape[0]
-        theta, effects = self.unpack(z)
-        for e, vals in (extra or {}).items():
-            effects[e] = {**effects.get(e, {}), **vals}
-        maps, rest = split_input_maps(effects)
-        ueff = apply_input_maps(self.rec.input, maps, P)
-        out = []
-        pos = self.rec.has_position
-        for a, b in blocks:
-            k0 = self.first(a)
-            x0 = np.broadcast_to(initial_state_at(self.rec, k0, k0 - a + 1, self.kind,
-                                                  theta, pos), (P, self.n_states))
-            sim = simulate_batch(theta, self.rec.time[k0:b], np.ascontiguousarray(
-                ueff[:, k0:b]), self.kind, 'zoh', rest, x0, position=pos)
-            out.append({ch: sim[ch][:, 1:] for ch in self.channels})
-        return out
-
-    def residuals(self, z: np.ndarray, blocks: Sequence[tuple[int, int]],
-                  extra: Mapping[str, Mapping[str, Any]] | None = None) -> np.ndarray:
-        """Scaled simulation errors at the scored samples, shape (P, M) (rows in the
-        order of :meth:`layout`); a diverging member gets large ones."""
-        sims = self.simulate(z, blocks, extra)
-        parts = []
-        for (a, b), sim in zip(blocks, sims, strict=True):
-            k0 = self.first(a)
-            for ch in self.channels:
-                keep = self.fresh[ch][k0 + 1:b]
-                y = getattr(self.rec, ch)[k0 + 1:b][keep]
-                parts.append((sim[ch][:, keep] - y[None, :]) / self.scale[ch])
-        r = np.concatenate(parts, axis=1)
-        return np.where(np.isfinite(r), r, 1e3)
-
-    def layout(self, blocks: Sequence[tuple[int, int]]
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per residual row: its block, channel (index into ``channels``) and sample."""
-        blk, chan, samp = [], [], []
-        for i, (a, b) in enumerate(blocks):
-            k0 = self.first(a)
-            for c, ch in enumerate(self.channels):
-                k = np.arange(k0 + 1, b)[self.fresh[ch][k0 + 1:b]]
-                blk.append(np.full(k.size, i))
-                chan.append(np.full(k.size, c))
-                samp.append(k)
-        return np.concatenate(blk), np.concatenate(chan), np.concatenate(samp)
-
-    def rmse(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> dict[str, float]:
-        """Per channel RMSE [SI] over the scored samples of ``blocks``."""
-        sims = self.simulate(z, blocks)
-        out = {}
-        for ch in self.channels:
-            err = np.concatenate([sim[ch][0] - getattr(self.rec, ch)[self.first(a) + 1:b]
-                                  for (a, b), sim in zip(blocks, sims, strict=True)])
-            out[ch] = float(np.sqrt(np.mean(err ** 2)))
-        return out
-
-    def fit(self, blocks: Sequence[tuple[int, int]], z0: np.ndarray | None = None,
-            max_nfev: int = MAX_NFEV) -> tuple[np.ndarray, int]:
-        """Least squares on the simulation error of ``blocks``; ``(z, nfev)``."""
-        z0 = self.start() if z0 is None else z0
-        lo, hi = self.bounds()
-        z0 = np.clip(z0, lo, hi)
-
-        def fun(z: np.ndarray) -> np.ndarray:
-            return self.residuals(z[None, :], blocks)[0]
-
-        def jac(z: np.ndarray) -> np.ndarray:
-            return self.jacobian(z, blocks)
-
-        if not self.free:
-            return z0, 0
-        sol = least_squares(fun, z0, jac=jac, bounds=(lo, hi), x_scale='jac',
-                            max_nfev=max_nfev, method='trf')
-        return sol.x, int(sol.nfev)
-
-    def jacobian(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
-        """Forward-difference Jacobian of :meth:`residuals` (one batched simulation)."""
-        _, hi = self.bounds()
-        steps = 1e-4 * np.maximum(np.abs(z), 1e-3)
-        steps = np.where(np.isin(np.arange(z.size), self.physical_indices()), 1e-4, steps)
-        zz = np.repeat(z[None, :], z.size + 1, axis=0)
-        h = np.where(z + steps <= hi, steps, -steps)
-        zz[1:] += np.diag(h)
-        r = self.residuals(zz, blocks)
-        return ((r[1:] - r[0]) / h[:, None]).T
-
-    def physical_indices(self) -> list[int]:
-        return [j for j, n in enumerate(self.free) if '.' not in n]
-
-    def to_model(self, z: np.ndarray) -> tuple[dict[str, float], dict[str, dict[str, float]]]:
-        """SI parameters and effects of ``z``."""
-        theta, effects = self.unpack(np.atleast_2d(z))
-        params = {k: float(np.ravel(v)[0]) for k, v in theta.items()}
-        effs = {e: {p: float(np.ravel(v)[0]) for p, v in vals.items()}
-                for e, vals in effects.items()}
-        return params, effs
-
-
-def free_names(model: SavedModel, rec: Recording) -> list[str]:
-    """Parameters the stage fits: the plant's (R_m stays as given) and every continuous
-    parameter of the dynamic effects, but a constant load that asymmetric Coulomb levels
-    fold in (:func:`.friction.folded_load`: held at its start, the friction levels
-    carry it)."""
-    names = list(MECHANICAL_PARAMS) if model.input_kind == 'torque' else list(VOLTAGE_FIT)
-    if model.input_kind == 'voltage' and not rec.has_current:
-        # speed alone sees the three coefficients of b0 / (s^2 + a1 s + a0); K_T held as
-        # found sets the scale, and J, B, L_m, K_b reach every (b0, a1, a0) (K_b held
-        # too would pin kV = K_b + R_m B / K_T above K_b: an equation-error K_b too
-        # high would be out of reach)
-        names = ['J', 'B', 'L_m', 'K_b']
-    held = {'load_torque.T_L'} if folded_load(model.effects) else set()
-    for e, vals in model.effects.items():
-        spec = EFFECTS[e]
-        if spec.category != 'dynamic':
-            continue
-        for p in spec.params:
-            if p.spacing != 'integer' and p.name in vals and f'{e}.{p.name}' not in held:
-                names.append(f'{e}.{p.name}')
-    return names
 
 
 def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:

@@ -42,7 +42,7 @@ from motor_id.effects import EFFECTS
 from motor_id.identify.uncertainty import combine, delta_method, robust_covariance
 
 if TYPE_CHECKING:
-    from motor_id.analysis.simulation_fit import SimulationProblem
+    from motor_id.analysis.simulation_problem import SimulationProblem
 
 RANK_TOL = 1e-7
 """Singular-value ratio of the column-scaled weighted Jacobian below which a direction
