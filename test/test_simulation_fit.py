@@ -483,3 +483,16 @@ def test_a_larger_family_starts_from_the_best_fitted_family_it_contains():
     assert pair == {'J': 3.0, 'coulomb_friction.T_c': 0.7, 'stiction.T_s': 0.9,
                     'asymmetric_friction.dB': 0.1}
     assert _warm_start({}, ('stiction',)) == {}
+
+
+def test_stage_on_two_processes_gives_what_it_gives_on_one():
+    # the candidates of a step are fitted from the same warm starts whatever the number
+    # of processes, so the report is the same, to the bit
+    import json
+    rec = axis_record(21).slice(0, 3000)
+    start = SavedModel('torque', {'J': 2.5, 'B': 13.0}, {'coulomb_friction': {'T_c': 2.0}},
+                       'start')
+    one, two = (json.dumps(simulation_stage(rec, start, init_samples=20, jobs=j),
+                           sort_keys=True, default=str) for j in (1, 2))
+    assert one == two
+    assert '"chosen": "coulomb_friction' in one

@@ -260,7 +260,8 @@ class DiscrepancyAnalysis:
         if rec.has_position and self.init_samples:
             model = SavedModel.from_report(self.report_.to_dict(), use_simulation=False)
             self.report_.simulation = simulation_stage(
-                rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say)
+                rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say,
+                jobs=self.jobs)
         self.report_.seconds = time.perf_counter() - t_start
         return self
 

@@ -26,6 +26,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 import itertools
 import math
+import multiprocessing
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
@@ -40,6 +41,7 @@ from motor_id.analysis.simulation_problem import (
     SimulationProblem,
 )
 from motor_id.analysis.simulation_uncertainty import stage_estimates
+from motor_id.analysis.workers import _worker_start
 from motor_id.effects import EFFECTS
 from motor_id.identify.validation import SavedModel
 
@@ -144,7 +146,7 @@ class StageSetup:
 def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                      n_blocks: int = 6, min_gain: float = 0.05,
                      progress: Callable[[str], object] | None = None,
-                     halves: bool = True) -> dict[str, Any]:
+                     halves: bool = True, jobs: int = 1) -> dict[str, Any]:
     """Fit ``model`` and its refinements by simulation error; the JSON block.
 
     Parameters
@@ -162,6 +164,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     halves : bool
         Refit the chosen model on each half of the blocks: the spread of the two is a
         floor under its error bars (:mod:`.simulation_uncertainty`).
+    jobs : int
+        Processes for the candidate fits of one step (forked; the result is the same).
 
     Returns
     -------
@@ -195,8 +199,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     for stage in ('base', 'singles', 'pairs'):
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
-        for extra in families:
-            cand, z, prob = _fit_family(setup, model, extra, _warm_start(fitted, extra))
+        for extra, (cand, z, prob) in zip(families, _fit_families(setup, model, families,
+                                                                   fitted, jobs), strict=True):
             cands.append(cand)
             if cand.failed or not math.isfinite(cand.heldout_cost):
                 continue
@@ -333,12 +337,46 @@ def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandida
     return cand
 
 
-def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
-                warm: Mapping[str, float] | None = None
-                ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
-    """``model`` plus the refinements ``extra`` fitted on the training blocks (from the
-    values ``warm`` by free name where given, else the model's and the refinements'
-    no-change starts), scored on the held-out ones."""
+_STAGE: tuple[StageSetup, SavedModel] | None = None
+"""The stage a forked worker of :func:`_fit_families` inherited."""
+
+
+def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple[str, ...]],
+                  fitted: Mapping[tuple[str, ...], tuple[float, dict[str, float]]],
+                  jobs: int = 1) -> list[tuple[SimCandidate, np.ndarray, SimulationProblem]]:
+    """:func:`_fit_family` of each family, warm-started from ``fitted`` as it is now (so
+    the results do not depend on ``jobs``), on up to ``jobs`` forked processes."""
+    warms = [_warm_start(fitted, f) for f in families]
+    if jobs <= 1 or len(families) < 2 or 'fork' not in multiprocessing.get_all_start_methods():
+        return [_fit_family(setup, model, f, w) for f, w in zip(families, warms, strict=True)]
+    global _STAGE
+    _STAGE = (setup, model)   # inherited by the workers forked below
+    try:
+        with multiprocessing.get_context('fork').Pool(min(jobs, len(families)),
+                                                      initializer=_worker_start) as pool:
+            done = pool.map(_family_task, list(zip(families, warms, strict=True)))
+    finally:
+        _STAGE = None
+    out = []
+    for f, (cand, z) in zip(families, done, strict=True):
+        prob = _family_problem(setup, model, f)
+        d = cand.effects.get('input_delay', {}).get('d')
+        out.append((cand, z, prob if d is None else _with_delay(prob, d)))
+    return out
+
+
+def _family_task(job: tuple[tuple[str, ...], dict[str, float]]
+                 ) -> tuple[SimCandidate, np.ndarray]:
+    """A worker's task: one family of the inherited stage, fitted."""
+    if _STAGE is None:   # pragma: no cover - only reached in a forked worker
+        raise RuntimeError('a stage worker without its stage (not started by fork)')
+    cand, z, _ = _fit_family(*_STAGE, *job)
+    return cand, z
+
+
+def _family_problem(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
+                    ) -> SimulationProblem:
+    """The problem of ``model`` plus the refinements ``extra`` at their start values."""
     rec = setup.rec
     u_max = float(np.max(np.abs(rec.input)))
     scale = u_max if model.input_kind == 'torque' else \
@@ -347,9 +385,18 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
     for e in extra:   # in order: an added Coulomb friction before its refinements
         effects[e] = _start_values(e, effects, scale)
     m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
-    name = '+'.join(e for e in effects if EFFECTS[e].category == 'dynamic'
+    return SimulationProblem(rec, m, setup.init_samples, free_names(m, rec), setup.fresh)
+
+
+def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
+                warm: Mapping[str, float] | None = None
+                ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
+    """``model`` plus the refinements ``extra`` fitted on the training blocks (from the
+    values ``warm`` by free name where given, else the model's and the refinements'
+    no-change starts), scored on the held-out ones."""
+    prob = _family_problem(setup, model, extra)
+    name = '+'.join(e for e in prob.model.effects if EFFECTS[e].category == 'dynamic'
                     or e == 'input_delay') or 'linear'
-    prob = SimulationProblem(rec, m, setup.init_samples, free_names(m, rec), setup.fresh)
     setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
     cand = SimCandidate(name, {}, {})
     z = np.array([(warm or {}).get(n, v) for n, v in zip(prob.free, prob.start(),
