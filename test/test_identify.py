@@ -457,3 +457,27 @@ def test_a_hobby_motor_below_the_default_box_is_fitted_in_a_widened_box():
     fixed_box = Identifier(R_m=7.0, random_state=0, bounds={'J': (1e-6, 10.0)}).fit(rec)
     assert 'J' not in fixed_box.widened_  # a range the caller gave is never widened
     assert fixed_box.result_.to_dict()['parameters']['J']['at_bound'] is True
+
+
+def test_the_ga_searches_a_jittered_log_on_rounded_intervals_and_nothing_else():
+    from motor_id.identify.problem import IdentificationProblem, SEARCH_GRID
+    from motor_id.recording import Recording
+    from motor_id.simulate import interval_table
+    rng = np.random.default_rng(4)
+    n = 3000
+    regular = np.arange(n) * 5e-3
+    jittered = np.concatenate([[0.0], np.cumsum(5e-3 * rng.uniform(0.6, 1.4, n - 1))])
+    u = np.repeat(rng.uniform(-6.0, 6.0, n // 100), 100)
+    for t in (regular, jittered):
+        rec = Recording(t, u, np.sin(t), None, 'voltage')
+        prob = IdentificationProblem(rec, 'zoh', R_m=2.3)
+        search = prob.for_search()
+        if t is regular:
+            assert search is prob
+            continue
+        assert search is not prob and search.time is not prob.time
+        before, after = interval_table(prob.time)[0].size, interval_table(search.time)[0].size
+        assert before > 1000 and after < 100
+        ratio = np.diff(search.time) / np.diff(prob.time)
+        assert np.all(np.abs(ratio - 1) <= np.expm1(SEARCH_GRID / 2) + 1e-9)
+        assert np.array_equal(prob.y, search.y)   # the data are the same

@@ -10,6 +10,7 @@ every ordinary recording, SI over powers of two for data in extreme units.
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+import copy
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
@@ -20,7 +21,7 @@ from motor_id.identify.space import ParameterSpace
 from motor_id.identify.units import InternalUnits
 from motor_id.metrics import noise_floor
 from motor_id.model import DISCRETISATIONS
-from motor_id.simulate import simulate_runs
+from motor_id.simulate import interval_table, simulate_runs
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -28,6 +29,11 @@ if TYPE_CHECKING:
 METHODS = (*DISCRETISATIONS, 'paper')
 """How a fit discretises the model: the model's discretisations, or the paper's Elman net."""
 FAILED_RESIDUAL = 1e6       # weighted residual given to a diverging simulation
+SEARCH_MAX_INTERVALS = 16
+"""A record with more distinct interval lengths is searched on rounded ones
+(:meth:`IdentificationProblem.for_search`)."""
+SEARCH_GRID = 0.01
+"""Relative grid of the rounded interval lengths (each within half of it)."""
 
 
 def _pick_channels(rec: Recording, method: str, channels: Iterable[str] | None
@@ -202,6 +208,26 @@ class IdentificationProblem(ParameterSpace):
     def simulate(self, X: ArrayLike, overrides: Mapping[str, float] | None = None) -> np.ndarray:
         """All fitted channels side by side, shape (P, n_channels * N)."""
         return np.concatenate(self.simulate_channels(X, overrides), axis=1)
+
+    def for_search(self) -> IdentificationProblem:
+        """This problem with each time interval rounded to :data:`SEARCH_GRID` of itself
+        (on a log scale), for the GA's global search; itself on a record with few
+        distinct intervals.
+
+        A jittered log has an interval length per sample (the real SysId log: 1,217
+        distinct ones), and every one costs a discretisation of every member of the
+        population. Rounded, the log takes about a hundred, each off by at most half a
+        percent: the GA only has to find the basin. The refinement that follows, and so
+        every reported number, simulates the intervals as logged.
+        """
+        dts, _ = interval_table(self.time)
+        if dts.size <= SEARCH_MAX_INTERVALS:
+            return self
+        dt = np.diff(self.time)
+        step = np.exp(np.round(np.log(dt) / SEARCH_GRID) * SEARCH_GRID)
+        coarse = copy.copy(self)
+        coarse.time = self.time[0] + np.concatenate([[0.0], np.cumsum(step)])
+        return coarse
 
     def cost(self, X: ArrayLike) -> np.ndarray:
         """The GA's fitness: weighted mean squared output error (plus R_m's prior) per row.

@@ -42,12 +42,14 @@ def run_ga(problem: IdentificationProblem, rng: np.random.Generator,
         return None, x_start, time.perf_counter() - t_ga
     ga = GeneticAlgorithm(problem.bounds, population, generations, crossover, mutation,
                           x0=x_start, random_state=rng)
+    search = problem.for_search()   # a jittered log's intervals rounded for the GA
     while not ga.stop():
         with np.errstate(over='ignore'):  # Bounds.decode takes exp of linear genes too
             X = ga.ask()
-        ga.tell(problem.cost(X))
+        ga.tell(search.cost(X))
         if progress is not None and progress(ga.generation_, ga.generations, ga.best_cost_):
             ga.cancel()
+    problem.evaluations = search.evaluations
     if not np.isfinite(ga.best_cost_):
         raise IdentificationError('no parameter set inside the search bounds gives a '
                                   'finite simulation: check the units of the data and '
