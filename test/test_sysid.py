@@ -14,13 +14,13 @@ import sys
 import numpy as np
 import pytest
 
-from motor_id.bag import read_recording
+from motor_id.bag import BagWriter, read_recording, write_recording
 from motor_id.cli import main
 from motor_id.cli.data_args import add_data_arguments, load_runs
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import Mapping
 from motor_id.data.sysid import load_sysid, MIN_TEST_ROWS, TESTS
-from motor_id.errors import ConfigError, DataError
+from motor_id.errors import BagError, ConfigError, DataError
 from motor_id.identify.validation import SavedModel
 from motor_id.testing.sysid_log import make_sysid_log, UNITS_PER_ROTATION
 from motor_id.testing.sysid_ols import (
@@ -247,6 +247,36 @@ def test_import_writes_the_log_as_a_bag(clean_log, tmp_path, capsys):
     np.testing.assert_array_equal(back.speed, rec.speed)
     assert back.meta['segment_names'] == list(TESTS)
     assert back.meta['import_command'] == f'motor-id import sysid clean.json {out.name}'
+    # the four tests stay four runs: a fit of the bag never simulates across a boundary
+    assert back.segment_ranges == rec.segment_ranges and len(back.segment_ranges) == 4
+    assert 'runs' not in back.meta
+
+
+def test_bag_runs_survive_lost_samples_and_a_bad_layout_is_named(clean_log, tmp_path):
+    _, path = clean_log
+    rec = load_sysid(path)
+    out = tmp_path / 'log.mcap'
+    write_recording(rec, out)
+    # a bag whose first run lost its first 5 samples and whose second run lost all but
+    # its last (a recorder that dropped messages): the runs are kept by sequence number
+    (a0, b0), (a1, b1) = rec.segment_ranges[:2]
+    keep = np.ones(len(rec), dtype=bool)
+    keep[a0:a0 + 5] = False
+    keep[a1:b1 - 1] = False
+    rows = rec.sample_rows()[keep]
+    lossy = tmp_path / 'lossy.mcap'
+    with BagWriter(lossy) as bag:
+        bag.write_meta({'input_kind': 'voltage', 'runs': [list(r) for r in rec.segments]})
+        bag.write_samples(rows, 0)
+    back = read_recording(lossy)
+    sizes = [b - a for a, b in back.segment_ranges]
+    assert sizes == [b0 - a0 - 5, 1] + [b - a for a, b in rec.segment_ranges[2:]]
+    bad = tmp_path / 'bad.mcap'
+    with BagWriter(bad) as bag:
+        bag.write_meta({'input_kind': 'voltage', 'runs': [[0, 10], [5, 20]]})
+        bag.write_samples(rec.sample_rows()[:20], 0)
+    with pytest.raises(BagError, match=r'runs \[\(0, 10\), \(5, 20\)\] are not increasing'):
+        read_recording(bad)
 
 
 def test_import_of_a_drivetrain_side_and_a_bad_log(tmp_path, capsys):

@@ -300,6 +300,7 @@ def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str |
     if kind not in INPUT_KINDS:
         raise BagError(f'{path}: {BAG_META_TOPIC} input_kind must be voltage or '
                        f'torque, got {kind!r}')
+    segments = _runs(meta.pop('runs', None), samples['seq'], path)
     current = samples['current']
     current = current if np.any(np.isfinite(current)) else None
     meta['bag'] = str(path)
@@ -311,10 +312,30 @@ def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str |
         meta['flagged_rows'] = nonzero
     if note:
         meta['bag_note'] = note
-    if current is None:
-        return Recording(samples['t'], samples['voltage'], samples['speed'], input_kind=kind,
-                         meta=meta)
-    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta)
+    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta,
+                     segments)
+
+
+def _runs(runs: Any, seq: NDArray[np.float64], path: str | os.PathLike[str]
+          ) -> list[tuple[int, int]] | None:
+    """The sample ranges of the runs ``[[first_seq, end_seq], ...]`` of the metadata
+    (None: one run). A run whose samples are all missing is dropped; a run's missing
+    samples are gaps inside it, as in a single run."""
+    if runs is None:
+        return None
+    try:
+        pairs = [(int(a), int(b)) for a, b in runs]
+    except (TypeError, ValueError) as exc:
+        raise BagError(f'{path}: {BAG_META_TOPIC} runs must be [first, end) sequence '
+                       f'number pairs, got {runs!r}') from exc
+    if any(b <= a for a, b in pairs) or any(
+            b0 > a1 for (_, b0), (a1, _) in zip(pairs, pairs[1:], strict=False)):
+        raise BagError(f'{path}: {BAG_META_TOPIC} runs {pairs} are not increasing, '
+                       'non-overlapping [first, end) ranges')
+    edges = [(int(np.searchsorted(seq, a)), int(np.searchsorted(seq, b)))
+             for a, b in pairs]
+    out = [(a, b) for a, b in edges if b > a]
+    return out if len(out) > 1 else None
 
 
 def read_any_recording(path: str | os.PathLike[str]) -> Recording:

@@ -413,7 +413,8 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     path : str or Path
     meta : dict, optional
         Extra metadata merged over ``rec.meta`` into the ``/motor_id/meta`` JSON (which
-        always holds ``input_kind`` and ``units``).
+        always holds ``input_kind`` and ``units``, and ``runs``, the ``[first, end)``
+        sequence numbers of each run, for a recording of several runs).
     batch : int
         Rows per ``/samples`` message.
     start_ns : int
@@ -440,6 +441,8 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     info.update(meta or {})
     info['input_kind'] = rec.input_kind
     info.setdefault('units', channel_units(rec.input_kind))
+    if rec.segments:   # separate runs (a SysId log's tests): by sequence number
+        info['runs'] = [[int(a), int(b)] for a, b in rec.segments]
     with BagWriter(path, **writer_kw) as bag:
         bag.write_meta(info, int(start_ns))
         for k0 in range(0, n, int(batch)):
