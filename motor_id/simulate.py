@@ -11,6 +11,7 @@ quantisation).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 import functools
 import time
 from typing import Any, cast, TYPE_CHECKING
@@ -211,6 +212,93 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
         ``'speed'`` (P, N) as the sensor reports it, ``'current'`` (P, N) for a voltage
         plant, ``'position'`` (P, N) with ``position``, ``'states'`` (P, N, n).
     """
+    return discretise_batch(theta, t, input_kind, method, effects, position).run(u, x0)
+
+
+KERNEL_EFFECTS = frozenset({'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
+                            'resistance_drift', 'sensor_lag', 'asymmetric_friction',
+                            'stribeck_friction', 'stiction'})
+"""Effects the general kernel steps (the others are input or output maps)."""
+
+
+@dataclass
+class DiscretisedBatch:
+    """A batch of plants discretised on the intervals of one record: what every run of
+    the record (:func:`simulate_runs`) and every block of it shares (made by
+    :func:`discretise_batch`)."""
+
+    effects: dict[str, Any]
+    full: dict[str, np.ndarray]
+    input_kind: str
+    position: bool
+    dts: np.ndarray
+    idx: np.ndarray
+    A: np.ndarray
+    Bd: np.ndarray
+    Hm: np.ndarray
+    Hq: np.ndarray
+    n_dyn: int
+    resonance: bool
+
+    def run(self, u: ArrayLike, x0: ArrayLike | None, rows: tuple[int, int] | None = None,
+            members: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Simulate samples ``rows`` (``[a, b)``; all when None) of the record with the
+        input ``u`` of those samples, for the batch members ``members`` (all when None)."""
+        effects, full, A, Bd, Hm, Hq = (self.effects, self.full, self.A, self.Bd, self.Hm,
+                                        self.Hq)
+        if members is not None:
+            effects = {e: _take(v, members) for e, v in effects.items()}
+            full = {k: v[members] for k, v in full.items()}
+            A, Bd = A[members], Bd[members]
+            if Hm.shape[0] > 1:
+                Hm, Hq = Hm[members], Hq[members]
+        P = A.shape[0]
+        idx = self.idx if rows is None else self.idx[rows[0]:max(rows[1] - 1, rows[0])]
+        n = A.shape[3]
+        x0b = _initial_batch(x0, P, n, self.n_dyn if self.resonance else 0)
+        ueff = apply_input_maps(u, effects, P)
+        # one array layout per argument, so that each kernel has one compiled signature
+        A = np.ascontiguousarray(A)
+        Bd = np.ascontiguousarray(Bd)
+        if not KERNEL_EFFECTS & set(effects) and not self.position:
+            if n == 2 and self.dts.size == 1:
+                X = compiled(_linear2_regular_kernel)(A, Bd, ueff, x0b)
+            elif n == 2:
+                X = compiled(_linear2_kernel)(A, Bd, idx, ueff, x0b)
+            else:
+                X = compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
+            # state-major from the kernel: each channel is one contiguous (P, N) block
+            out = {'speed': _speed_reading(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
+            if self.input_kind == 'voltage':
+                out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
+            return out
+
+        def eff(name: str, key: str, default: float = 0.0) -> np.ndarray:
+            if name in effects:
+                return _as_batch(effects[name][key], P)
+            return np.full(P, default)
+
+        X, Y = compiled(_kernel)(A, Bd, idx, self.dts, ueff, x0b,
+                                 self.input_kind == 'voltage', friction_table(effects, P),
+                                 eff('load_torque', 'T_L'), eff('quadratic_load', 'k_q'),
+                                 eff('brush_drop', 'V_b'), eff('resistance_drift', 'k_h'),
+                                 eff('resistance_drift', 'tau_th', 1.0),
+                                 eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm,
+                                 Hq, n - 1 if self.position else -1)
+        out = {'speed': _speed_reading(Y, effects, P), 'states': X}
+        if self.position:
+            out['position'] = np.ascontiguousarray(X[:, :, n - 1])
+        if self.input_kind == 'voltage':
+            out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
+        return out
+
+
+def discretise_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, input_kind: str, method: str,
+                 effects: Mapping[str, Mapping[str, ArrayLike]] | None, position: bool
+                 ) -> DiscretisedBatch:
+    """The batch's plants discretised on every interval of ``t`` (effects completed
+    with their defaults), ready to :meth:`DiscretisedBatch.run` on any stretch of the
+    record: :func:`simulate_batch` on several stretches with one discretisation."""
     effects = dict(effects or {})
     for name, vals in effects.items():
         if name not in EFFECTS:
@@ -220,8 +308,7 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
             effects[name] = {**EFFECTS[name].defaults(), **vals}
     P = batch_size({**theta, **{f'{e}.{k}': v for e, d in effects.items()
                                 for k, v in d.items()}})
-    t = np.asarray(t, dtype=float)
-    dts, idx = interval_table(t)
+    dts, idx = interval_table(np.asarray(t, dtype=float))
     full = {k: _as_batch(v, P) for k, v in theta.items()}
     res = effects.get('resonance')
     res_b = {k: _as_batch(v, P) for k, v in res.items()} if res else None
@@ -230,50 +317,13 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     if position:
         F, G = with_position(F, G)
     A, Bd = discretize(F, G, dts, method)
-    n = F.shape[1]
-    x0b = _initial_batch(x0, P, n, n_dyn if res_b is not None else 0)
-    ueff = apply_input_maps(u, effects, P)
-
-    def eff(name: str, key: str, default: float = 0.0) -> np.ndarray:
-        if name in effects:
-            return _as_batch(effects[name][key], P)
-        return np.full(P, default)
-
-    kernel_effects = {'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
-                      'resistance_drift', 'sensor_lag', 'asymmetric_friction',
-                      'stribeck_friction', 'stiction'}
-    # one array layout per argument, so that each kernel has one compiled signature
-    A = np.ascontiguousarray(A)
-    Bd = np.ascontiguousarray(Bd)
-    if not kernel_effects & set(effects) and not position:
-        if n == 2 and dts.size == 1:
-            X = compiled(_linear2_regular_kernel)(A, Bd, ueff, x0b)
-        elif n == 2:
-            X = compiled(_linear2_kernel)(A, Bd, idx, ueff, x0b)
-        else:
-            X = compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
-        # state-major from the kernel: each channel is one contiguous (P, N) block
-        out = {'speed': _speed_reading(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
-        if input_kind == 'voltage':
-            out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
-        return out
-    nz = n + G.shape[2]
+    nz = F.shape[1] + G.shape[2]
     if input_kind == 'voltage' and 'resistance_drift' in effects:
         Hm, Hq = interval_integrals(F, G, dts, row=1)
     else:
         Hm, Hq = np.zeros((1, 1, nz)), np.zeros((1, 1, nz, nz))
-    X, Y = compiled(_kernel)(A, Bd, idx, dts, ueff, x0b, input_kind == 'voltage',
-                   friction_table(effects, P), eff('load_torque', 'T_L'),
-                   eff('quadratic_load', 'k_q'), eff('brush_drop', 'V_b'),
-                   eff('resistance_drift', 'k_h'), eff('resistance_drift', 'tau_th', 1.0),
-                   eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm, Hq,
-                   n - 1 if position else -1)
-    out = {'speed': _speed_reading(Y, effects, P), 'states': X}
-    if position:
-        out['position'] = np.ascontiguousarray(X[:, :, n - 1])
-    if input_kind == 'voltage':
-        out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
-    return out
+    return DiscretisedBatch(effects, full, input_kind, position, dts, idx, A, Bd, Hm, Hq, n_dyn,
+                        res_b is not None)
 
 
 def with_position(F: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -330,6 +380,8 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
     if not segments or len(segments) == 1:
         return simulate_batch(theta, t, u, input_kind, method, effects, x0)
     effects = effects or {}
+    # the plants are discretised once on every interval of the record, not once a run
+    disc = discretise_batch(theta, t, input_kind, method, effects, False)
     x0 = None if x0 is None else np.asarray(x0, dtype=float)
     n0 = None if x0 is None else x0.shape[-1] // len(segments)
     members = _member_table(theta, effects) \
@@ -342,14 +394,11 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
             _, first, inverse = np.unique(np.concatenate([members, xk], axis=1), axis=0,
                                           return_index=True, return_inverse=True)
             if first.size < xk.shape[0]:
-                part = simulate_batch(_take(theta, first), t[a:b], u[a:b], input_kind,
-                                      method, {e: _take(v, first) for e, v in effects.items()},
-                                      xk[first])
+                part = disc.run(u[a:b], xk[first], (a, b), first)
                 parts.append({c: v[inverse.ravel()] for c, v in part.items()
                               if c in ('speed', 'current')})
                 continue
-        parts.append(simulate_batch(theta, t[a:b], u[..., a:b], input_kind, method,
-                                    effects, xk))
+        parts.append(disc.run(u[..., a:b], xk, (a, b)))
     return {c: np.concatenate([p[c] for p in parts], axis=1)
             for c in ('speed', 'current') if c in parts[0]}
 

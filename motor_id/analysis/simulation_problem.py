@@ -22,7 +22,7 @@ from motor_id.effects import EFFECTS
 from motor_id.identify.space import VOLTAGE_FREE
 from motor_id.identify.validation import initial_state_at, SavedModel
 from motor_id.model import MECHANICAL_PARAMS
-from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
+from motor_id.simulate import apply_input_maps, discretise_batch, split_input_maps
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -156,12 +156,12 @@ class SimulationProblem:
         ueff = apply_input_maps(self.rec.input, maps, P)
         out = []
         pos = self.rec.has_position
+        disc = discretise_batch(theta, self.rec.time, self.kind, 'zoh', rest, pos)
         for a, b in blocks:
             k0 = self.first(a)
             x0 = np.broadcast_to(initial_state_at(self.rec, k0, k0 - a + 1, self.kind,
                                                   theta, pos), (P, self.n_states))
-            sim = simulate_batch(theta, self.rec.time[k0:b], np.ascontiguousarray(
-                ueff[:, k0:b]), self.kind, 'zoh', rest, x0, position=pos)
+            sim = disc.run(np.ascontiguousarray(ueff[:, k0:b]), x0, (k0, b))
             out.append({ch: sim[ch][:, 1:] for ch in self.channels})
         return out
 
