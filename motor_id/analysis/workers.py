@@ -20,6 +20,8 @@ import os
 import signal
 from typing import Any, TYPE_CHECKING
 
+from motor_id.effects import EFFECTS
+
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
     from motor_id.analysis.report import ModelScore
@@ -66,13 +68,28 @@ class FitPool:
         self._pool: multiprocessing.pool.Pool | None = None
 
     def map(self, tasks: Sequence[FitTask]) -> Iterator[ModelScore]:
-        """The fitted candidates of ``tasks``, in order, each as soon as it is done."""
+        """The fitted candidates of ``tasks``, in order, each as soon as it is done.
+
+        The workers take the tasks largest start grid first (a three-parameter
+        resonance costs several one-parameter effects): a long fit handed out last
+        would leave the other workers idle at the end of the step.
+        """
         if self.jobs <= 1 or len(tasks) < 2:
             for t in tasks:
                 yield self.fitter.fit(t.name, t.ref, prior=t.prior, seed=t.seed)
             return
         settings = {k: getattr(self.fitter, k) for k in SETTINGS}
-        yield from self._workers().imap(_fit, [(settings, t) for t in tasks])
+        pool = self._workers()
+        pending: dict[int, multiprocessing.pool.AsyncResult[ModelScore]] = {}
+        for k in sorted(range(len(tasks)), key=lambda k: -self._grid_size(tasks[k].name)):
+            pending[k] = pool.apply_async(_fit, ((settings, tasks[k]),))
+        for k in range(len(tasks)):
+            yield pending[k].get()
+
+    def _grid_size(self, name: str) -> int:
+        """Start points of effect ``name`` on this record: how long its fit takes."""
+        grid = EFFECTS[name].start_grid(self.fitter.scales)
+        return int(next(iter(grid.values())).size) if grid else 0
 
     def _workers(self) -> multiprocessing.pool.Pool:
         global _FITTER
