@@ -6,6 +6,7 @@ import pytest
 
 from motor_id.analysis import DiscrepancyAnalysis
 from motor_id.analysis.workers import FitPool, FitTask, usable_cores
+from motor_id.effects import EFFECTS, SCALES
 from motor_id.testing.hidden import make_case
 
 
@@ -34,22 +35,24 @@ def test_the_pool_fits_on_forked_workers_in_task_order():
     settings of the moment travel with each task (a worker forked earlier keeps none)."""
 
     class Fitter:
-        scales, extra_starts, physical_bounds, spread, reading = {}, {}, {}, False, {}
+        scales, extra_starts, physical_bounds, spread, reading = (
+            dict.fromkeys(SCALES, 1.0), {}, {}, False, {})
 
         def fit(self, name, ref, prior=None, seed=None):
             return name, os.getpid(), self.spread
 
     fitter = Fitter()
+    names = list(EFFECTS)[:6]   # the workers take the largest start grids first
     with FitPool(fitter, jobs=2) as pool:
-        first = list(pool.map([FitTask('a', None), FitTask('b', None)]))
+        first = list(pool.map([FitTask(names[0], None), FitTask('resonance', None)]))
         fitter.spread = True
-        out = list(pool.map([FitTask(str(k), None) for k in range(6)]))
-    assert [o[0] for o in first + out] == ['a', 'b'] + [str(k) for k in range(6)]
+        out = list(pool.map([FitTask(n, None) for n in names]))
+    assert [o[0] for o in first + out] == [names[0], 'resonance'] + names
     assert not any(o[2] for o in first) and all(o[2] for o in out)
     if pool.jobs > 1:   # fork is available
         assert all(o[1] != os.getpid() for o in first + out)
     with FitPool(fitter, jobs=1) as pool:
-        assert [o[1] for o in pool.map([FitTask('a', None), FitTask('b', None)])] == \
+        assert [o[1] for o in pool.map([FitTask(n, None) for n in names[:2]])] == \
             [os.getpid()] * 2
     assert usable_cores() >= 1
 
