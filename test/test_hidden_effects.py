@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.analysis.workers import usable_cores
 from motor_id.data.csv_io import read_csv, write_csv
 from motor_id.testing.hidden import make_case, NOT_REVEALED_BY, VOLTAGE_EFFECTS
 
@@ -33,9 +34,14 @@ def _seed(effect, k):
         else 900 + k
 
 
+JOBS = min(2, usable_cores())
+"""Processes for each analysis' candidate fits (the report does not depend on them:
+test_analysis_workers)."""
+
+
 def _analyse(effect, seed):
     rec, case = make_case(seed, effect)
-    report = DiscrepancyAnalysis(R_m=case.known['R_m']).fit(rec).report_
+    report = DiscrepancyAnalysis(R_m=case.known['R_m'], jobs=JOBS).fit(rec).report_
     return case, report
 
 
