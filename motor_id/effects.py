@@ -102,6 +102,7 @@ class EffectSpec:
     ``extends`` names the effect this one refines (asymmetric or Stribeck friction refine
     Coulomb friction): it is tried only once that effect is in the model, by the
     simulation-error stage of the analysis, never as a first explanation.
+    ``simulation_only`` effects, too, only that stage tries.
     """
 
     name: str
@@ -113,6 +114,9 @@ class EffectSpec:
     channel: str = ''
     min_fraction: tuple = ()
     extends: str = ''
+    simulation_only: bool = False
+    """Tried only by the simulation-error stage: what shows it is a whole run's response
+    from its start, which one-step errors never see (a drive's enable latency)."""
 
     def defaults(self) -> dict[str, float]:
         """Return ``{param: default}``."""
@@ -216,6 +220,13 @@ EFFECTS = {e.name: e for e in (
                             ((3.0, 'per_record'), 0.2, 10), ((3.0, 'per_record'), 0.5)),
                 EffectParam('zeta', '-', 0.05, 0.0, 5.0, 'one', (0.03, 0.15, 2))),
                description='a compliant shaft between motor and load'),
+    EffectSpec('start_latency', 'V_eff = 0 for d samples after the input leaves zero; '
+               'V_eff = V otherwise',
+               (EffectParam('d', 'samples', 10, 0, 500, 'one', (1, (1.0, 'max_delay'), 0),
+                            (), 'integer'),),
+               description="the drive's enable latency: it applies nothing for a while "
+               'after the command leaves zero (a motor controller arming on its first '
+               'non-zero frame), and follows at once afterwards', simulation_only=True),
 )}
 """The catalogue of named effects; parameter ranges are the allowed ranges."""
 

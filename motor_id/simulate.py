@@ -132,7 +132,7 @@ def batch_size(theta: Mapping[str, ArrayLike]) -> int:
     return sizes.pop() if sizes else 1
 
 
-INPUT_MAPS = ('input_delay', 'dead_zone', 'voltage_saturation')
+INPUT_MAPS = ('input_delay', 'start_latency', 'dead_zone', 'voltage_saturation')
 """Effects that act on the input before the dynamics (:func:`apply_input_maps`); a
 delay reaches back in time, so a window of a record takes them from the whole record."""
 
@@ -154,6 +154,13 @@ def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]
             if d[p] > 0:
                 u[p, d[p]:] = u[p, :-d[p]].copy()
                 u[p, :d[p]] = u[p, 0]
+    if 'start_latency' in effects:
+        d = np.rint(_as_batch(effects['start_latency']['d'], P)).astype(int)
+        for p in range(P):
+            if d[p] > 0:   # the d samples from each sample where the input leaves zero
+                row = u[p]
+                for k in np.flatnonzero((row[1:] != 0.0) & (row[:-1] == 0.0)) + 1:
+                    row[k:k + d[p]] = 0.0
     if 'dead_zone' in effects:
         vdz = _as_batch(effects['dead_zone']['V_dz'], P)[:, None]
         u = np.sign(u) * np.maximum(np.abs(u) - vdz, 0.0)

@@ -6,7 +6,7 @@ from scipy.signal import dlsim, StateSpace
 
 from motor_id.excitation import paper_steps
 from motor_id.model import continuous_matrices, PAPER_MOTOR
-from motor_id.simulate import simulate_batch
+from motor_id.simulate import apply_input_maps, simulate_batch
 
 T = np.arange(2000) * 0.01
 U = paper_steps(T)
@@ -81,6 +81,7 @@ def test_coulomb_friction_lets_a_strong_reverse_drive_carry_the_shaft_through_ze
     ('speed_quantization', {'q': 0.5}), ('brush_drop', {'V_b': 0.7}),
     ('resistance_drift', {'k_h': 0.05, 'tau_th': 10.0}), ('resonance', {}),
     ('load_torque', {'T_L': 0.1}), ('quadratic_load', {'k_q': 1e-3}),
+    ('start_latency', {'d': 5}),
 ])
 def test_every_effect_changes_the_output(effect, params):
     p = PAPER_MOTOR.to_dict()
@@ -95,6 +96,19 @@ def test_input_delay_shifts_by_whole_samples():
     base = simulate_batch(p, T, U)['speed'][0]
     out = simulate_batch(p, T, U, effects={'input_delay': {'d': 7}})['speed'][0]
     np.testing.assert_allclose(out[7:], base[:-7], atol=1e-12)
+
+
+def test_start_latency_holds_the_input_at_zero_after_each_start_only():
+    u = np.array([0.0, 0.0, 2.0, 2.0, 2.0, 2.0, 0.0, -1.0, -1.0, -1.0, 3.0, 3.0])
+    out = apply_input_maps(u, {'start_latency': {'d': np.array([0.0, 2.0, 3.0])}}, 3)
+    np.testing.assert_array_equal(out[0], u)
+    # each departure from zero (samples 2 and 7) waits d samples; a sign change without
+    # passing zero (sample 10) is no start
+    np.testing.assert_array_equal(out[1], [0, 0, 0, 0, 2, 2, 0, 0, 0, -1, 3, 3])
+    np.testing.assert_array_equal(out[2], [0, 0, 0, 0, 0, 2, 0, 0, 0, 0, 3, 3])
+    # a run that starts with the drive on shows no start
+    np.testing.assert_array_equal(apply_input_maps(u[2:6], {'start_latency': {'d': 2}}, 1)[0],
+                                  u[2:6])
 
 
 @pytest.mark.parametrize('t', [T, np.cumsum(np.random.default_rng(3).uniform(0.005, 0.015,

@@ -98,6 +98,31 @@ def test_speed_only_stage_reports_what_the_data_determine(tmp_path, seed):
     assert any(ev['found'] for ev in sim['held_readings'].values())
 
 
+@pytest.mark.parametrize('latency', [0.08, 0.0])
+def test_stage_names_a_start_latency_only_where_the_drive_has_one(tmp_path, latency):
+    """Independent physics: a drive that applies nothing for 80 ms after each test's
+    command leaves zero. From a start 30 % off, the stage adds a start latency of
+    80 ms +- 3 samples, and on the same log without it adds none. (The encoder reads
+    exactly zero at rest, as on a real log: the stage simulates a run that opens at rest
+    from its first sample, so the first 20 samples, where the latency acts, count.)"""
+    rec, _ = _log(tmp_path, 3, hold=4, jitter=0.2, kS=0.4, noise=0.0,
+                  start_latency=latency)
+    start = SavedModel('voltage', {'J': 1.3 * MOTOR.J, 'K_T': 0.8 * MOTOR.K,
+                                   'K_b': 1.2 * MOTOR.K, 'B': 1.3 * MOTOR.B,
+                                   'L_m': 3 * MOTOR.L, 'R_m': MOTOR.R},
+                       {'coulomb_friction': {'T_c': 0.2 * MOTOR.K / MOTOR.R}}, 'test')
+    sim = simulation_stage(rec, start, 20, halves=False)
+    tried = {c['name']: c for c in sim['candidates']}
+    assert 'coulomb_friction+start_latency' in tried   # the input leaves zero: tried
+    if latency:
+        assert 'start_latency' in sim['chosen'].split('+'), sim['chosen']
+        d = sim['model']['effects']['start_latency']['d']
+        assert abs(d - latency / 0.005) <= 3, d
+        assert sim['gains']['start_latency'] > 0.3
+    else:
+        assert 'start_latency' not in sim['chosen'].split('+'), sim['chosen']
+
+
 # ------------------------------------------------------------------ repeats: measured data
 @pytest.mark.skipif(not os.path.exists(EMPS), reason='EMPS data not beside the repository')
 def test_emps_halves_agree_within_the_error_bars_each_reports():

@@ -40,7 +40,8 @@ if TYPE_CHECKING:
     from motor_id.analysis.report import ModelScore
     from motor_id.recording import Recording
 
-CANDIDATES = tuple(e for e, spec in EFFECTS.items() if not spec.extends)
+CANDIDATES = tuple(e for e, spec in EFFECTS.items()
+                   if not spec.extends and not spec.simulation_only)
 """Candidate effects, in catalogue order (the more common first)."""
 
 

@@ -89,24 +89,36 @@ def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:
     effect that refinements extend when the model lacks it (an equation-error stage that
     took asymmetric friction for a load torque never named Coulomb friction), an input
     delay when the model has none (a latency that one-step errors on held readings hide),
-    and a lag of the speed sensor when both a position and a speed are scored (the
-    position shows the motion unfiltered: a speed that lags it is filtered)."""
+    a start latency where the input leaves zero (a drive that applies nothing for a while
+    after it is enabled), and a lag of the speed sensor when both a position and a speed
+    are scored (the position shows the motion unfiltered: a speed that lags it is
+    filtered)."""
     out = [e for e, spec in EFFECTS.items()
            if spec.extends and spec.extends in model.effects and e not in model.effects
            and model.input_kind in spec.kinds]
     bases = {spec.extends for spec in EFFECTS.values() if spec.extends}
     out += sorted(b for b in bases if b not in model.effects)
     out += ['input_delay'] if 'input_delay' not in model.effects else []
+    if rec is not None and 'start_latency' not in model.effects and _leaves_zero(rec):
+        out.append('start_latency')
     both = rec is not None and {'position', 'speed'} <= set(sim_channels(rec))
     return out + (['sensor_lag'] if both and 'sensor_lag' not in model.effects else [])
 
 
+def _leaves_zero(rec: Recording) -> bool:
+    """The input of some run leaves zero after resting there (a drive that is enabled
+    during the record: where a start latency would show)."""
+    return any(bool(np.any((rec.input[a + 1:b] != 0.0) & (rec.input[a:b - 1] == 0.0)))
+               for a, b in rec.segment_ranges)
+
+
 def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
     """Pairs of effects that each helped alone and can coexist (stiction and Stribeck
-    friction both set the static level); an added base effect (Coulomb friction) that
+    friction both set the static level; one profile finds a delay or a start latency,
+    not both); an added base effect (Coulomb friction) that
     helped is also paired with each of its refinements."""
     out: list[tuple[str, ...]] = [(a, b) for a, b in itertools.combinations(helpful, 2)
-           if {a, b} != {'stiction', 'stribeck_friction'}
+           if {a, b} != {'stiction', 'stribeck_friction'} and {a, b} != set(PROFILED)
            and not (EFFECTS[a].extends == b or EFFECTS[b].extends == a)]
     for base in helpful:
         out += [(base, e) for e, spec in EFFECTS.items() if spec.extends == base]
@@ -126,7 +138,7 @@ def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
         vals = {'dT_c': 0.0, 'dB': 0.0}
     elif effect in ('stiction', 'stribeck_friction'):
         vals['T_s'] = 1.2 * tc
-    elif effect == 'input_delay':
+    elif effect in PROFILED:
         vals = {'d': 0.0}
     return vals
 
@@ -360,8 +372,9 @@ def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple
     out = []
     for f, (cand, z) in zip(families, done, strict=True):
         prob = _family_problem(setup, model, f)
-        d = cand.effects.get('input_delay', {}).get('d')
-        out.append((cand, z, prob if d is None else _with_delay(prob, d)))
+        lag = _profiled(f)
+        d = cand.effects.get(lag, {}).get('d') if lag else None
+        out.append((cand, z, prob if d is None else _with_delay(prob, d, lag)))
     return out
 
 
@@ -396,15 +409,16 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
     no-change starts), scored on the held-out ones."""
     prob = _family_problem(setup, model, extra)
     name = '+'.join(e for e in prob.model.effects if EFFECTS[e].category == 'dynamic'
-                    or e == 'input_delay') or 'linear'
+                    or e in PROFILED) or 'linear'
     setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
     cand = SimCandidate(name, {}, {})
     z = np.array([(warm or {}).get(n, v) for n, v in zip(prob.free, prob.start(),
                                                           strict=True)])
     try:
         with np.errstate(all='ignore'):
-            if 'input_delay' in extra:
-                prob, z, cand.nfev = _profile_delay(prob, setup.train, z)
+            lag = _profiled(extra)
+            if lag:
+                prob, z, cand.nfev = _profile_delay(prob, setup.train, z, lag)
             else:
                 z, cand.nfev = prob.fit(setup.train, z)
             cand.parameters, cand.effects = prob.to_model(z)
@@ -429,18 +443,31 @@ def delay_grid(rec: Recording, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
     return grid[grid <= top]
 
 
-def _with_delay(prob: SimulationProblem, d: float) -> SimulationProblem:
-    """``prob`` with its input delay set to ``d`` samples."""
-    effects = {**prob.model.effects, 'input_delay': {'d': float(d)}}
+PROFILED = ('input_delay', 'start_latency')
+"""Effects of a whole number of samples, found by :func:`_profile_delay`."""
+
+
+def _profiled(family: Sequence[str]) -> str:
+    """The effect of ``family`` that :func:`_profile_delay` finds ('' for none; a family
+    holds at most one, see :func:`pairs`)."""
+    return next((e for e in family if e in PROFILED), '')
+
+
+def _with_delay(prob: SimulationProblem, d: float, effect: str = 'input_delay'
+                ) -> SimulationProblem:
+    """``prob`` with its delay ``effect`` set to ``d`` samples."""
+    effects = {**prob.model.effects, effect: {'d': float(d)}}
     m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
                    prob.model.source)
     return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
 
 
 def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
-                   z0: np.ndarray | None = None) -> tuple[SimulationProblem, np.ndarray, int]:
-    """The delay by profile: the model refitted (briefly) at each delay of a coarse grid,
-    then at the neighbours of the best, then fully at the best.
+                   z0: np.ndarray | None = None, effect: str = 'input_delay'
+                   ) -> tuple[SimulationProblem, np.ndarray, int]:
+    """The delay (of ``effect``: an input delay, a start latency) by profile: the model
+    refitted (briefly) at each delay of a coarse grid, then at the neighbours of the
+    best, then fully at the best.
 
     A delay cannot be found at the other parameters' start: a slow pole (a large L_m)
     that mimicked the delay in the equation-error fit makes every delay look worse there.
@@ -455,7 +482,7 @@ def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
         nonlocal nfev
         if d in tried:
             return
-        p = _with_delay(prob, d)
+        p = _with_delay(prob, d, effect)
         z, n = p.fit(blocks, z0, max_nfev=PROFILE_NFEV)
         nfev += n
         tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
@@ -467,6 +494,6 @@ def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
     for j in range(max(0, i - 3), min(grid.size, i + 4)):
         at(float(grid[j]))
     best = min(tried, key=lambda k: tried[k][0])
-    p = _with_delay(prob, best)
+    p = _with_delay(prob, best, effect)
     z, n = p.fit(blocks, tried[best][1])
     return p, z, nfev + n

@@ -54,10 +54,12 @@ from motor_id.model import MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
 from motor_id.simulate import on_grid, simulate_batch
 
-VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds and not e.extends)
+VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds
+                        and not e.extends and not e.simulation_only)
 """Effects the generator hides: every voltage-plant effect except the refinements of
-another (asymmetric, Stribeck, static friction), which only the simulation-error stage
-of a record with a position tries (:mod:`motor_id.analysis.simulation_fit`)."""
+another (asymmetric, Stribeck, static friction) and the drive's start latency, which
+only the simulation-error stage of a record with a position tries
+(:mod:`motor_id.analysis.simulation_fit`)."""
 """Effects the generator can hide (all apply to the voltage-driven motor)."""
 
 NOT_REVEALED_BY = {

@@ -3,7 +3,9 @@
 The four tests a SysId log holds (voltage ramps and voltage steps, forward and backward,
 each from rest) are simulated on :mod:`motor_id.testing.independent_physics` (written from
 the equations, no motor_id model code) with what real logs show: an input latency (the
-applied voltage lags the logged command by ``latency`` seconds), sample times with
+applied voltage lags the logged command by ``latency`` seconds), an enable latency (the
+drive applies nothing for ``start_latency`` seconds after the command leaves zero), sample
+times with
 jitter, sensor readings that are refreshed only every ``hold`` samples (a CAN status
 frame slower than the robot loop), white speed noise and optional Coulomb friction
 (``kS``). The rows follow SysId's format: positions in encoder rotations and velocities
@@ -82,11 +84,13 @@ class _Timing:
     sub: int
     latency: float
     hold: int
+    start_latency: float = 0.0
 
 
 def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
                    right_motor: Motor | None = None, kS: float = 0.0,
-                   kS_right: float | None = None, latency: float = 0.0, hold: int = 1,
+                   kS_right: float | None = None, latency: float = 0.0,
+                   start_latency: float = 0.0, hold: int = 1,
                    jitter: float = 0.0, sample_period: float = 0.005, noise: float = 0.002,
                    ramp_rate: float = 1.0, ramp_duration: float = 4.0,
                    step_voltage: float = 6.0, step_duration: float = 1.5,
@@ -107,6 +111,9 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
         Coulomb friction as the voltage that balances it [V] (right: default ``kS``).
     latency : float
         Input delay [s]: the applied voltage follows the logged command this late.
+    start_latency : float
+        Enable latency [s]: after the (delayed) command leaves zero, the drive applies
+        nothing for this long, then follows it.
     hold : int
         The speed and position readings are refreshed every ``hold`` samples.
     jitter : float
@@ -143,7 +150,8 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
     upr = float(UNITS_PER_ROTATION[units] if units_per_rotation is None
                 else units_per_rotation)
     si_per_raw = upr * _SI_PER[units]
-    timing = _Timing(float(sample_period), float(jitter), int(sub), float(latency), int(hold))
+    timing = _Timing(float(sample_period), float(jitter), int(sub), float(latency), int(hold),
+                     float(start_latency))
     sides = [(motor, float(kS))]
     if test == 'Drivetrain':
         right = right_motor or replace(motor, J=1.1 * motor.J)
@@ -195,6 +203,9 @@ def _measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
     j = np.arange(int(grid[-1]) + 1)
     k = np.searchsorted(grid, j - delay, side='right') - 1
     v = np.where(k >= 0, u[np.maximum(k, 0)], 0.0)
+    off = int(round(timing.start_latency / h))
+    for on in np.flatnonzero((v[1:] != 0.0) & (v[:-1] == 0.0)) + 1:
+        v[on:on + off] = 0.0   # the drive arms on its first non-zero command
     effects: dict[str, Mapping[str, float]] = {}
     if kS > 0:
         T_c = kS * motor.K / motor.R
@@ -226,6 +237,7 @@ def _truth(seed: int, sides: list[tuple[Motor, float]], units: str, si_per_raw: 
     si_per_unit = _SI_PER[units]
     out: dict[str, Any] = {'seed': int(seed), 'units': units, 'si_per_raw': si_per_raw,
                            'si_per_unit': si_per_unit, 'latency': timing.latency,
+                           'start_latency': timing.start_latency,
                            'hold': timing.hold, 'jitter': timing.jitter,
                            'sample_period': timing.sample_period, 'noise': noise,
                            'speed_noise_std': w_noise}
