@@ -112,7 +112,31 @@ class DiscrepancyReport:
             d['inverse_dynamics'] = self.inverse_dynamics
         if self.simulation is not None:
             d['simulation'] = self.simulation
+        controller = self.controller()
+        if controller is not None:
+            d['controller'] = controller
         return d
+
+    def controller(self) -> dict[str, Any] | None:
+        """The ``controller`` block of the chosen model of a voltage plant: WPILib
+        SysId's feedforward constants of the simulation-error model with their error
+        bars, as the fit's block has them (``{value, std}``; a constant the record does
+        not determine has ``value`` and ``std`` null, its ``particular_value``, the
+        ``interval`` the data allow and why); None without that model."""
+        sim = self.simulation or {}
+        combos = (sim.get('estimates') or {}).get('combinations')
+        if not combos:
+            return None
+        ff: dict[str, Any] = {}
+        for c in combos:
+            if c.get('determined', True):
+                ff[c['name']] = {'value': c['value'], 'std': c['std']}
+            else:
+                ff[c['name']] = {'value': None, 'std': None, 'particular_value': c['value'],
+                                 'interval': c.get('interval'), 'note': c.get('note')}
+        return {'feedforward': ff, 'model': sim.get('chosen'),
+                'source': 'the simulation-error model (simulation.model): kS = V_b + '
+                'T_c R_m / K_T, kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T'}
 
     def summary(self) -> str:
         """A readable report for people."""
@@ -158,7 +182,9 @@ def _simulation_lines(sim: dict[str, Any] | None) -> list[str]:
             if est.get(key):
                 lines.append('  ' + ('SysId constants: ' if key == 'combinations' else
                                      'friction by direction: ') + ', '.join(
-                    f'{e["name"]} {e["value"]:.4g} +- {e["std"]:.2g}' for e in est[key]))
+                    f'{e["name"]} {e["value"]:.4g} +- {e["std"]:.2g}'
+                    + ('' if e.get('determined', True) else f' ({e["note"]})')
+                    for e in est[key]))
     elif sim.get('model'):
         vals = {**sim['model']['parameters'],
                 **{f'{e}.{p}': v for e, d in sim['model']['effects'].items()

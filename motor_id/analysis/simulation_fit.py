@@ -216,11 +216,10 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
             cands.append(cand)
             if cand.failed or not math.isfinite(cand.heldout_cost):
                 continue
-            fitted[extra] = (cand.heldout_cost, dict(zip(prob.free, z, strict=True)))
+            fitted[extra] = (cand.heldout_cost, _values(prob, z))
             if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
                 best = _polish(setup, best, cand, z, prob)
-                fitted[best_family] = (best[0].heldout_cost,
-                                       dict(zip(best[2].free, best[1], strict=True)))
+                fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
             if stage == 'singles':
                 single_costs[extra[0]] = cand.heldout_cost
             if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
@@ -275,6 +274,15 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
         without = '+'.join(p for p in parts if p != e) or 'linear'
         if without in by_name and e in EFFECTS:
             out[e] = 1.0 - chosen.heldout_cost / by_name[without].heldout_cost
+    return out
+
+
+def _values(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
+    """A fitted family's values by free name, and the delays its profile found
+    (``input_delay.d``, ``start_latency.d``): what a larger family starts from."""
+    out = dict(zip(prob.free, z, strict=True))
+    out.update({f'{e}.d': float(prob.model.effects[e]['d']) for e in PROFILED
+                if e in prob.model.effects})
     return out
 
 
@@ -366,7 +374,12 @@ def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple
     try:
         with multiprocessing.get_context('fork').Pool(min(jobs, len(families)),
                                                       initializer=_worker_start) as pool:
-            done = pool.map(_family_task, list(zip(families, warms, strict=True)))
+            # the profiled families (a delay grid each) first: the longest fits must not
+            # be handed out last, leaving the other workers idle
+            pending = {k: pool.apply_async(_family_task, ((families[k], warms[k]),))
+                       for k in sorted(range(len(families)),
+                                       key=lambda k: not _profiled(families[k]))}
+            done = [pending[k].get() for k in range(len(families))]
     finally:
         _STAGE = None
     out = []
@@ -418,7 +431,8 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
         with np.errstate(all='ignore'):
             lag = _profiled(extra)
             if lag:
-                prob, z, cand.nfev = _profile_delay(prob, setup.train, z, lag)
+                prob, z, cand.nfev = _profile_delay(prob, setup.train, z, lag,
+                                                    (warm or {}).get(f'{lag}.d'))
             else:
                 z, cand.nfev = prob.fit(setup.train, z)
             cand.parameters, cand.effects = prob.to_model(z)
@@ -463,11 +477,12 @@ def _with_delay(prob: SimulationProblem, d: float, effect: str = 'input_delay'
 
 
 def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
-                   z0: np.ndarray | None = None, effect: str = 'input_delay'
-                   ) -> tuple[SimulationProblem, np.ndarray, int]:
+                   z0: np.ndarray | None = None, effect: str = 'input_delay',
+                   around: float | None = None) -> tuple[SimulationProblem, np.ndarray, int]:
     """The delay (of ``effect``: an input delay, a start latency) by profile: the model
     refitted (briefly) at each delay of a coarse grid, then at the neighbours of the
-    best, then fully at the best.
+    best, then fully at the best. ``around``: the delay a smaller family found, whose
+    neighbours replace the coarse grid.
 
     A delay cannot be found at the other parameters' start: a slow pole (a large L_m)
     that mimicked the delay in the equation-error fit makes every delay look worse there.
@@ -487,7 +502,7 @@ def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
         nfev += n
         tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
 
-    for d in coarse:
+    for d in (coarse if around is None else [around]):
         at(float(d))
     best = min(tried, key=lambda k: tried[k][0])
     i = int(np.searchsorted(grid, best))

@@ -39,6 +39,7 @@ import numpy as np
 
 from motor_id.analysis.friction import folded_load, friction_summary
 from motor_id.effects import EFFECTS
+from motor_id.identify.determinacy import MAX_RELATIVE_STD
 from motor_id.identify.uncertainty import combine, delta_method, robust_covariance
 
 if TYPE_CHECKING:
@@ -162,7 +163,9 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
              fn: Callable[[dict[str, float], dict[str, dict[str, float]]],
                           Mapping[str, float] | None]) -> list[dict[str, Any]]:
     """Quantities ``fn(params, effects)`` of the model with delta-method error bars,
-    floored by the halves' spread as the parameters are."""
+    floored by the halves' spread as the parameters are; one whose error bar is over
+    :data:`~motor_id.identify.determinacy.MAX_RELATIVE_STD` of its value is not
+    determined (the fit's rule), with the interval of two error bars."""
 
     def values(zz: np.ndarray) -> dict[str, float]:
         params, effects = prob.to_model(zz)
@@ -181,6 +184,12 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
             entry['halves'] = [ha[key], hb[key]]
             std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
         entry['std'] = std
+        if not std <= MAX_RELATIVE_STD * abs(val):
+            lo, hi = float(val - 2 * std), float(val + 2 * std)
+            entry.update(determined=False, interval=[lo, hi], note=(
+                f'not determined by this record: its error bar is '
+                f'{"over 1000" if not std <= 10 * abs(val) else f"{100 * std / abs(val):.0f}"} '
+                f'% of the value (data allow about {lo:.3g} .. {hi:.3g})'))
         out.append(entry)
     return out
 
