@@ -130,7 +130,10 @@ def motor_id_side(rec, log, args):
         report = json.loads(out_json.read_text())
     model = SavedModel.from_report(report, source=command)
     val = validate(model, rec, INIT_SAMPLES)
+    ff = (report.get('controller') or {}).get('feedforward') or {}
     return {'command': command, 'seconds': seconds, 'gains': first_order_gains(model),
+            'undetermined': {k: v.get('interval') for k, v in ff.items()
+                             if isinstance(v, dict) and v.get('value') is None},
             'effects': model.effects, 'parameters': model.parameters,
             'fit_percent': per_test_fit(rec, val.simulated['speed']),
             'fit_percent_all': val.channels['speed']['fit_percent'],
@@ -154,9 +157,16 @@ def tables(rec, models):
     unit = UNIT_SYMBOLS[units]
     gain_cols = [('model', 'model', 's'), ('kS', 'kS [V]', '.4g'),
                  ('kV', f'kV [V s/{unit}]', '.4g'), ('kA', f'kA [V s^2/{unit}]', '.4g')]
-    gain_rows = [{'model': n, 'kS': models[n]['gains']['kS'],
-                  'kV': models[n]['gains']['kV'] / per, 'kA': models[n]['gains']['kA'] / per}
-                 for n in names]
+    gain_rows = []
+    for n in names:
+        row = {'model': n, 'kS': models[n]['gains']['kS'],
+               'kV': models[n]['gains']['kV'] / per, 'kA': models[n]['gains']['kA'] / per}
+        for k, interval in (models[n].get('undetermined') or {}).items():
+            # a constant the record does not determine (the analyze report says so)
+            row[k] = 'not determined' + (f' ({interval[0] / (per if k != "kS" else 1):.2g}'
+                                         f' .. {interval[1] / (per if k != "kS" else 1):.2g})'
+                                         if interval else '')
+        gain_rows.append(row)
     return [('simulated velocity: fit % per test, from the logged voltage alone', fit_cols,
              rows),
             (f"feedforward constants in the log's units ({units})", gain_cols, gain_rows)]
