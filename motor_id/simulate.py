@@ -300,9 +300,9 @@ class DiscretisedBatch:
         return out
 
 
-def discretise_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, input_kind: str, method: str,
-                 effects: Mapping[str, Mapping[str, ArrayLike]] | None, position: bool
-                 ) -> DiscretisedBatch:
+def discretise_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, input_kind: str,
+                     method: str, effects: Mapping[str, Mapping[str, ArrayLike]] | None,
+                     position: bool) -> DiscretisedBatch:
     """The batch's plants discretised on every interval of ``t`` (effects completed
     with their defaults), ready to :meth:`DiscretisedBatch.run` on any stretch of the
     record: :func:`simulate_batch` on several stretches with one discretisation."""
