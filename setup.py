@@ -18,7 +18,7 @@ setup(
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
                       'mcap', 'PyYAML', 'rosbags'],
     extras_require={
-        'test': ['pytest', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
+        'test': ['pytest', 'pytest-xdist', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
                  'import-linter', 'pygad', 'cma', 'psutil', 'control', 'ruff', 'mypy',
                  'dask[distributed]', 'pyarrow'],
         'fleet': ['dask[distributed]', 'pyarrow'],

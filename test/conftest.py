@@ -52,3 +52,20 @@ def launch(tmp_path, ros_domain):
     yield start
     for p in procs:
         p.close()
+
+
+ROS_MODULES = frozenset({'test_colcon', 'test_demo', 'test_driver_safety', 'test_faults',
+                         'test_fleet_node', 'test_identifier_topics', 'test_namespaces',
+                         'test_node_common', 'test_nodes', 'test_rosbag_input'})
+"""Modules that start ROS nodes (or the demo, or a colcon build of them)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    """Put every test that starts ROS nodes in one xdist group: under ``-n 2 --dist
+    loadgroup`` they run in one worker, one after another as in a single process (their
+    domain ids never meet, and no two node tests load the machine at once), while the
+    other worker runs the rest."""
+    for item in items:
+        module = item.module.__name__.rsplit('.', 1)[-1]
+        if module in ROS_MODULES or {'client', 'launch', 'ros_domain'} & set(item.fixturenames):
+            item.add_marker(pytest.mark.xdist_group('ros'))
