@@ -41,7 +41,7 @@ from motor_id.analysis.simulation_problem import (
     SimulationProblem,
 )
 from motor_id.analysis.simulation_uncertainty import stage_estimates
-from motor_id.analysis.workers import _worker_start
+from motor_id.analysis.workers import _worker_start, longest_first
 from motor_id.effects import EFFECTS
 from motor_id.identify.validation import SavedModel
 
@@ -374,12 +374,10 @@ def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple
     try:
         with multiprocessing.get_context('fork').Pool(min(jobs, len(families)),
                                                       initializer=_worker_start) as pool:
-            # the profiled families (a delay grid each) first: the longest fits must not
-            # be handed out last, leaving the other workers idle
-            pending = {k: pool.apply_async(_family_task, ((families[k], warms[k]),))
-                       for k in sorted(range(len(families)),
-                                       key=lambda k: not _profiled(families[k]))}
-            done = [pending[k].get() for k in range(len(families))]
+            # the profiled families (a delay grid each) are the longest fits
+            done = list(longest_first(pool, _family_task, list(zip(families, warms,
+                                                                    strict=True)),
+                                      [float(bool(_profiled(f))) for f in families]))
     finally:
         _STAGE = None
     out = []

@@ -12,7 +12,7 @@ default of one job.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 import multiprocessing
 import multiprocessing.pool
@@ -79,12 +79,8 @@ class FitPool:
                 yield self.fitter.fit(t.name, t.ref, prior=t.prior, seed=t.seed)
             return
         settings = {k: getattr(self.fitter, k) for k in SETTINGS}
-        pool = self._workers()
-        pending: dict[int, multiprocessing.pool.AsyncResult[ModelScore]] = {}
-        for k in sorted(range(len(tasks)), key=lambda k: -self._grid_size(tasks[k].name)):
-            pending[k] = pool.apply_async(_fit, ((settings, tasks[k]),))
-        for k in range(len(tasks)):
-            yield pending[k].get()
+        yield from longest_first(self._workers(), _fit, [(settings, t) for t in tasks],
+                                 [self._grid_size(t.name) for t in tasks])
 
     def _grid_size(self, name: str) -> int:
         """Start points of effect ``name`` on this record: how long its fit takes."""
@@ -117,6 +113,17 @@ class FitPool:
 
     def __exit__(self, exc_type: type[BaseException] | None, *exc: object) -> None:
         self.close(abort=exc_type is not None)
+
+
+def longest_first(pool: multiprocessing.pool.Pool, fn: Callable[[Any], Any],
+                  jobs: Sequence[Any], cost: Sequence[float]) -> Iterator[Any]:
+    """``fn(job)`` of every job on ``pool``, handed out in order of falling ``cost`` (a
+    long job handed out last would leave the other workers idle at the end), the results
+    yielded in job order, each as soon as it and those before it are done."""
+    pending = {k: pool.apply_async(fn, (jobs[k],))
+               for k in sorted(range(len(jobs)), key=lambda k: -cost[k])}
+    for k in range(len(jobs)):
+        yield pending[k].get()
 
 
 def _worker_start() -> None:
