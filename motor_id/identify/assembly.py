@@ -53,9 +53,11 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
     rank, Vr, Vn, determined = uncertainty.structural(problem, z_best)
     cov_gn, cond = uncertainty.covariance(J, Vr, rank)
     ids, k = uncertainty.block_ids(problem.n_per, error_blocks)
-    cov_rob = uncertainty.robust_covariance(
-        J, problem.weighted_residuals(z_best, w), Vr, ids, k)
-    cov = uncertainty.combine(cov_gn, cov_rob)
+    r_w = problem.weighted_residuals(z_best, w)
+    cov_rob = uncertainty.robust_covariance(J, r_w, Vr, ids, k)
+    n_data = sum(problem.n_per)
+    white = uncertainty.residuals_white(r_w[:n_data], problem.n_per, w[:n_data])
+    cov = uncertainty.combine(cov_gn, cov_rob, white)
     lg = problem.log_mask(len(names))
     std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
     bound = np.zeros(len(names), dtype=bool)
@@ -69,7 +71,10 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
            'basis': 'transfer-function coefficients (structural); covariance from '
                     'output sensitivities on the identifiable subspace',
            'fully_determined': rank == len(names),
-           'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels)}
+           'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels),
+           'error_bars': 'Gauss-Newton (the residuals are white)' if white else
+                         'the larger of Gauss-Newton and block sandwich (the residuals are '
+                         'correlated)'}
     idf.update(blocks.prior_verdict(problem, z_best))
     warnings = _honesty(rec, problem, params)
     adequate, why = determinacy.adequacy(

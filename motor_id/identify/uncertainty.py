@@ -189,9 +189,49 @@ def robust_covariance(J: np.ndarray, r: np.ndarray, Vr: np.ndarray, ids: np.ndar
     return out
 
 
-def combine(cov_gn: np.ndarray, cov_rob: np.ndarray) -> np.ndarray:
+WHITE_LAGS = 20
+"""Autocorrelation lags of :func:`residuals_white` (Ljung-Box)."""
+WHITE_LEVEL = 0.01
+"""Significance level of :func:`residuals_white`, shared by the channels (Bonferroni)."""
+
+
+def residuals_white(r: np.ndarray, n_per: Sequence[int], weight: np.ndarray | None = None
+                    ) -> bool:
+    """True when no channel's residuals show autocorrelation (Ljung-Box test over
+    :data:`WHITE_LAGS` lags at :data:`WHITE_LEVEL`, split between the channels).
+
+    The Gauss-Newton covariance assumes white residuals of the estimated level; where
+    the record confirms that, it is the efficient error bar, and the block sandwich
+    (whose estimate of the score variance has only as many degrees of freedom as the
+    record has blocks) would only add its own scatter: taking the larger of the two would
+    widen clean-data error bars by some 9 % on average for ten blocks. Samples of zero
+    ``weight`` (held out) are left out.
+    """
+    from scipy.stats import chi2  # lazy: scipy.stats is slow to import
+
+    i = 0
+    level = WHITE_LEVEL / max(len(n_per), 1)
+    for n in n_per:
+        rc = r[i:i + n] if weight is None else r[i:i + n][weight[i:i + n] != 0]
+        i += n
+        rc = rc - rc.mean() if rc.size else rc
+        h = min(WHITE_LAGS, rc.size // 10)
+        var = float(rc @ rc)
+        if h < 1 or var <= 0.0:
+            continue
+        rho = np.array([rc[k:] @ rc[:-k] for k in range(1, h + 1)]) / var
+        q = rc.size * (rc.size + 2) * float(np.sum(rho ** 2 / (rc.size - np.arange(1, h + 1))))
+        if float(chi2.sf(q, h)) < level:
+            return False
+    return True
+
+
+def combine(cov_gn: np.ndarray, cov_rob: np.ndarray, white: bool = False) -> np.ndarray:
     """The larger of the two standard deviations per coordinate, with the robust
-    estimate's correlations (the Gauss-Newton ones where it has none)."""
+    estimate's correlations (the Gauss-Newton ones where it has none); ``white``
+    (:func:`residuals_white`): the Gauss-Newton covariance as it is."""
+    if white:
+        return cov_gn
     s_gn = np.sqrt(np.maximum(np.diag(cov_gn), 0.0))
     s_rob = np.sqrt(np.maximum(np.diag(cov_rob), 0.0))
     base, s_base = (cov_rob, s_rob) if np.all(s_rob[s_gn > 0] > 0) else (cov_gn, s_gn)
