@@ -298,9 +298,15 @@ class CandidateFitter:
         if grid_only(name):
             return self._fit_integer(name, base, fixed_eff, free_prior, t0)
         grid = EFFECTS[name].start_grid(self.scales)
-        # an effect added to a fitted model starts from its best grid point only
+        # an effect added to a fitted model starts from its best grid point only, and
+        # without spread starts: those are for a linear model whose parameters absorbed
+        # the effect. On top of a fitted effect they never mattered: on the real SysId
+        # log, Dunker's six records and four generated SysId logs, 13 such pair fits
+        # took spread starts, the best cut the training error by 0.93 % (a pair must cut
+        # the held-out error by min_gain, 5 %), and none changed a verdict.
         rows, spread = self.grid_best(base, name, grid, fixed_eff,
                                       top=1 if prior is not None else self.starts)
+        spread = spread if prior is None else []
         extra = self.extra_starts.get(name)
         best: ModelScore | None = None
         errors: list[float] = []
