@@ -21,6 +21,7 @@ from motor_id.analysis.friction import folded_load
 from motor_id.effects import EFFECTS
 from motor_id.identify.space import VOLTAGE_FREE
 from motor_id.identify.validation import initial_state_at, SavedModel
+from motor_id.metrics import noise_floor
 from motor_id.model import MECHANICAL_PARAMS
 from motor_id.simulate import apply_input_maps, discretise_batch, split_input_maps
 
@@ -46,14 +47,32 @@ def sim_channels(rec: Recording) -> tuple[str, ...]:
     return (('position',) if rec.has_position else ()) + rec.channels()
 
 
-def _at_rest(rec: Recording, k: int) -> bool:
-    """The axis is at rest at sample ``k``: no input, a speed reading of zero (to a
-    millionth of its spread) and, where measured, no current."""
-    def still(x: np.ndarray) -> bool:
-        return bool(abs(x[k]) <= 1e-6 * (float(np.std(x)) or 1.0))
+REST_SIGMAS = 3.0
+"""A reading within this many of its noise levels of zero reads "at rest"."""
 
-    return bool(rec.input[k] == 0) and still(rec.speed) and \
-        (rec.current is None or still(rec.current))
+
+def _at_rest(rec: Recording, k: int, noise: Mapping[str, float] | None = None) -> bool:
+    """The axis is at rest at sample ``k``: no input, a speed reading of zero and, where
+    measured, no current. Zero is to a millionth of the channel's spread, or within
+    :data:`REST_SIGMAS` of its noise level ``noise[channel]`` where given (a tachometer
+    or an estimated speed is noisy at rest; an encoder at rest reads exactly zero)."""
+    def still(x: np.ndarray, ch: str) -> bool:
+        tol = max(1e-6 * (float(np.std(x)) or 1.0), REST_SIGMAS * (noise or {}).get(ch, 0.0))
+        return bool(abs(x[k]) <= tol)
+
+    return bool(rec.input[k] == 0) and still(rec.speed, 'speed') and \
+        (rec.current is None or still(rec.current, 'current'))
+
+
+def reading_noise(rec: Recording, fresh: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """White-noise level of the speed and the current readings (their fresh samples)."""
+    out = {}
+    for ch in ('speed', 'current'):
+        x = getattr(rec, ch)
+        if x is not None:
+            keep = fresh.get(ch)
+            out[ch] = noise_floor(x if keep is None else x[keep])
+    return out
 
 
 def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[int, int]]:
@@ -92,13 +111,14 @@ class SimulationProblem:
         """Per channel: the samples scored (held readings: the fresh ones)."""
         self._start = self._start_vector()
         starts = {a for a, _ in rec.segment_ranges}
-        self._rest = {a for a in starts if _at_rest(rec, a)}
+        noise = reading_noise(rec, self.fresh)
+        self._rest = {a for a in starts if _at_rest(rec, a, noise)}
 
     def first(self, a: int) -> int:
         """The sample a block from ``a`` is simulated from: after its initial samples, or
         its first sample when it opens a run at rest (at rest, the state is known from
-        that one sample, and what follows, a step's delay included, is the model's to
-        predict)."""
+        that one sample, speed and current zero, and what follows, a step's delay
+        included, is the model's to predict)."""
         return a if a in self._rest else a + self.n_init - 1
 
     # parameter vector <-> model
@@ -161,6 +181,9 @@ class SimulationProblem:
             k0 = self.first(a)
             x0 = np.broadcast_to(initial_state_at(self.rec, k0, k0 - a + 1, self.kind,
                                                   theta, pos), (P, self.n_states))
+            if a in self._rest:   # a noisy reading at rest is not the state
+                x0 = x0.copy()
+                x0[:, :self.n_states - pos] = 0.0
             sim = disc.run(np.ascontiguousarray(ueff[:, k0:b]), x0, (k0, b))
             out.append({ch: sim[ch][:, 1:] for ch in self.channels})
         return out
