@@ -55,8 +55,12 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
     ids, k = uncertainty.block_ids(problem.n_per, error_blocks)
     r_w = problem.weighted_residuals(z_best, w)
     cov_rob = uncertainty.robust_covariance(J, r_w, Vr, ids, k)
+    fit, prediction = blocks.fit_block(rec, problem, x_best, sigma, pred, names, state_names)
+    # white: by the portmanteau test and by the fit block's own lag-by-lag verdict, so
+    # that the report never calls residuals white in one place and correlated in another
     n_data = sum(problem.n_per)
-    white = uncertainty.residuals_white(r_w[:n_data], problem.n_per, w[:n_data])
+    white = uncertainty.residuals_white(r_w[:n_data], problem.n_per, w[:n_data]) and \
+        all(m.get('white', True) for m in fit['channels'].values())
     cov = uncertainty.combine(cov_gn, cov_rob, white)
     lg = problem.log_mask(len(names))
     std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -64,7 +68,6 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
     bound[:problem.bounds.dim] = uncertainty.at_bound(problem, z_best)
     params = blocks.estimates(problem, names, x_best, std_z, lg, determined, bound)
     undetermined, _ = uncertainty.undetermined_directions(names, Vn, determined, lg)
-    fit, prediction = blocks.fit_block(rec, problem, x_best, sigma, pred, names, state_names)
     idf = {'rank': rank - len(state_names), 'n_free': len(names) - len(state_names),
            'free': names[:len(names) - len(state_names)], 'nuisance': state_names,
            'condition': cond,
