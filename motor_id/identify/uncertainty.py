@@ -13,6 +13,8 @@ from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 
+from motor_id.metrics import correlation
+
 if TYPE_CHECKING:
     from motor_id.identify.problem import IdentificationProblem
 
@@ -214,12 +216,10 @@ def residuals_white(r: np.ndarray, n_per: Sequence[int], weight: np.ndarray | No
     for n in n_per:
         rc = r[i:i + n] if weight is None else r[i:i + n][weight[i:i + n] != 0]
         i += n
-        rc = rc - rc.mean() if rc.size else rc
         h = min(WHITE_LAGS, rc.size // 10)
-        var = float(rc @ rc)
-        if h < 1 or var <= 0.0:
+        if h < 1:
             continue
-        rho = np.array([rc[k:] @ rc[:-k] for k in range(1, h + 1)]) / var
+        rho = correlation(rc, rc, h)[1:]   # all zero for a constant channel
         q = rc.size * (rc.size + 2) * float(np.sum(rho ** 2 / (rc.size - np.arange(1, h + 1))))
         if float(chi2.sf(q, h)) < level:
             return False
