@@ -7,7 +7,8 @@ nodes or the data readers imports it (``.importlinter`` puts it above the nodes)
 recordings         the paper's experiment, simulated (``paper_recording``, ``SI_MOTOR``)
 hidden             seeded hidden-effect cases on this package's own model
 independent_sim    seeded cases on a second simulator written from the equations
-independent_physics  that simulator's motor, amplifier, integrator and sensors (numpy, numba)
+independent_physics  that simulator's motor, joint, amplifier, integrator and sensors (numpy)
+independent_kernel   its compiled event-located RK4 integrator (numba)
 procs              node processes and their ROS environment (no rclpy)
 client             a threaded ROS client (rclpy) for scripts and tests
 demo_client        the demo's client

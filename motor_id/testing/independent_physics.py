@@ -8,17 +8,22 @@ torque [N m], time [s].
 
 Continuous model (one mass, or two masses with ``resonance``)::
 
-    J dw/dt     = K i - B w - T_f - T_L - k_q w |w|
+    J dw/dt     = K i - B w - T_f - T_L - k_q w |w| - T_grav(theta)
     L di/dt     = V_motor - R(dT) i - K w - V_b sgn(i)
     dtheta/dt   = w
     C_th ddT/dt = i^2 R(dT) - dT / R_th,      R(dT) = R0 (1 + alpha dT)
     tau_s dy/dt = w - y                       (speed sensor lag)
 
+A joint (:data:`MECHANISM_EFFECTS`) adds gravity, T_grav = T_g (elevator; theta a
+height [m], torques forces [N]) or T_g cos(theta + offset) (arm; horizontal at
+theta + offset = 0, hanging at -pi/2), and hard stops at theta = low, high: reaching one,
+the joint stops dead (w = 0) and stays while pushed into it.
 Friction is stick-slip: at w = 0 the shaft stays stuck while the drive torque
-``|K i - T_L - spring|`` is at most the break-away torque T_s; moving, T_f = T_c sgn(w)
-with T_c <= T_s. The brush drop is treated the same way: at i = 0 no current flows while
-``|V - K w| <= V_b``. The events (w or i crossing zero, the stuck shaft breaking away,
-the blocked brushes starting to conduct) are located inside each RK4 sub-step by regula
+``|K i - T_L - T_grav - spring|`` is at most the break-away torque T_s (at a stop: while
+the drive away from it is at most T_s); moving, T_f = T_c sgn(w) with T_c <= T_s. The
+brush drop is treated the same way: at i = 0 no current flows while ``|V - K w| <= V_b``.
+The events (w or i crossing zero, the stuck shaft breaking away, the blocked brushes
+starting to conduct, a stop reached) are located inside each RK4 sub-step by regula
 falsi with re-integration from the sub-step's start; the modes are then decided anew, so
 nothing chatters and the integrator keeps its fourth order through the events. The
 amplifier holds each sample's command (zero-order hold), delays it by ``d`` whole samples,
@@ -28,7 +33,10 @@ the load torques) through a spring k_s = J_l (2 pi f_r)^2 and damper
 c_s = 2 zeta sqrt(k_s J_l); the motor-side speed is measured. Samples are the states at
 the sample instants, before that sample's command acts. The encoder speed is the count
 difference over the past period, i.e. the mean speed of that period on a grid of
-q = 2 pi / (cpr T).
+q = 2 pi / (cpr T). A torque drive (``input_kind='torque'``) replaces the winding's
+equation by a current loop, tau_i di/dt = u / K - i. The compiled kernel is
+:mod:`motor_id.testing.independent_kernel`; :class:`Plant` steps it on demand (the
+simulated robot), :func:`feedforward` gives the true feedforward constants.
 """
 
 from collections.abc import Mapping
@@ -39,12 +47,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-try:  # numba is a dependency of the project; the plain-Python path is only a fallback
-    import numba
-    _jit = numba.njit(cache=False, nogil=True)
-except ImportError:  # pragma: no cover
-    def _jit(f: Any) -> Any:
-        return f
+from motor_id.testing import independent_kernel as kern
 
 ALPHA_COPPER = 0.0039
 """Temperature coefficient of copper resistance [1/K]."""
@@ -54,14 +57,10 @@ EFFECTS = ('coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop', 'd
            'current_quantization', 'resistance_drift', 'resonance')
 """Effect names this simulator can hide (the analysis' names where it has them)."""
 
-# indices of the state vector and of the parameter vector of the integrator kernel
-_W, _I, _TH, _DT, _WL, _PHI, _Y = range(7)
-_NX = 7
-(_P_JM, _P_JL, _P_KS, _P_CS, _P_RES, _P_B, _P_K, _P_R0, _P_L, _P_ALPHA, _P_CTH, _P_RTH,
- _P_TS, _P_TC, _P_TL, _P_KQ, _P_VB, _P_TAUS) = range(18)
-_NP = 18
-_MAX_EVENTS = 8
-
+MECHANISM_EFFECTS = ('elevator_gravity', 'arm_gravity', 'hard_stops')
+"""Position-dependent loads of a joint (never drawn as a hidden effect):
+``elevator_gravity`` ``{'T_g'}``, ``arm_gravity`` ``{'T_g', 'offset'}``, ``hard_stops``
+``{'low', 'high'}`` (either may be left out)."""
 
 @dataclass
 class Motor:
@@ -139,214 +138,6 @@ def amplifier(command: ArrayLike, effects: Mapping[str, Any] | None = None) -> n
 
 # ---------------------------------------------------------------------------- integrator
 
-@_jit
-def _deriv(x: np.ndarray, v: float, w_stuck: bool, sw: float, i_stuck: bool, si: float,
-           p: np.ndarray, dx: np.ndarray) -> None:
-    w = x[_W]
-    i = x[_I]
-    R = p[_P_R0] * (1.0 + p[_P_ALPHA] * x[_DT])
-    if i_stuck:
-        dx[_I] = 0.0
-    else:
-        dx[_I] = (v - R * i - p[_P_K] * w - p[_P_VB] * si) / p[_P_L]
-    if p[_P_RES] > 0.0:
-        wl = x[_WL]
-        shaft = p[_P_KS] * x[_PHI] + p[_P_CS] * (w - wl)
-        dx[_WL] = (shaft - p[_P_TL] - p[_P_KQ] * wl * abs(wl)) / p[_P_JL]
-        dx[_PHI] = w - wl
-        load = shaft
-    else:
-        dx[_WL] = 0.0
-        dx[_PHI] = 0.0
-        load = p[_P_TL] + p[_P_KQ] * w * abs(w)
-    if w_stuck:
-        dx[_W] = 0.0
-    else:
-        dx[_W] = (p[_P_K] * i - p[_P_B] * w - p[_P_TC] * sw - load) / p[_P_JM]
-    dx[_TH] = w
-    if p[_P_CTH] > 0.0:
-        dx[_DT] = (i * i * R - x[_DT] / p[_P_RTH]) / p[_P_CTH]
-    else:
-        dx[_DT] = 0.0
-    if p[_P_TAUS] > 0.0:
-        dx[_Y] = (w - x[_Y]) / p[_P_TAUS]
-    else:
-        dx[_Y] = 0.0
-
-
-@_jit
-def _rk4(x: np.ndarray, v: float, h: float, w_stuck: bool, sw: float, i_stuck: bool,
-         si: float, p: np.ndarray, out: np.ndarray, k1: np.ndarray, k2: np.ndarray,
-         k3: np.ndarray, k4: np.ndarray, xt: np.ndarray) -> None:
-    _deriv(x, v, w_stuck, sw, i_stuck, si, p, k1)
-    for j in range(_NX):
-        xt[j] = x[j] + 0.5 * h * k1[j]
-    _deriv(xt, v, w_stuck, sw, i_stuck, si, p, k2)
-    for j in range(_NX):
-        xt[j] = x[j] + 0.5 * h * k2[j]
-    _deriv(xt, v, w_stuck, sw, i_stuck, si, p, k3)
-    for j in range(_NX):
-        xt[j] = x[j] + h * k3[j]
-    _deriv(xt, v, w_stuck, sw, i_stuck, si, p, k4)
-    for j in range(_NX):
-        out[j] = x[j] + h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
-    if p[_P_TAUS] <= 0.0:
-        out[_Y] = out[_W]
-
-
-@_jit
-def _sign(a: float) -> float:
-    return 1.0 if a > 0.0 else (-1.0 if a < 0.0 else 0.0)
-
-
-@_jit
-def _shaft_drive(x: np.ndarray, p: np.ndarray) -> float:
-    """Torque that would accelerate the motor at w = 0, friction excluded [N m]."""
-    if p[_P_RES] > 0.0:
-        load = p[_P_KS] * x[_PHI] - p[_P_CS] * x[_WL]
-    else:
-        load = p[_P_TL]
-    return p[_P_K] * x[_I] - load
-
-
-@_jit
-def _event_value(kind: int, x: np.ndarray, v: float, sw: float, si: float,
-                 p: np.ndarray) -> float:
-    """Positive before the event, negative after: 0 w crosses zero, 1 i crosses zero,
-    2 the stuck shaft breaks away, 3 the blocked brushes start to conduct."""
-    if kind == 0:
-        return x[_W] * sw
-    if kind == 1:
-        return x[_I] * si
-    if kind == 2:
-        return p[_P_TS] - abs(_shaft_drive(x, p))
-    return p[_P_VB] - abs(v - p[_P_K] * x[_W])
-
-
-@_jit
-def _modes(x: np.ndarray, v: float, p: np.ndarray, force_w: float,
-           force_i: float) -> tuple[bool, float, bool, float]:
-    """Modes of the next piece: (w stuck, sign of w's motion, i stuck, sign of i)."""
-    w_stuck = False
-    sw = _sign(x[_W])
-    if (p[_P_TS] > 0.0 or p[_P_TC] > 0.0) and x[_W] == 0.0:
-        drive = _shaft_drive(x, p)
-        if force_w != 0.0:
-            sw = force_w
-        elif abs(drive) <= p[_P_TS]:
-            w_stuck = True
-            sw = 0.0
-        else:
-            sw = _sign(drive)
-    i_stuck = False
-    si = _sign(x[_I])
-    if p[_P_VB] > 0.0 and x[_I] == 0.0:
-        drive_v = v - p[_P_K] * x[_W]
-        if force_i != 0.0:
-            si = force_i
-        elif abs(drive_v) <= p[_P_VB]:
-            i_stuck = True
-            si = 0.0
-        else:
-            si = _sign(drive_v)
-    return w_stuck, sw, i_stuck, si
-
-
-@_jit
-def _first_event(x: np.ndarray, xn: np.ndarray, v: float, w_stuck: bool, sw: float,
-                 i_stuck: bool, si: float, p: np.ndarray) -> tuple[float, int]:
-    """The earliest event between x and xn: (linear estimate of its fraction, kind or -1)."""
-    armed = ((p[_P_TS] > 0.0 or p[_P_TC] > 0.0) and not w_stuck,
-             p[_P_VB] > 0.0 and not i_stuck, w_stuck, i_stuck)
-    frac = 2.0
-    kind = -1
-    for kk in range(4):
-        if not armed[kk]:
-            continue
-        g1 = _event_value(kk, xn, v, sw, si, p)
-        if g1 < 0.0:
-            g0 = _event_value(kk, x, v, sw, si, p)
-            f = g0 / (g0 - g1) if g0 > 0.0 else 0.0
-            if f < frac:
-                frac = f
-                kind = kk
-    return frac, kind
-
-
-@_jit
-def _substep(x: np.ndarray, v: float, h: float, p: np.ndarray, xn: np.ndarray,
-             k1: np.ndarray, k2: np.ndarray, k3: np.ndarray, k4: np.ndarray,
-             xt: np.ndarray) -> None:
-    """Advance x by h in place, locating the events of friction and brushes inside it.
-
-    Each piece runs with fixed modes up to the earliest event (regula falsi on the event
-    function, re-integrating from the piece's start), then the modes are decided anew.
-    """
-    remaining = h
-    force_w = 0.0   # direction of a break-away located at the end of the previous piece
-    force_i = 0.0
-    for event in range(_MAX_EVENTS + 1):
-        w_stuck, sw, i_stuck, si = _modes(x, v, p, force_w, force_i)
-        force_w = 0.0
-        force_i = 0.0
-        _rk4(x, v, remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
-        frac, kind = _first_event(x, xn, v, w_stuck, sw, i_stuck, si, p)
-        if kind < 0 or event == _MAX_EVENTS:
-            for j in range(_NX):
-                x[j] = xn[j]
-            if kind == 0 or kind == 1:
-                x[kind] = 0.0
-            return
-        f_lo, g_lo = 0.0, _event_value(kind, x, v, sw, si, p)
-        f_hi, g_hi = 1.0, _event_value(kind, xn, v, sw, si, p)
-        f = frac
-        for _ in range(3):
-            _rk4(x, v, f * remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
-            g = _event_value(kind, xn, v, sw, si, p)
-            if g > 0.0:
-                f_lo, g_lo = f, g
-            else:
-                f_hi, g_hi = f, g
-            if g_lo - g_hi <= 0.0:
-                break
-            f = f_lo + (f_hi - f_lo) * g_lo / (g_lo - g_hi)
-        _rk4(x, v, f * remaining, w_stuck, sw, i_stuck, si, p, xn, k1, k2, k3, k4, xt)
-        for j in range(_NX):
-            x[j] = xn[j]
-        if kind == 0 or kind == 1:
-            x[kind] = 0.0
-            if kind == 0 and p[_P_TAUS] <= 0.0:
-                x[_Y] = 0.0
-        elif kind == 2:
-            force_w = _sign(_shaft_drive(x, p))
-        else:
-            force_i = _sign(v - p[_P_K] * x[_W])
-        remaining -= f * remaining
-        if remaining <= 0.0:
-            return
-
-
-@_jit
-def _integrate(v: np.ndarray, dt: float, n_sub: int, p: np.ndarray,
-               x0: np.ndarray) -> np.ndarray:
-    n = v.shape[0]
-    out = np.empty((n, _NX))
-    x = x0.copy()
-    xn = np.empty(_NX)
-    k1 = np.empty(_NX)
-    k2 = np.empty(_NX)
-    k3 = np.empty(_NX)
-    k4 = np.empty(_NX)
-    xt = np.empty(_NX)
-    h = dt / n_sub
-    for k in range(n):
-        for j in range(_NX):
-            out[k, j] = x[j]
-        for _ in range(n_sub):
-            _substep(x, v[k], h, p, xn, k1, k2, k3, k4, xt)
-    return out
-
-
 def _resonance_masses(J: float, r: float, f_r: float,
                       zeta: float) -> tuple[float, float, float, float]:
     """Motor and load inertia, shaft stiffness and damping of the two-mass shaft."""
@@ -357,30 +148,59 @@ def _resonance_masses(J: float, r: float, f_r: float,
     return J_m, J_l, k_s, c_s
 
 
-def _param_vector(motor: Motor, effects: Mapping[str, Any]) -> np.ndarray:
-    p = np.zeros(_NP)
-    p[_P_JM] = motor.J
+def _param_vector(motor: Motor, effects: Mapping[str, Any], input_kind: str = 'voltage',
+                  current_loop: float | None = None) -> np.ndarray:
+    p = kern.parameters()
+    p[kern.P_JM] = motor.J
     res = effects.get('resonance')
     if res is not None:
-        p[_P_JM], p[_P_JL], p[_P_KS], p[_P_CS] = _resonance_masses(
+        p[kern.P_JM], p[kern.P_JL], p[kern.P_KS], p[kern.P_CS] = _resonance_masses(
             motor.J, float(res['r']), float(res['f_r']), float(res['zeta']))
-        p[_P_RES] = 1.0
-    p[_P_B], p[_P_K], p[_P_R0], p[_P_L] = motor.B, motor.K, motor.R, motor.L
+        p[kern.P_RES] = 1.0
+    p[kern.P_B], p[kern.P_K], p[kern.P_R0], p[kern.P_L] = motor.B, motor.K, motor.R, motor.L
     heat = effects.get('resistance_drift')
     if heat is not None:
-        p[_P_ALPHA] = float(heat.get('alpha', ALPHA_COPPER))
-        p[_P_CTH], p[_P_RTH] = float(heat['C_th']), float(heat['R_th'])
+        p[kern.P_ALPHA] = float(heat.get('alpha', ALPHA_COPPER))
+        p[kern.P_CTH], p[kern.P_RTH] = float(heat['C_th']), float(heat['R_th'])
     fr = effects.get('coulomb_friction')
     if fr is not None:
-        p[_P_TC] = float(fr['T_c'])
-        p[_P_TS] = float(fr.get('T_s', fr['T_c']))
-        if p[_P_TS] < p[_P_TC]:
+        p[kern.P_TC] = float(fr['T_c'])
+        p[kern.P_TS] = float(fr.get('T_s', fr['T_c']))
+        if p[kern.P_TS] < p[kern.P_TC]:
             raise ValueError('coulomb_friction: break-away torque T_s must be >= T_c')
-    p[_P_TL] = float(effects.get('load_torque', {}).get('T_L', 0.0))
-    p[_P_KQ] = float(effects.get('quadratic_load', {}).get('k_q', 0.0))
-    p[_P_VB] = float(effects.get('brush_drop', {}).get('V_b', 0.0))
-    p[_P_TAUS] = float(effects.get('sensor_lag', {}).get('tau_s', 0.0))
+    p[kern.P_TL] = float(effects.get('load_torque', {}).get('T_L', 0.0))
+    p[kern.P_KQ] = float(effects.get('quadratic_load', {}).get('k_q', 0.0))
+    p[kern.P_VB] = float(effects.get('brush_drop', {}).get('V_b', 0.0))
+    p[kern.P_TAUS] = float(effects.get('sensor_lag', {}).get('tau_s', 0.0))
+    _mechanism_parameters(p, effects)
+    if input_kind == 'torque':
+        p[kern.P_TORQUE] = 1.0
+        p[kern.P_TAUI] = motor.tau_e if current_loop is None else float(current_loop)
+        p[kern.P_VB] = 0.0
+        if p[kern.P_TAUI] <= 0.0:
+            raise ValueError('current_loop must be > 0 s')
+    elif input_kind != 'voltage':
+        raise ValueError(f"input_kind must be 'voltage' or 'torque', not {input_kind!r}")
     return p
+
+
+def _mechanism_parameters(p: np.ndarray, effects: Mapping[str, Any]) -> None:
+    """Gravity and hard stops into the parameter vector (a rigid joint only)."""
+    if 'elevator_gravity' in effects and 'arm_gravity' in effects:
+        raise ValueError('choose one of elevator_gravity and arm_gravity')
+    if 'resonance' in effects and any(e in effects for e in MECHANISM_EFFECTS):
+        raise ValueError('gravity and hard stops act on a rigid joint: not with resonance')
+    if 'elevator_gravity' in effects:
+        p[kern.P_TG] = float(effects['elevator_gravity']['T_g'])
+    if 'arm_gravity' in effects:
+        p[kern.P_TG] = float(effects['arm_gravity']['T_g'])
+        p[kern.P_GOFF] = float(effects['arm_gravity'].get('offset', 0.0))
+        p[kern.P_GARM] = 1.0
+    stops = effects.get('hard_stops', {})
+    p[kern.P_LO] = float(stops.get('low', -math.inf))
+    p[kern.P_HI] = float(stops.get('high', math.inf))
+    if not p[kern.P_LO] < p[kern.P_HI]:
+        raise ValueError('hard_stops: low must be below high')
 
 
 def default_n_sub(motor: Motor, sample_period: float,
@@ -399,18 +219,33 @@ def default_n_sub(motor: Motor, sample_period: float,
         scales.append(motor.J / (1.0 + float(res['r'])) * motor.R / motor.K ** 2)
     if 'sensor_lag' in effects:
         scales.append(float(effects['sensor_lag']['tau_s']))
+    gravity = effects.get('arm_gravity')
+    if gravity is not None and float(gravity['T_g']) > 0.0:  # the pendulum's 1 / omega
+        scales.append(math.sqrt(motor.J / float(gravity['T_g'])))
     return max(2, int(math.ceil(sample_period / (0.7 * min(scales)))))
 
 
 def _check_effects(effects: Mapping[str, Any]) -> None:
-    unknown = set(effects) - set(EFFECTS)
+    unknown = set(effects) - set(EFFECTS) - set(MECHANISM_EFFECTS)
     if unknown:
-        raise ValueError(f'unknown effect(s) {sorted(unknown)}; choose from {EFFECTS}')
+        raise ValueError(f'unknown effect(s) {sorted(unknown)}; choose from '
+                         f'{EFFECTS + MECHANISM_EFFECTS}')
+
+
+def _initial_state(p: np.ndarray, theta0: float) -> np.ndarray:
+    """At rest at position theta0 (inside the hard stops), no current."""
+    if not p[kern.P_LO] <= theta0 <= p[kern.P_HI]:
+        raise ValueError(f'theta0 = {theta0} lies outside the hard stops '
+                         f'[{p[kern.P_LO]}, {p[kern.P_HI]}]')
+    x0 = np.zeros(kern.NX)
+    x0[kern.TH] = theta0
+    return x0
 
 
 def integrate(motor: Motor, voltage: ArrayLike, sample_period: float,
-              effects: Mapping[str, Any] | None = None,
-              n_sub: int | None = None) -> dict[str, np.ndarray]:
+              effects: Mapping[str, Any] | None = None, n_sub: int | None = None,
+              theta0: float = 0.0, input_kind: str = 'voltage',
+              current_loop: float | None = None) -> dict[str, np.ndarray]:
     """Integrate the motor over held (zero-order hold) terminal voltages with RK4 sub-steps.
 
     Parameters
@@ -418,24 +253,33 @@ def integrate(motor: Motor, voltage: ArrayLike, sample_period: float,
     motor : Motor
     voltage : array_like
         Terminal voltage per sample [V], held over each sample period (the amplifier's
-        output, see :func:`amplifier`).
+        output, see :func:`amplifier`); the commanded torque [N m or N] for a torque drive.
     sample_period : float
         [s]
     effects : dict, optional
         ``{name: {param: value}}`` with the simulator's parameters: coulomb_friction
         (T_c, T_s), load_torque (T_L), quadratic_load (k_q), brush_drop (V_b), sensor_lag
         (tau_s), resistance_drift (C_th [J/K], R_th [K/W], alpha [1/K]), resonance
-        (r, f_r [Hz], zeta). Amplifier and measurement effects are ignored here.
+        (r, f_r [Hz], zeta), and the joint's :data:`MECHANISM_EFFECTS`: elevator_gravity
+        (T_g), arm_gravity (T_g, offset [rad]), hard_stops (low, high). Amplifier and
+        measurement effects are ignored here.
     n_sub : int, optional
         RK4 sub-steps per sample; default :func:`default_n_sub`.
+    theta0 : float
+        Position at the start [rad, or m for an elevator]; the joint starts at rest.
+    input_kind : {'voltage', 'torque'}
+        'torque': a current-controlled drive, the current follows ``u / K`` with the time
+        constant ``current_loop`` (default L / R) and the brush drop plays no part.
+    current_loop : float, optional
+        [s]
 
     Returns
     -------
     dict of ndarray
         States at the sample instants (before each sample's voltage is applied):
-        'speed' [rad/s] (motor side), 'current' [A], 'angle' [rad], 'temperature_rise'
-        [K], 'resistance' [Ohm], 'load_speed' [rad/s], 'twist' [rad], 'sensor' [rad/s]
-        (speed through the sensor lag, or the speed itself).
+        'speed' [rad/s] (motor side), 'current' [A], 'angle' [rad] (the joint's position),
+        'temperature_rise' [K], 'resistance' [Ohm], 'load_speed' [rad/s], 'twist' [rad],
+        'sensor' [rad/s] (speed through the sensor lag, or the speed itself).
     """
     effects = effects or {}
     _check_effects(effects)
@@ -446,12 +290,94 @@ def integrate(motor: Motor, voltage: ArrayLike, sample_period: float,
         n_sub = default_n_sub(motor, sample_period, effects)
     if int(n_sub) < 1:
         raise ValueError('n_sub must be >= 1')
-    p = _param_vector(motor, effects)
-    out = _integrate(v, float(sample_period), int(n_sub), p, np.zeros(_NX))
-    return {'speed': out[:, _W], 'current': out[:, _I], 'angle': out[:, _TH],
-            'temperature_rise': out[:, _DT],
-            'resistance': motor.R * (1.0 + p[_P_ALPHA] * out[:, _DT]),
-            'load_speed': out[:, _WL], 'twist': out[:, _PHI], 'sensor': out[:, _Y]}
+    p = _param_vector(motor, effects, input_kind, current_loop)
+    out = kern.integrate_held(v, float(sample_period), int(n_sub), p,
+                              _initial_state(p, float(theta0)))
+    return {'speed': out[:, kern.W], 'current': out[:, kern.I], 'angle': out[:, kern.TH],
+            'temperature_rise': out[:, kern.DT],
+            'resistance': motor.R * (1.0 + p[kern.P_ALPHA] * out[:, kern.DT]),
+            'load_speed': out[:, kern.WL], 'twist': out[:, kern.PHI],
+            'sensor': out[:, kern.Y]}
+
+
+class Plant:
+    """A motor and its joint stepped forward on demand, for a simulator running in real time.
+
+    The state persists between calls to :meth:`advance`, each of which holds one input
+    over any duration (sub-stepped so that no RK4 step exceeds :func:`default_n_sub`'s).
+
+    Parameters
+    ----------
+    motor, effects, theta0, input_kind, current_loop
+        As in :func:`integrate`.
+    """
+
+    def __init__(self, motor: Motor, effects: Mapping[str, Any] | None = None,
+                 theta0: float = 0.0, input_kind: str = 'voltage',
+                 current_loop: float | None = None) -> None:
+        effects = dict(effects or {})
+        _check_effects(effects)
+        self._p = _param_vector(motor, effects, input_kind, current_loop)
+        self._x = _initial_state(self._p, float(theta0))
+        self._h_max = 1.0 / default_n_sub(motor, 1.0, effects)
+        self.time = 0.0
+        """Time simulated so far [s]."""
+
+    def advance(self, u: float, duration: float) -> None:
+        """Hold the input u (voltage [V] or torque) for ``duration`` [s] (>= 0)."""
+        if duration < 0:
+            raise ValueError('duration must be >= 0 s')
+        if duration == 0:
+            return
+        n_sub = max(1, math.ceil(duration / self._h_max))
+        kern.advance(self._x, float(u), float(duration), n_sub, self._p)
+        self.time += duration
+
+    @property
+    def speed(self) -> float:
+        """[rad/s] (m/s for an elevator)"""
+        return float(self._x[kern.W])
+
+    @property
+    def current(self) -> float:
+        """[A]"""
+        return float(self._x[kern.I])
+
+    @property
+    def position(self) -> float:
+        """[rad] (m for an elevator)"""
+        return float(self._x[kern.TH])
+
+    @property
+    def torque(self) -> float:
+        """The motor's torque K i [N m] (N for an elevator)."""
+        return float(self._p[kern.P_K] * self._x[kern.I])
+
+
+def feedforward(motor: Motor, effects: Mapping[str, Any] | None = None,
+                input_kind: str = 'voltage') -> dict[str, float]:
+    """The true feedforward constants of the motor and its joint.
+
+    ``u = kS sgn(w) + kG [cos(theta + offset)] + kV w + kA dw/dt`` in the input's unit:
+    for a voltage drive kS = R T_c / K, kV = K + R B / K, kA = R J / K, kG = R T_g / K;
+    for a torque drive kS = T_c, kV = B, kA = J, kG = T_g. ``offset`` [rad] for an arm,
+    else 0.
+
+    Returns
+    -------
+    dict
+        ``{'kS', 'kV', 'kA', 'kG', 'offset'}``.
+    """
+    effects = effects or {}
+    T_c = float(effects.get('coulomb_friction', {}).get('T_c', 0.0))
+    gravity = effects.get('arm_gravity') or effects.get('elevator_gravity') or {}
+    T_g = float(gravity.get('T_g', 0.0))
+    offset = float(effects.get('arm_gravity', {}).get('offset', 0.0))
+    if input_kind == 'torque':
+        return {'kS': T_c, 'kV': motor.B, 'kA': motor.J, 'kG': T_g, 'offset': offset}
+    g = motor.R / motor.K
+    return {'kS': g * T_c, 'kV': motor.K + g * motor.B, 'kA': g * motor.J, 'kG': g * T_g,
+            'offset': offset}
 
 
 # ---------------------------------------------------------------------------- measurement
@@ -463,7 +389,7 @@ def encoder_speed(angle: np.ndarray, cpr: int, sample_period: float, jitter: flo
     Parameters
     ----------
     angle : ndarray
-        True shaft angle at the samples [rad] (the shaft starts at rest at angle 0).
+        True shaft angle at the samples [rad] (the shaft is at rest before the first).
     cpr : int
         Counts per revolution.
     sample_period : float
@@ -476,9 +402,10 @@ def encoder_speed(angle: np.ndarray, cpr: int, sample_period: float, jitter: flo
     -------
     ndarray
         ``(counts[k] - counts[k-1]) * q`` with ``q = 2 pi / (cpr T)`` [rad/s]; the count
-        before the first sample is taken at angle 0.
+        before the first sample is taken at the first sample's angle.
     """
-    ang = np.concatenate([[0.0], np.asarray(angle, dtype=float)])
+    ang = np.asarray(angle, dtype=float)
+    ang = np.concatenate([ang[:1], ang])
     ang = ang + jitter * rng.standard_normal(ang.size)
     counts = np.floor(ang * cpr / (2.0 * math.pi))
     return np.diff(counts) * (2.0 * math.pi / (cpr * sample_period))
@@ -522,8 +449,12 @@ def simulate(motor: Motor, command: ArrayLike, sample_period: float,
              effects: Mapping[str, Any] | None = None,
              noise: tuple[float, float] = (0.005, 0.005),
              rng: int | np.random.Generator | None = None,
-             n_sub: int | None = None) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+             n_sub: int | None = None, theta0: float = 0.0,
+             ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Command -> amplifier -> motor -> sensors.
+
+    ``effects`` and ``theta0`` are those of :func:`integrate` (a joint with gravity and
+    hard stops is a position-dependent case; its true position is ``states['angle']``).
 
     Returns
     -------
@@ -536,7 +467,7 @@ def simulate(motor: Motor, command: ArrayLike, sample_period: float,
     effects = effects or {}
     _check_effects(effects)
     v = amplifier(command, effects)
-    states = integrate(motor, v, sample_period, effects, n_sub)
+    states = integrate(motor, v, sample_period, effects, n_sub, theta0)
     states['voltage'] = v
     speed, current = measure(states, sample_period, effects, noise, rng)
     return speed, current, states
