@@ -16,7 +16,7 @@ setup(
         ('share/' + package_name + '/bags', glob('bags/*.mcap') + glob('bags/*.md')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
-                      'mcap', 'PyYAML', 'rosbags'],
+                      'mcap', 'PyYAML', 'rosbags', 'robotpy-wpiutil'],
     extras_require={
         'test': ['pytest', 'pytest-xdist', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
                  'import-linter', 'pygad', 'cma', 'psutil', 'control', 'ruff', 'mypy',

@@ -11,12 +11,14 @@ from motor_id.data.csv_io import parse_columns
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import load_profile, mapping_settings, PROFILE_KEYS
 from motor_id.data.shift import detect_shift, shift_input
+from motor_id.data.wpilog import LogEntries, UNIT_NAMES
 from motor_id.errors import DataError
 from motor_id.recording import Recording
 
 DATA_HELP = ('CSV (time, voltage|torque|force, speed[, current]), a rosbag2 recording (an '
-             '.mcap or .db3 file or a bag folder), or a WPILib SysId log (.json, its four '
-             'tests as four runs)')
+             '.mcap or .db3 file or a bag folder), a WPILib SysId log (.json, its four '
+             'tests as four runs) or a WPILib DataLog of a SysId routine (.wpilog, each '
+             'test a run)')
 
 
 def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) -> None:
@@ -52,10 +54,36 @@ def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) ->
                         'published just after each measurement (next)')
     g.add_argument('--shift', type=int, default=None, metavar='N',
                    help='use input[k+N] at sample k (N > 0: the input was stamped late)')
+    add_log_arguments(parser)
     if profile:
         g.add_argument('--profile', metavar='FILE',
                        help='YAML mapping profile (keys: input, speed, current, joint, '
                             'effort_is, align, input_kind, shift, columns); flags override')
+
+
+def add_log_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options that pick a motor, or the entries, of a WPILib DataLog."""
+    g = parser.add_argument_group('WPILib DataLog (.wpilog): SysIdRoutineLog entries are '
+                                  'found by name; other loggers name theirs')
+    g.add_argument('--motor', metavar='NAME',
+                   help='.wpilog: the motor, where the log holds several (import dunker: '
+                        'the motor number, 1 to 3)')
+    g.add_argument('--voltage', metavar='ENTRY', help='.wpilog: the applied voltage entry')
+    g.add_argument('--position', metavar='ENTRY', help='.wpilog: the position entry')
+    g.add_argument('--velocity', metavar='ENTRY', help='.wpilog: the velocity entry')
+    g.add_argument('--state', metavar='ENTRY',
+                   help='.wpilog: the test-state entry (quasistatic-forward, ..., none)')
+    g.add_argument('--units', choices=UNIT_NAMES,
+                   help=".wpilog: the position unit where the entries' metadata lacks it")
+
+
+def log_entries_from_args(args: argparse.Namespace) -> LogEntries | None:
+    """The DataLog selection the options give (None: none given)."""
+    keys = ('motor', 'voltage', 'position', 'velocity', 'state', 'units')
+    values = {k: getattr(args, k, None) for k in keys}
+    if all(v is None for v in values.values()):
+        return None
+    return LogEntries(**{k: None if v is None else str(v) for k, v in values.items()})
 
 
 def settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
@@ -100,7 +128,9 @@ def load_from_args(args: argparse.Namespace, path: str | None = None, validate: 
     path = str(args.data if path is None else path)
     s = settings_from_args(args)
     rec = load_recording(path, columns=s['columns'], input_kind=s['input_kind'],
-                         mapping=s['mapping'])
+                         mapping=s['mapping'], log_entries=log_entries_from_args(args))
+    for note in rec.meta.get('warnings') or ():
+        print(f'warning: {path}: {note}', file=stream or sys.stderr)
     if s['shift']:
         rec = shift_input(rec, s['shift'])
     if not validate:

@@ -1,10 +1,12 @@
-"""Load a recording from any file the tools accept (CSV, rosbag2, SysId log), by its path."""
+"""Load a recording from any file the tools accept (CSV, rosbag2, SysId log, DataLog), by path."""
 
+from dataclasses import replace
 import os
 from typing import TYPE_CHECKING
 
 from motor_id.data.csv_io import read_csv
 from motor_id.data.sysid import is_sysid_log, load_sysid
+from motor_id.data.wpilog import is_wpilog, load_wpilog, LogEntries
 from motor_id.errors import ConfigError
 from motor_id.recording import Recording
 
@@ -14,7 +16,8 @@ if TYPE_CHECKING:  # the bag modules load only when a bag is read
 
 def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] | None = None,
                    input_kind: str | None = None,
-                   mapping: 'Mapping | None' = None) -> Recording:
+                   mapping: 'Mapping | None' = None,
+                   log_entries: LogEntries | None = None) -> Recording:
     """Read a recording from a CSV file, a rosbag2 recording or a WPILib SysId log.
 
     Parameters
@@ -22,24 +25,38 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     path : str or os.PathLike
         A directory (rosbag2 folder), ``*.mcap`` or ``*.db3``: a bag, read by
         :func:`motor_id.data.rosbag.read_bag`; ``*.json``: a SysId log
-        (:func:`motor_id.data.sysid.load_sysid`, its four tests as four runs); anything
-        else: CSV (:func:`motor_id.data.csv_io.read_csv`).
+        (:func:`motor_id.data.sysid.load_sysid`, its four tests as four runs);
+        ``*.wpilog``: a WPILib DataLog of a SysId routine
+        (:func:`motor_id.data.wpilog.load_wpilog`, each test a run); anything else: CSV
+        (:func:`motor_id.data.csv_io.read_csv`).
     columns : dict or str, optional
         CSV only: column mapping ``{role: name}``.
     input_kind : {'voltage', 'torque'}, optional
         Plant kind when the names cannot tell (CSV, or a bag mapping).
     mapping : motor_id.data.mapping.Mapping, optional
         Bags: the topic/field mapping (None or empty: the ``/samples`` topic); a SysId
-        log takes only its ``joint`` (the side of a Drivetrain log).
+        log or a DataLog takes only its ``joint`` (the side of a drivetrain).
+    log_entries : motor_id.data.wpilog.LogEntries, optional
+        A DataLog's motor, or its entries (refused for any other file).
 
     Returns
     -------
     motor_id.recording.Recording
         Validated for CSV and SysId logs; a bag's recording is validated by the caller.
     """
+    joint = None if mapping is None else mapping.joint
+    if is_wpilog(path):
+        _check_sysid_options(path, columns, input_kind, mapping)
+        entries = log_entries or LogEntries()
+        if joint is not None:
+            entries = replace(entries, joint=joint)
+        return load_wpilog(path, entries)
+    if log_entries is not None and log_entries != LogEntries():
+        raise ConfigError(f'{path}: --motor, --voltage, --position, --velocity, --state and '
+                          '--units pick the entries of a WPILib DataLog (.wpilog)')
     if is_sysid_log(path):
         _check_sysid_options(path, columns, input_kind, mapping)
-        return load_sysid(path, joint=None if mapping is None else mapping.joint)
+        return load_sysid(path, joint=joint)
     from motor_id.data.mapping import Mapping
     from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
@@ -67,4 +84,4 @@ def _check_sysid_options(path: str | os.PathLike[str],
         raise ConfigError(f'{path}: a SysId log has voltage input, not {input_kind}')
     if mapping is not None and not mapping.is_empty:
         raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
-                          'a SysId log takes only --joint (left or right, Drivetrain)')
+                          'a SysId log takes only --joint (left or right, a drivetrain)')

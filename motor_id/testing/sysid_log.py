@@ -31,8 +31,8 @@ import numpy as np
 
 from motor_id.testing.independent_physics import integrate, Motor
 
-__all__ = ['DEFAULT_MOTOR', 'feedforward', 'make_sysid_log', 'SysIdLog', 'TESTS',
-           'UNITS_PER_ROTATION']
+__all__ = ['DEFAULT_MOTOR', 'feedforward', 'make_sysid_log', 'measure', 'SysIdLog', 'TESTS',
+           'routine_commands', 'Timing', 'UNITS_PER_ROTATION']
 
 TESTS = ('slow-forward', 'slow-backward', 'fast-forward', 'fast-backward')
 
@@ -78,7 +78,10 @@ class SysIdLog:
 
 
 @dataclass(frozen=True)
-class _Timing:
+class Timing:
+    """The robot loop and its sensors: period [s], jitter, integration sub-steps, input
+    latency [s], readings refreshed every ``hold`` loops, enable latency [s]."""
+
     sample_period: float
     jitter: float
     sub: int
@@ -150,7 +153,7 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
     upr = float(UNITS_PER_ROTATION[units] if units_per_rotation is None
                 else units_per_rotation)
     si_per_raw = upr * _SI_PER[units]
-    timing = _Timing(float(sample_period), float(jitter), int(sub), float(latency), int(hold),
+    timing = Timing(float(sample_period), float(jitter), int(sub), float(latency), int(hold),
                      float(start_latency))
     sides = [(motor, float(kS))]
     if test == 'Drivetrain':
@@ -162,12 +165,12 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
     t_start = 10.0
     offsets = [0.0] * len(sides)
     for name in TESTS:
-        command, t = _profile(name, timing, rng, ramp_rate, ramp_duration, step_voltage,
+        command, t = routine_commands(name, timing, rng, ramp_rate, ramp_duration, step_voltage,
                               step_duration)
         phase = int(rng.integers(timing.hold))
         cols = []
         for k, (m, ks) in enumerate(sides):
-            pos, vel = _measure(m, ks, command, timing, w_scale, phase, rng)
+            pos, vel = measure(m, ks, command, timing, w_scale, phase, rng)
             cols.append((command[1], (pos + offsets[k]) / si_per_raw, vel / si_per_raw))
             offsets[k] += float(pos[-1])
         data[name] = _rows(t_start + t, cols, test, track_width / si_per_raw)
@@ -176,11 +179,29 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
     return SysIdLog(data=data, truth=truth)
 
 
-def _profile(name: str, timing: _Timing, rng: np.random.Generator, ramp_rate: float,
-             ramp_duration: float, step_voltage: float, step_duration: float
-             ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
-    """``((grid index, command) per sample, sample times from 0)`` of one test."""
-    slow = name.startswith('slow')
+def routine_commands(name: str, timing: Timing, rng: np.random.Generator, ramp_rate: float,
+                     ramp_duration: float, step_voltage: float, step_duration: float
+                     ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """The commands of one test of the routine, one per robot loop.
+
+    Parameters
+    ----------
+    name : str
+        The test: ``slow-forward`` ... (a SysId JSON's names) or ``quasistatic-forward``
+        ... (SysIdRoutineLog's); quasistatic tests ramp, dynamic tests step.
+    timing : Timing
+    rng : numpy.random.Generator
+        Draws the loop jitter.
+    ramp_rate, ramp_duration, step_voltage, step_duration : float
+        As :func:`make_sysid_log`.
+
+    Returns
+    -------
+    ((grid, command), t)
+        The loops' indices on the integration grid, the command of each loop [V] (0 at
+        the first), and the loop times from 0 [s].
+    """
+    slow = name.startswith(('slow', 'quasistatic'))
     duration = ramp_duration if slow else step_duration
     n = int(round(duration / timing.sample_period)) + 1
     steps = timing.sample_period * (1.0 + timing.jitter * rng.uniform(-1.0, 1.0, n - 1))
@@ -193,10 +214,19 @@ def _profile(name: str, timing: _Timing, rng: np.random.Generator, ramp_rate: fl
     return (grid, u), t
 
 
-def _measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
-             timing: _Timing, w_noise: float, phase: int,
-             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Position and speed readings [SI] of one side at the samples."""
+def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
+            timing: Timing, w_noise: float, phase: int, rng: np.random.Generator,
+            effects: Mapping[str, Mapping[str, float]] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Position [rad] and speed [rad/s] readings of one motor at the loops of one test.
+
+    The command is delayed by ``timing.latency``, blanked for ``timing.start_latency``
+    after it leaves zero, integrated from rest on the independent physics (with Coulomb
+    friction ``kS`` [V] and any further ``effects`` of
+    :func:`motor_id.testing.independent_physics.integrate`); the speed gets white noise of
+    std ``w_noise`` and both readings are refreshed every ``timing.hold`` loops from loop
+    ``phase``.
+    """
     grid, u = command
     h = timing.sample_period / timing.sub
     delay = int(round(timing.latency / h))
@@ -206,11 +236,11 @@ def _measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
     off = int(round(timing.start_latency / h))
     for on in np.flatnonzero((v[1:] != 0.0) & (v[:-1] == 0.0)) + 1:
         v[on:on + off] = 0.0   # the drive arms on its first non-zero command
-    effects: dict[str, Mapping[str, float]] = {}
+    hidden: dict[str, Mapping[str, float]] = dict(effects or {})
     if kS > 0:
         T_c = kS * motor.K / motor.R
-        effects['coulomb_friction'] = {'T_c': T_c, 'T_s': T_c}
-    states = integrate(motor, v, h, effects)
+        hidden['coulomb_friction'] = {'T_c': T_c, 'T_s': T_c}
+    states = integrate(motor, v, h, hidden)
     speed = states['speed'][grid] + w_noise * rng.standard_normal(grid.size)
     angle = states['angle'][grid]
     n = grid.size
@@ -232,7 +262,7 @@ def _rows(t: np.ndarray, cols: list[tuple[np.ndarray, np.ndarray, np.ndarray]], 
 
 
 def _truth(seed: int, sides: list[tuple[Motor, float]], units: str, si_per_raw: float,
-           timing: _Timing, noise: float, w_noise: float) -> dict[str, Any]:
+           timing: Timing, noise: float, w_noise: float) -> dict[str, Any]:
     """The constants behind the log, in SI and in the log's units."""
     si_per_unit = _SI_PER[units]
     out: dict[str, Any] = {'seed': int(seed), 'units': units, 'si_per_raw': si_per_raw,

@@ -147,8 +147,9 @@ def prepare(rec: Recording) -> Prepared:
     Parameters
     ----------
     rec : Recording
-        From :func:`motor_id.data.sysid.load_sysid` (runs named in
-        ``meta['segment_names']``).
+        From :func:`motor_id.data.sysid.load_sysid` or
+        :func:`motor_id.data.wpilog.load_wpilog` (runs named in ``meta['segment_names']``:
+        ``slow-*``/``fast-*`` or ``quasistatic-*``/``dynamic-*``).
 
     Returns
     -------
@@ -158,8 +159,8 @@ def prepare(rec: Recording) -> Prepared:
     raw = {}
     for name, (a, b) in zip(names, rec.segment_ranges, strict=True):
         raw[name] = _points(rec.time[a:b], rec.input[a:b], rec.speed[a:b])
-    slow = [n for n in raw if n.startswith('slow')]
-    fast = [n for n in raw if n.startswith('fast')]
+    slow = [n for n in raw if n.startswith(('slow', 'quasistatic'))]
+    fast = [n for n in raw if n.startswith(('fast', 'dynamic'))]
     threshold = min((noise_floor(raw[n]['v']) for n in slow), default=0.0)
     max_step = max((float(raw[n]['t'][-1] - raw[n]['t'][0]) for n in fast), default=0.0)
     duration: float | None = None

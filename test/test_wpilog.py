@@ -1,0 +1,294 @@
+"""WPILib DataLogs (.wpilog) of a SysId routine: the reader (runs, alignment, units, motors,
+entries of other loggers, cut and corrupt files) and the commands that read them."""
+
+from dataclasses import replace
+import json
+import math
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from wpiutil.log import DataLogReader
+
+from motor_id.bag import read_recording
+from motor_id.cli import main
+from motor_id.data.load import load_recording
+from motor_id.data.mapping import Mapping
+from motor_id.data.wpilog import load_wpilog, LogEntries, parse_unit
+from motor_id.errors import ConfigError, DataError
+from motor_id.testing.sysid_log import DEFAULT_MOTOR
+from motor_id.testing.sysid_wpilog import ROUTINE, RoutineMotor, write_sysid_wpilog
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = {'ramp_duration': 1.5, 'step_duration': 0.6, 'rest': 0.5}
+"""A short routine (about 200 loops of 20 ms) for the reader's tests."""
+
+
+def raw_entries(path):
+    """``{name: (metadata, [(t_us, value), ...])}`` read with wpiutil, apart from the reader."""
+    out, names = {}, {}
+    for record in DataLogReader(str(path)):
+        if record.isStart():
+            data = record.getStartData()
+            names[data.entry] = (data.name, data.type)
+            out[data.name] = (data.metadata, [])
+        elif not record.isControl():
+            name, kind = names[record.getEntry()]
+            value = record.getString() if kind == 'string' else record.getDouble()
+            out[name][1].append((record.getTimestamp(), value))
+    return out
+
+
+@pytest.fixture(scope='module')
+def routine(tmp_path_factory):
+    path = tmp_path_factory.mktemp('wpilog') / 'shooter.wpilog'
+    log = write_sysid_wpilog(path, 1, motors=(RoutineMotor('shooter', kS=0.2),), **SHORT)
+    return log, str(path)
+
+
+def test_reader_splits_the_tests_and_takes_each_loops_values(routine):
+    log, path = routine
+    rec = load_wpilog(path)
+    assert rec.meta['segment_names'] == list(ROUTINE)
+    assert rec.meta['sysid']['units'] == 'Rotation' and rec.meta['sysid']['linear'] is False
+    assert rec.meta['units']['speed'] == 'rad/s' and rec.meta['units']['position'] == 'rad'
+    raw = raw_entries(path)
+    volts = np.array(raw['voltage-shooter-shooter'][1])
+    vel = np.array(raw['velocity-shooter-shooter'][1])
+    pos = np.array(raw['position-shooter-shooter'][1])
+    assert raw['velocity-shooter-shooter'][0] == 'Rotation per Second'
+    # every loop of every test is a sample: the loop count of each test
+    loops = {'quasistatic': round(SHORT['ramp_duration'] / 0.02) + 1,
+             'dynamic': round(SHORT['step_duration'] / 0.02) + 1}
+    assert [b - a for a, b in rec.segment_ranges] == [loops[n.split('-')[0]] for n in ROUTINE]
+    # values in SI, each voltage from the velocity's own loop (30 us before it)
+    np.testing.assert_allclose(rec.speed, vel[:, 1] * 2 * math.pi, rtol=1e-12)
+    np.testing.assert_allclose(rec.position, pos[:, 1] * 2 * math.pi, rtol=1e-12)
+    np.testing.assert_array_equal(rec.input, volts[:, 1])
+    assert np.all((vel[:, 0] - volts[:, 0]) == 30)
+    a, b = rec.segment_ranges[2]
+    assert rec.input[a] == 0.0 and np.all(rec.input[a + 1:b] == 6.0)
+    a, b = rec.segment_ranges[1]
+    assert np.all(rec.input[a + 1:b] < 0) and np.all(np.diff(rec.input[a:b]) < 0)
+
+
+@pytest.mark.parametrize('order', [('velocity', 'position', 'voltage'),
+                                   ('position', 'voltage', 'velocity')])
+def test_the_order_a_loop_logs_in_does_not_matter(routine, tmp_path, order):
+    _, path = routine
+    other = write_sysid_wpilog(tmp_path / 'o.wpilog', 1, order=order,
+                               motors=(RoutineMotor('shooter', kS=0.2),), **SHORT).path
+    a, b = load_wpilog(path), load_wpilog(other)
+    assert a.segment_ranges == b.segment_ranges
+    np.testing.assert_array_equal(a.input, b.input)
+    np.testing.assert_array_equal(a.speed, b.speed)
+
+
+@pytest.mark.parametrize('units,linear,si', [('Meter', True, 1.0), ('Inch', True, 0.0254),
+                                             ('Degree', False, math.pi / 180),
+                                             ('Radian', False, 1.0)])
+def test_units_come_from_the_metadata(tmp_path, units, linear, si):
+    log = write_sysid_wpilog(tmp_path / 'u.wpilog', 2, units=units, **SHORT)
+    rec = load_wpilog(log.path)
+    raw = raw_entries(log.path)
+    vel = np.array(raw['velocity-shooter-shooter'][1])[:, 1]
+    np.testing.assert_allclose(rec.speed, vel * si, rtol=1e-12)
+    assert rec.meta['sysid']['linear'] is linear
+    assert rec.meta['units']['speed'] == ('m/s' if linear else 'rad/s')
+    assert rec.meta['units']['position'] == ('m' if linear else 'rad')
+    np.testing.assert_allclose(rec.meta['sysid']['si_to_units'], 1 / si, rtol=1e-12)
+
+
+@pytest.mark.parametrize('text,expected', [
+    ('Rotation', (2 * math.pi, False)), ('rotations', (2 * math.pi, False)),
+    ('Meter', (1.0, True)), ('Feet', (0.3048, True)), ('in', (0.0254, True)),
+    ('deg', (math.pi / 180, False))])
+def test_position_units(text, expected):
+    np.testing.assert_allclose(parse_unit(text), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize('text,expected', [
+    ('Rotation per Second', (2 * math.pi, False)), ('rps', (2 * math.pi, False)),
+    ('RPM', (2 * math.pi / 60, False)), ('Meter per Second', (1.0, True)),
+    ('m/s', (1.0, True)), ('Inches per Second', (0.0254, True)),
+    ('Radian per Second', (1.0, False))])
+def test_speed_units(text, expected):
+    np.testing.assert_allclose(parse_unit(text, speed=True), expected, rtol=1e-12)
+    assert parse_unit('Furlong per Fortnight', speed=True) is None
+    assert parse_unit('Rotation', speed=True) is None
+
+
+def test_older_distance_entries_read_as_position(routine, tmp_path):
+    _, path = routine
+    old = write_sysid_wpilog(tmp_path / 'old.wpilog', 1, position_name='distance',
+                             motors=(RoutineMotor('shooter', kS=0.2),), **SHORT).path
+    assert 'distance-shooter-shooter' in raw_entries(old)
+    a, b = load_wpilog(path), load_wpilog(old)
+    np.testing.assert_array_equal(a.position, b.position)
+    assert b.meta['sysid']['entries']['position'] == 'distance-shooter-shooter'
+
+
+def test_several_motors_are_listed_and_picked(tmp_path, capsys):
+    heavy = replace(DEFAULT_MOTOR, J=2 * DEFAULT_MOTOR.J)
+    motors = (RoutineMotor('drive-left'), RoutineMotor('drive-right', motor=heavy))
+    path = write_sysid_wpilog(tmp_path / 'dt.wpilog', 3, motors=motors, log_name='drive',
+                              **SHORT).path
+    with pytest.raises(DataError, match='several motors: drive-left, drive-right; pick one '
+                                        'with --motor NAME'):
+        load_wpilog(path)
+    left = load_wpilog(path, LogEntries(motor='drive-left'))
+    right = load_wpilog(path, LogEntries(motor='drive-right-drive'))
+    assert left.meta['sysid']['motor'] == 'drive-left (log drive)'
+    # the heavier side accelerates slower under the same steps
+    a, b = left.segment_ranges[2]
+    assert right.speed[a + 5] < 0.8 * left.speed[a + 5]
+    # --joint picks a side by the word in the motor's name, as for a JSON drivetrain log
+    side = load_recording(path, mapping=Mapping(joint='right'))
+    np.testing.assert_array_equal(side.speed, right.speed)
+    with pytest.raises(DataError, match="no motor 'arm' .motors: drive-left, drive-right"):
+        load_wpilog(path, LogEntries(motor='arm'))
+    assert main(['import', 'sysid', path, str(tmp_path / 'x.mcap')]) == 2
+    err = capsys.readouterr().err.strip()
+    assert '\n' not in err and 'drive-left, drive-right' in err
+    out = tmp_path / 'left.mcap'
+    assert main(['import', 'sysid', path, str(out), '--motor', 'drive-left']) == 0
+    np.testing.assert_array_equal(read_recording(out).speed, left.speed)
+    assert read_recording(out).meta['import_command'].endswith('--motor drive-left')
+
+
+def test_entries_of_another_logger_are_named(tmp_path):
+    names = {'voltage': 'TalonFX-10/MotorVoltage', 'position': 'TalonFX-10/Position',
+             'velocity': 'TalonFX-10/Velocity', 'state': 'SysIdTestState'}
+    path = write_sysid_wpilog(tmp_path / 'ctre.wpilog', 4, entry_names=names,
+                              metadata=False, **SHORT).path
+    with pytest.raises(DataError, match='no SysIdRoutineLog motor.*TalonFX-10/Velocity'):
+        load_wpilog(path)
+    named = LogEntries(voltage='MotorVoltage', velocity='TalonFX-10/Velocity',
+                       position='Position', state='SysIdTestState')
+    with pytest.raises(DataError, match='no unit in its metadata; give the position unit '
+                                        'with --units'):
+        load_wpilog(path, named)
+    rec = load_wpilog(path, LogEntries(**{**named.__dict__, 'units': 'Rotation'}))
+    ref = write_sysid_wpilog(tmp_path / 'ref.wpilog', 4, **SHORT).path
+    np.testing.assert_array_equal(rec.speed, load_wpilog(ref).speed)
+    with pytest.raises(DataError, match='need --voltage and --velocity .missing: --voltage'):
+        load_wpilog(path, LogEntries(velocity='Velocity'))
+    with pytest.raises(DataError, match="no velocity entry 'Speed'"):
+        load_wpilog(path, LogEntries(voltage='MotorVoltage', velocity='Speed', units='Meter'))
+
+
+def test_a_cut_log_keeps_the_tests_before_the_cut(routine, tmp_path):
+    _, path = routine
+    whole = load_wpilog(path)
+    data = Path(path).read_bytes()
+    raw = raw_entries(path)
+    # cut in the middle of the third test (dynamic-forward)
+    t_cut = raw['velocity-shooter-shooter'][1][whole.segment_ranges[2][0] + 12][0]
+    cut = tmp_path / 'cut.wpilog'
+    cut.write_bytes(data[:_offset_of(path, t_cut)])
+    rec = load_wpilog(cut)
+    assert rec.meta['segment_names'] == list(ROUTINE[:3])
+    assert any('ends during dynamic-forward' in w for w in rec.meta['warnings'])
+    n = whole.segment_ranges[2][0] + 11
+    np.testing.assert_array_equal(rec.speed[:n], whole.speed[:n])
+    head = tmp_path / 'head.wpilog'
+    head.write_bytes(data[:10])
+    with pytest.raises(DataError, match='not a WPILib DataLog'):
+        load_wpilog(head)
+
+
+def _offset_of(path, t_us):
+    """Byte offset in the file of the first record at or after ``t_us`` (a record starts
+    with its header byte: the length of its entry, size and timestamp fields)."""
+    data = Path(path).read_bytes()
+    pos = 12 + int.from_bytes(data[8:12], 'little')
+    while pos < len(data):
+        h = data[pos]
+        ne, ns, nt = (h & 3) + 1, ((h >> 2) & 3) + 1, ((h >> 4) & 7) + 1
+        size = int.from_bytes(data[pos + 1 + ne:pos + 1 + ne + ns], 'little')
+        t = int.from_bytes(data[pos + 1 + ne + ns:pos + 1 + ne + ns + nt], 'little')
+        if t >= t_us:
+            return pos
+        pos += 1 + ne + ns + nt + size
+    return len(data)
+
+
+def test_a_corrupt_log_is_read_to_the_damage_or_refused(routine, tmp_path):
+    _, path = routine
+    whole = load_wpilog(path)
+    raw = raw_entries(path)
+    t_bad = raw['velocity-shooter-shooter'][1][whole.segment_ranges[3][0] + 3][0]
+    data = bytearray(Path(path).read_bytes())
+    at = _offset_of(path, t_bad)
+    data[at:at + 40] = np.random.default_rng(5).integers(0, 256, 40, dtype=np.uint8).tobytes()
+    bad = tmp_path / 'bad.wpilog'
+    bad.write_bytes(bytes(data))
+    rec = load_wpilog(bad)
+    assert rec.meta['segment_names'][:3] == list(ROUTINE[:3])
+    # wpiutil's reader stops at a record whose size runs off the file: the test that the
+    # damage falls in ends there, as in a cut file
+    assert any('ends during dynamic-reverse (no "none" after it: the file was cut, or is '
+               'corrupt from there)' in w for w in rec.meta['warnings'])
+    n = whole.segment_ranges[3][0]
+    np.testing.assert_array_equal(rec.speed[:n], whole.speed[:n])
+    # a record of an entry that was never started: the reading stops there, with a warning
+    data = bytearray(Path(path).read_bytes())
+    assert data[at] & 3 == 0   # a one-byte entry id follows the header byte
+    data[at + 1] = 200
+    stray = tmp_path / 'stray.wpilog'
+    stray.write_bytes(bytes(data))
+    rec = load_wpilog(stray)
+    assert any('corrupt after record' in w and 'entry 200, which was never started' in w
+               for w in rec.meta['warnings'])
+    np.testing.assert_array_equal(rec.speed[:n], whole.speed[:n])
+    junk = tmp_path / 'junk.wpilog'
+    junk.write_bytes(b'this is no data log at all' * 10)
+    with pytest.raises(DataError, match='junk.wpilog: not a WPILib DataLog'):
+        load_wpilog(junk)
+    with pytest.raises(DataError, match='nothing.wpilog: no such file'):
+        load_wpilog(tmp_path / 'nothing.wpilog')
+
+
+def test_repeated_and_unknown_states_and_short_tests(tmp_path):
+    tests = ('quasistatic-forward', 'quasistatic-forward', 'dynamic-forward')
+    path = write_sysid_wpilog(tmp_path / 'rep.wpilog', 6, tests=tests, **SHORT).path
+    rec = load_wpilog(path)
+    assert rec.meta['segment_names'] == ['quasistatic-forward', 'quasistatic-forward#2',
+                                         'dynamic-forward']
+    short = write_sysid_wpilog(tmp_path / 's.wpilog', 6, step_duration=0.1,
+                               ramp_duration=1.0, rest=0.5).path
+    rec = load_wpilog(short)
+    assert rec.meta['segment_names'] == ['quasistatic-forward', 'quasistatic-reverse']
+    assert sum('dropped: 6 sample(s), fewer than 10' in w for w in rec.meta['warnings']) == 2
+
+
+def test_datalog_options_are_refused_for_other_files(tmp_path):
+    csv = tmp_path / 'x.csv'
+    csv.write_text('time,voltage,speed\n' + ''.join(f'{k * 0.01},{1.0},{k}\n'
+                                                   for k in range(30)))
+    with pytest.raises(ConfigError, match='pick the entries of a WPILib DataLog'):
+        load_recording(csv, log_entries=LogEntries(motor='m'))
+    with pytest.raises(ConfigError, match='takes only --joint'):
+        load_recording(tmp_path / 'y.wpilog', mapping=Mapping(speed='/js'))
+
+
+def _cli(*args):
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get('PYTHONPATH',
+                                                                                 ''))
+    return subprocess.run([sys.executable, '-m', 'motor_id.cli', *map(str, args)],
+                          capture_output=True, text=True, env=env, timeout=600, check=False)
+
+
+def test_fit_reads_a_wpilog_and_recovers_kv_ka(tmp_path):
+    log = write_sysid_wpilog(tmp_path / 'fw.wpilog', 7, loop_period=0.005, units='Meter',
+                             motors=(RoutineMotor('flywheel', kS=0.0),))
+    out = tmp_path / 'fit.json'
+    proc = _cli('fit', log.path, '-R', '0.5', '--json', out, '-q')
+    assert proc.returncode == 0, proc.stderr
+    ff = json.loads(out.read_text())['controller']['feedforward']
+    truth = log.truth['motors']['flywheel']
+    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.02)
+    np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.1)
