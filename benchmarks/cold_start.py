@@ -16,6 +16,7 @@ import time
 from common import paper_recording, REPO, target
 import numpy as np
 
+from motor_id.blas import THREAD_VARIABLES
 from motor_id.data.csv_io import write_csv
 
 TITLE = 'Cold start in a fresh process (import, first GA, motor-id fit)'
@@ -58,6 +59,8 @@ print(json.dumps({'warm_up': warm, 'ga_seconds': idf.result_.ga['seconds'],
 
 def _env():
     env = dict(os.environ)
+    for var in THREAD_VARIABLES:   # as the command line and the nodes set it
+        env.setdefault(var, '1')
     env['PYTHONPATH'] = REPO + os.pathsep + env.get('PYTHONPATH', '')
     return env
 

@@ -40,13 +40,15 @@ import sys
 import tempfile
 import time
 
-import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
+from motor_id.blas import limit_threads
+
+limit_threads()  # before numpy loads: one BLAS thread, as the product runs
 
 # isort: split
-from common import render_table, REPO, Skip, target
-import numpy as np
+from common import render_table, REPO, Skip, target  # noqa: E402
+import numpy as np  # noqa: E402
 
-from motor_id.testing.discrepancy import (
+from motor_id.testing.discrepancy import (  # noqa: E402
     build_plan,
     CaseSpec,
     DEFAULT_CASES,

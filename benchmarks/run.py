@@ -27,7 +27,9 @@ import sys
 import time
 import traceback
 
-import motor_id  # noqa: F401  (before numpy loads: one BLAS thread, as the product runs)
+from motor_id.blas import limit_threads, THREAD_VARIABLES
+
+limit_threads()  # before a section loads numpy: one BLAS thread, as the product runs
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -81,8 +83,7 @@ def machine_info():
             'versions': {m: _version(m) for m in
                          ('numpy', 'scipy', 'numba', 'pygad', 'cma', 'psutil')},
             'blas': None,
-            'blas_threads_env': {v: os.environ.get(v) for v in ('OPENBLAS_NUM_THREADS',
-                                                                'MKL_NUM_THREADS')}}
+            'blas_threads_env': {v: os.environ.get(v) for v in THREAD_VARIABLES}}
     try:
         from threadpoolctl import threadpool_info
         info['blas'] = [{k: d.get(k) for k in ('internal_api', 'num_threads', 'version')}

@@ -1,17 +1,88 @@
 """motor_id: identify a DC motor's physical parameters from voltage, speed and current.
 
-Importing the package sets ``OPENBLAS_NUM_THREADS`` and ``MKL_NUM_THREADS`` to 1 unless
-they are already set, so that numpy and scipy, when they load after it (as in every
-``motor-id``, ``driver`` and ``identifier`` process), use one BLAS thread. The matrices
-here are small: more threads do not speed up a fit, and two busy processes whose BLAS
-threads spin-wait for each other on a 2-core machine ran ``motor-id analyze`` 38 times
-slower (141 s instead of 3.7 s). Set either variable to override.
+The few names a user needs, each with an example in its docstring:
+
+- load a recording: :func:`load_recording` (CSV, rosbag2, SysId log) into a
+  :class:`Recording`;
+- fit: :class:`Identifier` (``Identifier(R_m=2.3).fit(rec).result_``, an
+  :class:`IdentificationResult`), or :func:`fit_report` for the full :class:`FitReport`
+  (the fit, the data and the controller block: kS, kV, kA, loop gains);
+- analyze: :class:`DiscrepancyAnalysis` (``.fit(rec).report_``, a
+  :class:`DiscrepancyReport`): which named effect the linear model misses;
+- validate: :func:`validate` a :class:`SavedModel` on another recording
+  (a :class:`Validation`);
+- the errors: :class:`MotorIdError` and its children.
+
+Importing the package is cheap: the names load on first use (PEP 562), and the package
+sets no environment variable (the command line and the nodes limit BLAS threads:
+:mod:`motor_id.blas`).
+
+Examples
+--------
+>>> import motor_id
+>>> 'Identifier' in motor_id.__all__
+True
+>>> issubclass(motor_id.DataError, motor_id.MotorIdError)
+True
 """
 
-import os
+from __future__ import annotations
 
-for _var in ('OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
-    os.environ.setdefault(_var, '1')
-del _var
+import importlib
+from typing import Any, TYPE_CHECKING
+
+from motor_id.errors import (
+    BagError,
+    ConfigError,
+    DataError,
+    IdentificationError,
+    MotorIdError,
+    ProtocolError,
+)
+
+if TYPE_CHECKING:
+    from motor_id.analysis.analyzer import DiscrepancyAnalysis
+    from motor_id.analysis.report import DiscrepancyReport
+    from motor_id.data.load import load_recording
+    from motor_id.identify.estimator import Identifier
+    from motor_id.identify.result import IdentificationResult
+    from motor_id.identify.validation import SavedModel, validate, Validation
+    from motor_id.pipeline import fit_report, FitReport
+    from motor_id.recording import Recording
 
 __version__ = '0.1.0'
+
+_LAZY = {
+    'load_recording': 'motor_id.data.load',
+    'Recording': 'motor_id.recording',
+    'Identifier': 'motor_id.identify.estimator',
+    'IdentificationResult': 'motor_id.identify.result',
+    'fit_report': 'motor_id.pipeline',
+    'FitReport': 'motor_id.pipeline',
+    'DiscrepancyAnalysis': 'motor_id.analysis.analyzer',
+    'DiscrepancyReport': 'motor_id.analysis.report',
+    'SavedModel': 'motor_id.identify.validation',
+    'validate': 'motor_id.identify.validation',
+    'Validation': 'motor_id.identify.validation',
+}
+"""Public name -> the module it lives in, imported on first use."""
+
+__all__ = [
+    'BagError', 'ConfigError', 'DataError', 'DiscrepancyAnalysis', 'DiscrepancyReport',
+    'fit_report', 'FitReport', 'IdentificationError', 'IdentificationResult', 'Identifier',
+    'load_recording', 'MotorIdError', 'ProtocolError', 'Recording', 'SavedModel', 'validate',
+    'Validation',
+]
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name's module on first use (PEP 562)."""
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

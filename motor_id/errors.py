@@ -2,7 +2,20 @@
 
 
 class MotorIdError(Exception):
-    """Base class of all errors raised by motor_id."""
+    """Base class of all errors raised by motor_id.
+
+    Examples
+    --------
+    Bad input gets a specific child of this class, with a message that names the problem:
+
+    >>> from motor_id import DataError, MotorIdError, Recording
+    >>> rec = Recording([0.0, 0.01, 0.02], [1.0, 1.0, 1.0], [0.0, float('nan'), 0.2])
+    >>> try:
+    ...     rec.validate(min_samples=3)
+    ... except MotorIdError as exc:
+    ...     print(type(exc).__name__, isinstance(exc, ValueError))
+    DataError True
+    """
 
 
 class DataError(MotorIdError, ValueError):

@@ -118,7 +118,7 @@ def controller_for(report: Mapping[str, Any], sample_period: float | None,
     return design.to_dict(), None, design.summary()
 
 
-def identify(rec: Recording, identifier: Identifier, *,
+def fit_report(rec: Recording, identifier: Identifier, *,
              controller_options: Mapping[str, Any] | None = None,
              sample_period: float | None = None,
              progress: Callable[[int, int, float], bool | None] | None = None,
@@ -145,6 +145,20 @@ def identify(rec: Recording, identifier: Identifier, *,
     ------
     MotorIdError
         The fit itself failed (bad data or settings, no finite result).
+
+    Examples
+    --------
+    >>> from motor_id import fit_report, Identifier
+    >>> from motor_id.testing.recordings import paper_recording, SI_MOTOR
+    >>> rec = paper_recording(SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=1)
+    >>> report = fit_report(rec, Identifier(R_m=2.3, random_state=0))
+    >>> report.adequate
+    True
+    >>> ff = report.controller['feedforward']
+    >>> round(ff['kV']['value'], 3), ff['units']['kV']
+    (0.667, 'V s/rad')
+    >>> sorted(report.to_dict())[:4]
+    ['adequate', 'assumptions', 'channels', 'controller']
     """
     identifier.fit(rec, progress=progress)
     res = identifier.result_

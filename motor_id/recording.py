@@ -39,6 +39,19 @@ class Recording:
         Measured position [rad] (or [m] for a linear axis), when the source logs it
         (encoder counts scaled by the counts per revolution, the EMPS ``qm``, a SysId
         log's position). A model that integrates speed holds it too.
+
+    Examples
+    --------
+    From arrays (SI units; the fit needs at least 20 samples, :meth:`validate`):
+
+    >>> import numpy as np
+    >>> from motor_id import Recording
+    >>> t = np.arange(5) * 0.01
+    >>> rec = Recording(t, input=np.full(5, 6.0), speed=[0.0, 1.2, 2.1, 2.8, 3.3])
+    >>> len(rec), rec.channels(), rec.has_current
+    (5, ('speed',), False)
+    >>> round(rec.sample_period, 6)
+    0.01
     """
 
     time: np.ndarray

@@ -6,7 +6,9 @@ only turns them into fixtures.
 
 import pytest
 
-from motor_id.testing.recordings import paper_recording
+from motor_id.blas import limit_threads
+
+limit_threads()  # before a test module loads numpy; xdist workers and node processes inherit it
 
 
 @pytest.fixture(scope='session', autouse=True)
@@ -19,6 +21,7 @@ def clean_dds_shm():
 @pytest.fixture(scope='session')
 def clean_paper():
     """Noise-free speed and current of the paper's motor."""
+    from motor_id.testing.recordings import paper_recording
     return paper_recording()
 
 

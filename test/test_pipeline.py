@@ -14,7 +14,7 @@ from motor_id.testing.recordings import paper_recording, SI_MOTOR
 
 def test_the_report_holds_fit_data_and_controller_and_flattens_for_ros():
     rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=3)
-    fit = pipeline.identify(rec, Identifier(R_m=2.3, random_state=0),
+    fit = pipeline.fit_report(rec, Identifier(R_m=2.3, random_state=0),
                             extra={'hardware_id': 'bench'})
     d = fit.to_dict()
     assert d['adequate'] is True and d['data']['samples'] == len(rec)
@@ -30,7 +30,7 @@ def test_unknown_values_are_left_out_of_a_file_and_nan_for_a_node():
     rec = paper_recording(params=SI_MOTOR, speed_noise=0.01, current_noise=0.01, seed=3)
     speed_only = rec.slice(0, len(rec))
     speed_only.current = None
-    fit = pipeline.identify(speed_only, Identifier(R_m=2.3, random_state=0))
+    fit = pipeline.fit_report(speed_only, Identifier(R_m=2.3, random_state=0))
     undetermined = [n for n, p in fit.to_dict()['parameters'].items() if p['value'] is None]
     assert undetermined  # speed alone: three combinations of five parameters
     omit = fit.to_ros_parameters()['/**']['ros__parameters']
@@ -49,7 +49,7 @@ def test_the_cli_writes_what_the_pipeline_builds(tmp_path):
     assert main(['fit', str(path), '-R', '2.3', '-q', '--json', str(out),
                  '--yaml', str(yml)]) == 0
     d = json.loads(out.read_text())
-    again = pipeline.identify(rec, Identifier(R_m=2.3, random_state=0)).to_dict()
+    again = pipeline.fit_report(rec, Identifier(R_m=2.3, random_state=0)).to_dict()
     for n, p in again['parameters'].items():
         assert d['parameters'][n]['value'] == np.float64(p['value'])
     params = yaml.safe_load(yml.read_text())['/**']['ros__parameters']

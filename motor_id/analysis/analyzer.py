@@ -89,6 +89,27 @@ class DiscrepancyAnalysis:
         Processes the candidate fits of each step run on (:class:`.workers.FitPool`:
         forked workers, the same results); 1 fits in this process, as a caller with
         threads of its own (a ROS node) must.
+
+    Examples
+    --------
+    A motor with dry friction (T_c = 0.1 N m), 10 s of voltage steps both ways; only
+    friction is tried here, to keep the example quick:
+
+    >>> import numpy as np
+    >>> from motor_id import DiscrepancyAnalysis
+    >>> from motor_id.excitation import bipolar_steps
+    >>> from motor_id.model import Plant
+    >>> from motor_id.simulate import simulate_recording
+    >>> from motor_id.testing.recordings import SI_MOTOR
+    >>> t = np.arange(1000) * 0.01
+    >>> plant = Plant(SI_MOTOR, 'voltage', {'coulomb_friction': {'T_c': 0.1}})
+    >>> rec = simulate_recording(plant, t, bipolar_steps(t), 0.005, 0.01, random_state=2)
+    >>> analysis = DiscrepancyAnalysis(R_m=2.3, candidates=['coulomb_friction'])
+    >>> report = analysis.fit(rec).report_
+    >>> report.verdict, report.adequate
+    ('coulomb_friction', True)
+    >>> round(report.parameters['coulomb_friction.T_c']['value'], 2)
+    0.1
     """
 
     def __init__(self, R_m: float | None = None, candidates: Sequence[str] | None = None,

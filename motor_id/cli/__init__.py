@@ -11,6 +11,7 @@ import importlib
 import os
 import sys
 
+from motor_id.blas import limit_threads
 from motor_id.errors import MotorIdError
 
 COMMANDS = {
@@ -28,7 +29,12 @@ COMMANDS = {
 
 
 def main(argv=None):
-    """Console-script entry point."""
+    """Console-script entry point (``python -m motor_id.cli`` too).
+
+    Limits BLAS to one thread (:func:`motor_id.blas.limit_threads`) before a subcommand's
+    module loads numpy.
+    """
+    limit_threads()
     from_console = argv is None
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in COMMANDS:

@@ -170,7 +170,7 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
         print(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
               f'{"regular" if rec.is_regular else "irregular"} sampling '
               f'(median {rec.sample_period * 1e3:.3g} ms)', file=sys.stderr)
-    fit = pipeline.identify(rec, est, progress=progress_printer(args.quiet),
+    fit = pipeline.fit_report(rec, est, progress=progress_printer(args.quiet),
                             controller_options=controller_options(args, rec.input_kind),
                             extra=extra)
     res = fit.result

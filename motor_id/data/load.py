@@ -43,6 +43,28 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     -------
     motor_id.recording.Recording
         Validated for CSV and SysId logs; a bag's recording is validated by the caller.
+
+    Examples
+    --------
+    A CSV as a user has it: a header naming ``time`` [s], the input (``voltage`` [V]),
+    ``speed`` [rad/s] and, where measured, ``current`` [A]. Here one is written from a
+    simulated record of the paper's motor:
+
+    >>> import os, tempfile
+    >>> from motor_id import load_recording
+    >>> from motor_id.data.csv_io import write_csv
+    >>> from motor_id.testing.recordings import paper_recording
+    >>> folder = tempfile.mkdtemp()
+    >>> path = os.path.join(folder, 'motor.csv')
+    >>> write_csv(paper_recording(), path)
+    >>> with open(path) as fh:
+    ...     print(fh.readline().strip())
+    time,voltage,speed,current
+    >>> rec = load_recording(path)
+    >>> len(rec), rec.input_kind, rec.channels()
+    (4000, 'voltage', ('speed', 'current'))
+    >>> round(rec.sample_period, 6)
+    0.01
     """
     joint = None if mapping is None else mapping.joint
     if is_wpilog(path):

@@ -164,6 +164,19 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
     ------
     DataError
         A plant kind other than the model's, or runs too short for the initial samples.
+
+    Examples
+    --------
+    A model fitted on one record, simulated from the input of another:
+
+    >>> from motor_id import fit_report, Identifier, SavedModel, validate
+    >>> from motor_id.testing.recordings import paper_recording, SI_MOTOR
+    >>> train = paper_recording(SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=1)
+    >>> test = paper_recording(SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=2)
+    >>> report = fit_report(train, Identifier(R_m=2.3, random_state=0)).to_dict()
+    >>> val = validate(SavedModel.from_report(report), test)
+    >>> sorted(val.channels), round(val.channels['speed']['fit_percent'])
+    (['current', 'speed'], 99)
     """
     rec.validate()
     if rec.input_kind != model.input_kind:

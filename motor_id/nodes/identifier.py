@@ -320,7 +320,7 @@ class IdentifierNode(Node):
                 f'time, seq {rec.meta["seq_first"]}..{rec.meta["seq_last"]})')
             source = ('samples topic' if self.topic_input is None else
                       'joint_states and input topics')
-            fit = pipeline.identify(
+            fit = pipeline.fit_report(
                 rec, est, progress=self._progress,
                 data={'source': source, 'seq_first': rec.meta['seq_first'],
                       'seq_last': rec.meta['seq_last'], 't_first': float(rec.time[0]),

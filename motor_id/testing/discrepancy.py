@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.blas import limit_threads
 from motor_id.recording import Recording
 from motor_id.testing import independent_sim
 from motor_id.testing.hidden import make_case as make_hidden_case
@@ -329,6 +330,7 @@ def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None
             if progress:
                 progress(k + 1, len(work), rows[-1])
         return rows
+    limit_threads()   # the fork server is a fresh process: one BLAS thread per worker
     with ProcessPoolExecutor(max_workers=jobs,
                              mp_context=multiprocessing.get_context('forkserver')) as pool:
         for k, row in enumerate(pool.map(_analyse_job, work)):

@@ -1,0 +1,92 @@
+"""The public API: ``import motor_id`` is cheap and changes nothing, its names resolve, and
+their examples (doctests) run."""
+
+import doctest
+import importlib
+import os
+import subprocess
+import sys
+
+import pytest
+
+import motor_id
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+EXAMPLE_MODULES = sorted({'motor_id', 'motor_id.errors', *(
+    getattr(motor_id, name).__module__ for name in motor_id.__all__)})
+"""Every module that holds a public name: their examples are the API's documentation."""
+MIN_EXAMPLE_LINES = 10
+"""Issue 29 item 4: at least this many doctest lines among the public names."""
+STARTING_POINTS = ('load_recording', 'Recording', 'Identifier', 'fit_report',
+                   'DiscrepancyAnalysis', 'validate', 'MotorIdError')
+"""Load a recording, fit, analyze, validate, the errors: each shows how it is used."""
+
+
+def _fresh(code, **env):
+    """Run ``code`` in a fresh interpreter with the BLAS variables unset (then ``env``)."""
+    base = {k: v for k, v in os.environ.items()
+            if k not in ('OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS')}
+    base['PYTHONPATH'] = ROOT + os.pathsep + base.get('PYTHONPATH', '')
+    proc = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                          env={**base, **env}, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout.split()
+
+
+def test_import_is_cheap_and_sets_nothing():
+    """``import motor_id`` loads neither numpy nor a submodule but the errors, and leaves
+    the BLAS variables unset."""
+    out = _fresh('import os, sys, motor_id\n'
+                 "print('numpy' in sys.modules, os.environ.get('OPENBLAS_NUM_THREADS'),\n"
+                 "      sorted(m for m in sys.modules if m.startswith('motor_id')))")
+    assert out == ['False', 'None', "['motor_id',", "'motor_id.errors']"]
+
+
+def test_entry_points_limit_blas_threads():
+    """The nodes set one BLAS thread before numpy loads; a value already set stays."""
+    code = ('import os, sys, motor_id.nodes\n'
+            "print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'],"
+            " os.environ['MKL_NUM_THREADS'])")
+    assert _fresh(code) == ['False', '1', '1']
+    assert _fresh(code, OPENBLAS_NUM_THREADS='2') == ['False', '2', '1']
+
+
+def test_command_line_limits_blas_threads(monkeypatch):
+    """``motor-id`` sets them first thing, before a subcommand's module loads."""
+    from motor_id.cli import main
+    for var in ('OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):
+        monkeypatch.delenv(var, raising=False)
+    with pytest.raises(SystemExit):
+        main(['--no-such-command'])
+    assert os.environ['OPENBLAS_NUM_THREADS'] == '1'
+    assert os.environ['MKL_NUM_THREADS'] == '1'
+
+
+def test_public_names_resolve():
+    """Every name of ``__all__`` is an attribute with a docstring, listed by ``dir``."""
+    for name in motor_id.__all__:
+        obj = getattr(motor_id, name)
+        assert obj.__doc__, name
+        assert name in dir(motor_id)
+    with pytest.raises(AttributeError, match='no_such_name'):
+        motor_id.no_such_name  # noqa: B018
+
+
+@pytest.mark.parametrize('module', EXAMPLE_MODULES)
+def test_examples_run(module):
+    """The module's examples give the outputs they show (rounded values, fixed seeds)."""
+    mod = importlib.import_module(module)
+    result = doctest.testmod(mod, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
+                             verbose=False, report=True)
+    assert result.failed == 0, f'{result.failed} of {result.attempted} examples failed'
+
+
+def test_public_names_have_examples():
+    """Each name a user starts from shows an example (the results they return are shown
+    there too), and the examples add up to at least MIN_EXAMPLE_LINES lines."""
+    finder = doctest.DocTestFinder(recurse=False)
+    counts = {name: sum(len(t.examples) for t in finder.find(getattr(motor_id, name), name))
+              for name in motor_id.__all__}
+    for name in STARTING_POINTS:
+        assert counts[name] >= 2, f'{name} shows no example'
+    assert sum(counts.values()) >= MIN_EXAMPLE_LINES, counts
