@@ -243,6 +243,24 @@ class BagWriter:
             if self._clock() - self._last_flush >= self.flush_interval:
                 self.flush()
 
+    def write_serialized(self, topic: str, msgtype: str, data: bytes, log_time_ns: int,
+                         publish_time_ns: int | None = None) -> None:
+        """Write one message already serialised to CDR (as rclpy's ``serialize_message``
+        gives it), on a topic declared with ``msgtype``'s schema.
+
+        Parameters
+        ----------
+        topic, msgtype : str
+        data : bytes
+            The CDR bytes with their encapsulation header.
+        log_time_ns : int
+            Receive (or send) time [ns].
+        """
+        with self._lock:
+            self._check_open()
+            entry = self.add_topic(topic, msgtype)
+            self._add(entry, bytes(data), log_time_ns, publish_time_ns, 0)
+
     def flush(self) -> None:
         """Write the chunk in progress now (a SIGKILL after this loses nothing so far)."""
         with self._lock:
@@ -432,6 +450,20 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     """
     if int(batch) < 1:
         raise ConfigError(f'batch must be >= 1 row, got {batch}')
+    if len(rec) == 0:
+        raise ConfigError('the recording is empty')
+    with BagWriter(path, **writer_kw) as bag:
+        write_recording_into(bag, rec, meta, batch, start_ns, channels)
+        count = bag.message_count
+    return {'path': str(path), 'samples': len(rec), 'messages': count}
+
+
+def write_recording_into(bag: BagWriter, rec: Recording, meta: dict[str, Any] | None = None,
+                         batch: int = 50, start_ns: int = 0, channels: bool = False) -> None:
+    """Write a recording's ``/motor_id/meta``, ``/samples`` (and ``/motor_id/position``)
+    into an open bag (the arguments as :func:`write_recording`'s)."""
+    if int(batch) < 1:
+        raise ConfigError(f'batch must be >= 1 row, got {batch}')
     n = len(rec)
     if n == 0:
         raise ConfigError('the recording is empty')
@@ -443,18 +475,15 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     info.setdefault('units', channel_units(rec.input_kind))
     if rec.segments:   # separate runs (a SysId log's tests): by sequence number
         info['runs'] = [[int(a), int(b)] for a, b in rec.segments]
-    with BagWriter(path, **writer_kw) as bag:
-        bag.write_meta(info, int(start_ns))
-        for k0 in range(0, n, int(batch)):
-            k1 = min(n, k0 + int(batch))
-            bag.write_samples(rows[k0:k1], int(log_ns[k1 - 1]))
-            if rec.position is not None:
-                bag.write_positions(rows[k0:k1, SEQ], rec.position[k0:k1], int(log_ns[k1 - 1]))
-            if channels:
-                for k in range(k0, k1):
-                    bag.write_channel('voltage', rec.input[k], int(log_ns[k]))
-                    bag.write_channel('speed', rec.speed[k], int(log_ns[k]))
-                    if rec.current is not None:
-                        bag.write_channel('current', rec.current[k], int(log_ns[k]))
-        count = bag.message_count
-    return {'path': str(path), 'samples': n, 'messages': count}
+    bag.write_meta(info, int(start_ns))
+    for k0 in range(0, n, int(batch)):
+        k1 = min(n, k0 + int(batch))
+        bag.write_samples(rows[k0:k1], int(log_ns[k1 - 1]))
+        if rec.position is not None:
+            bag.write_positions(rows[k0:k1, SEQ], rec.position[k0:k1], int(log_ns[k1 - 1]))
+        if channels:
+            for k in range(k0, k1):
+                bag.write_channel('voltage', rec.input[k], int(log_ns[k]))
+                bag.write_channel('speed', rec.speed[k], int(log_ns[k]))
+                if rec.current is not None:
+                    bag.write_channel('current', rec.current[k], int(log_ns[k]))

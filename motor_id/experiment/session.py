@@ -1,0 +1,163 @@
+"""One experiment's record: the guard's decisions, the samples, the bag and the run log.
+
+The node hands every state sample to :meth:`ExperimentSession.on_state` and every
+message it sends or receives, serialised, to :meth:`ExperimentSession.record_message`;
+the session writes them to ``DIR/recording.mcap`` as they come (a killed process loses
+at most a second of them) and, at :meth:`ExperimentSession.close`, adds the project's
+``/samples`` stream, the position and ``/motor_id/meta`` (one run per test), so that
+``motor-id fit|analyze|validate DIR/recording.mcap`` read it as it is, and writes
+``DIR/experiment.json``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from motor_id.bag.writer import BagWriter, write_recording_into
+from motor_id.contracts import channel_units
+from motor_id.errors import BagError, ConfigError
+from motor_id.experiment.guard import Guard, StateSample
+from motor_id.experiment.plan import build_plan, Plan
+from motor_id.experiment.settings import ExperimentSettings
+from motor_id.recording import MIN_SAMPLES, Recording
+from motor_id.report import write_json
+
+RECORDING = 'recording.mcap'
+REPORT = 'report.json'
+EXPERIMENT = 'experiment.json'
+
+
+@dataclass(frozen=True)
+class Row:
+    """One recorded sample: the state, the command decided on it, the run it is in."""
+
+    t: float
+    command: float
+    position: float
+    velocity: float
+    effort: float
+    run: int
+
+
+class ExperimentSession:
+    """The guard and the record of one experiment.
+
+    Parameters
+    ----------
+    settings : ExperimentSettings
+    plan : Plan, optional
+        Default: :func:`motor_id.experiment.plan.build_plan` of the settings.
+    """
+
+    def __init__(self, settings: ExperimentSettings, plan: Plan | None = None) -> None:
+        self.settings = settings
+        self.plan = plan or build_plan(settings.plan, settings.max_command,
+                                       settings.mechanism, settings.time_scale, settings.seed)
+        self.guard = Guard(settings, self.plan)
+        self.rows: list[Row] = []
+        self.bag: BagWriter | None = None
+        self.out = Path(settings.out)
+        self._first_ns: int | None = None
+
+    def open(self) -> None:
+        """Create the output folder and start ``recording.mcap``."""
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ConfigError(f'{self.out}: cannot create the output folder '
+                              f'({exc.strerror})') from exc
+        self.bag = BagWriter(self.out / RECORDING)
+
+    def record_message(self, topic: str, msgtype: str, data: bytes, log_time_ns: int) -> None:
+        """Write one serialised (CDR) message as sent or received."""
+        if self.bag is None:
+            return
+        if self._first_ns is None:
+            self._first_ns = int(log_time_ns)
+        try:
+            self.bag.write_serialized(topic, msgtype, data, int(log_time_ns))
+        except BagError:
+            pass   # closed at the end while a late message came in
+
+    def start(self, now: float) -> float:
+        """Start the plan; the first command (0)."""
+        return self.guard.start(now)
+
+    def on_state(self, s: StateSample) -> float | None:
+        """The command for this sample (None: nothing to send); the sample is recorded."""
+        cmd = self.guard.on_state(s)
+        if cmd is not None and self.guard.phase != 'idle':
+            self.rows.append(Row(s.t, cmd, s.position, s.velocity, s.effort,
+                                 self.guard.run_index))
+        return cmd
+
+    def recording(self) -> Recording | None:
+        """The samples as a :class:`~motor_id.recording.Recording` (one run per test and
+        the rest after it), or None with fewer than the fit needs."""
+        if len(self.rows) < MIN_SAMPLES:
+            return None
+        s = self.settings
+        t = np.array([r.t for r in self.rows])
+        effort = np.array([r.effort for r in self.rows])
+        current = None
+        if s.input_kind == 'voltage' and s.resistance is not None and \
+                np.all(np.isfinite(effort)) and np.any(effort != 0):
+            current = effort
+        runs = np.array([r.run for r in self.rows])
+        starts = [0] + [int(k) for k in np.flatnonzero(np.diff(runs)) + 1]
+        ends = starts[1:] + [len(runs)]
+        segments = [(a, b) for a, b in zip(starts, ends, strict=True)] \
+            if len(starts) > 1 else None
+        meta: dict[str, Any] = {
+            'source': str(self.out / RECORDING), 'joint': s.joint,
+            'mechanism': s.mechanism, 'experiment': self.plan.name,
+            'units': channel_units(s.input_kind, s.linear, position=True),
+            'segment_names': self._run_names(len(starts))}
+        return Recording(t - t[0], np.array([r.command for r in self.rows]),
+                         np.array([r.velocity for r in self.rows]), current, s.input_kind,
+                         meta, segments, np.array([r.position for r in self.rows]))
+
+    def _run_names(self, n: int) -> list[str]:
+        names = [t.name for t in self.guard.log.tests][:n]
+        return names + ['rest'] * (n - len(names))
+
+    def close(self) -> Recording | None:
+        """Finish ``recording.mcap`` (the samples, position and metadata added) and write
+        ``experiment.json``; return the recording (None if too short to fit)."""
+        rec = self.recording()
+        if self.bag is not None:
+            try:
+                if rec is not None:
+                    start_ns = int(round(self.rows[0].t * 1e9)) if self.rows[0].t > 0 \
+                        else (self._first_ns or 0)
+                    write_recording_into(self.bag, rec, start_ns=max(start_ns, 0))
+            finally:
+                self.bag.close()
+        write_json(self.experiment_dict(), self.out / EXPERIMENT)
+        return rec
+
+    def experiment_dict(self) -> dict[str, Any]:
+        """``experiment.json``: the settings, the plan and the run log."""
+        s = self.settings
+        log = self.guard.log.to_dict()
+        log['timing'] = self.guard.timing()
+        return {
+            'joint': s.joint, 'command_topic': s.command_topic,
+            'command_type': s.command_type, 'state_topic': s.state_topic,
+            'input_kind': s.input_kind, 'mechanism': s.mechanism,
+            'max_command': s.max_command,
+            'travel': None if s.travel is None else [s.travel.low, s.travel.high],
+            'max_speed': s.max_speed, 'watchdog': s.watchdog,
+            'plan': {'name': self.plan.name, 'rest_min': self.plan.rest_min,
+                     'rest_max': self.plan.rest_max,
+                     'tests': [{'name': t.name, 'kind': t.kind, 'direction': t.direction,
+                                'amplitude': t.amplitude, 'duration': t.duration,
+                                'rest_before': t.rest_before} for t in self.plan.tests]},
+            'samples': len(self.rows),
+            'recording': str(self.out / RECORDING),
+            **log}
+
