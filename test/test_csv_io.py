@@ -1,5 +1,7 @@
 """CSV input: files as users have them (names, mappings, BOM), one line per bad file."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -106,7 +108,7 @@ def test_quoted_cells_are_read(tmp_path):
 
 @pytest.mark.parametrize('text, message', [
     ('time,voltage\n' + '0,1\n' * 30, r'd\.csv:1: missing column\(s\) speed'),
-    ('time;voltage;speed\n0;1;2\n', 'delimited by something other than commas'),
+    ('time:voltage:speed\n0:1:2\n', "delimited by something other than ',', ';'"),
     ('0,1,2,3\n' + rows(), 'the header is missing'),
     (HEADER + rows(5) + '0.05,abc,0.5,0.05\n' + rows(30, 6),
      r"d\.csv:7: column 'voltage' has non-numeric value 'abc'"),
@@ -187,3 +189,61 @@ def test_comments_between_rows_keep_line_numbers(tmp_path):
         with pytest.raises(DataError, match=rf"d\.csv:{bad + 1}: column 'voltage' has "
                                             r"non-numeric value '\?"):
             read_csv(write(tmp_path, ''.join(lines)))
+
+
+def spreadsheet(text, delimiter=';'):
+    """A comma-separated text as a spreadsheet with decimal commas exports it."""
+    return text.translate(str.maketrans({',': delimiter, '.': ','}))
+
+
+@pytest.mark.parametrize('delimiter', [';', '\t'])
+def test_a_spreadsheet_csv_reads_as_its_plain_twin(tmp_path, delimiter):
+    rec = paper_recording(speed_noise=0.01, current_noise=0.01, seed=4)
+    write_csv(rec, tmp_path / 'plain.csv')
+    plain = read_csv(tmp_path / 'plain.csv')
+    text = (tmp_path / 'plain.csv').read_text()
+    sheet = write(tmp_path, spreadsheet(text, delimiter), name='sheet.csv')
+    assert '0,0' in sheet.read_text() and ',' not in sheet.read_text().splitlines()[0]
+    back = read_csv(sheet)
+    for ch in ('time', 'input', 'speed', 'current'):
+        np.testing.assert_array_equal(getattr(back, ch), getattr(plain, ch))
+    assert back.meta['csv_dialect'] == {'delimiter': delimiter, 'decimal': ','}
+    assert 'csv_dialect' not in plain.meta
+    # given instead of found; a spreadsheet's "sep=;" line names the delimiter too
+    np.testing.assert_array_equal(read_csv(sheet, delimiter=delimiter, decimal=',').speed,
+                                  plain.speed)
+    hinted = write(tmp_path, f'sep={delimiter}\n' + spreadsheet(text, delimiter), name='h.csv')
+    np.testing.assert_array_equal(read_csv(hinted).speed, plain.speed)
+
+
+def test_a_semicolon_csv_with_decimal_points_and_bad_dialects(tmp_path):
+    text = HEADER + rows()
+    plain = read_csv(write(tmp_path, text))
+    semi = read_csv(write(tmp_path, text.replace(',', ';'), name='s.csv'))
+    np.testing.assert_array_equal(semi.speed, plain.speed)
+    assert semi.meta['csv_dialect'] == {'delimiter': ';', 'decimal': '.'}
+    mixed = write(tmp_path, HEADER.replace(',', ';') + '0,5;1.000,5;2;3\n' * 30, name='x.csv')
+    with pytest.raises(DataError, match='both "." and ","'):
+        read_csv(mixed)
+    with pytest.raises(ConfigError, match='cannot both be'):
+        read_csv(write(tmp_path, text), decimal=',')
+    with pytest.raises(ConfigError, match='--delimiter must be one of'):
+        read_csv(write(tmp_path, text), delimiter=':')
+
+
+def test_fit_of_a_spreadsheet_csv_equals_the_fit_of_its_twin(tmp_path, capsys):
+    rec = paper_recording(speed_noise=0.01, current_noise=0.01, seed=5)
+    write_csv(rec, tmp_path / 'plain.csv')
+    sheet = write(tmp_path, spreadsheet((tmp_path / 'plain.csv').read_text()),
+                  name='sheet.csv')
+    reports = []
+    for path in (tmp_path / 'plain.csv', sheet):
+        out = tmp_path / f'{path.stem}.json'
+        assert main(['fit', str(path), '-R', '2.3', '--generations', '20', '-q', '--json',
+                     str(out)]) == 0
+        reports.append(json.loads(out.read_text()))
+    assert sum(p['value'] is not None for p in reports[0]['parameters'].values()) >= 3
+    assert reports[0]['parameters'] == reports[1]['parameters']
+    assert main(['fit', str(sheet), '-R', '1', '--generations', '2', '-q', '--delimiter', ';',
+                 '--decimal', ',']) == 0
+    capsys.readouterr()

@@ -7,7 +7,7 @@ import sys
 from typing import Any, TextIO
 
 from motor_id.contracts import INPUT_KINDS
-from motor_id.data.csv_io import parse_columns
+from motor_id.data.csv_io import DECIMALS, DELIMITERS, parse_columns
 from motor_id.data.load import load_recording
 from motor_id.data.mapping import load_profile, mapping_settings, PROFILE_KEYS
 from motor_id.data.shift import detect_shift, shift_input
@@ -35,6 +35,12 @@ def add_data_arguments(parser: argparse.ArgumentParser, profile: bool = True) ->
     g = parser.add_argument_group('data source (CSV columns, bag topics, SysId side)')
     g.add_argument('--columns', metavar='ROLE=NAME,...',
                    help='CSV: map columns, e.g. time=t,input=u_cmd,speed=omega,current=i_a')
+    g.add_argument('--delimiter', choices=DELIMITERS, metavar='CHAR',
+                   help='CSV: the cell delimiter (default: found from the header; a '
+                        'spreadsheet may write ;)')
+    g.add_argument('--decimal', choices=DECIMALS, metavar='CHAR',
+                   help='CSV: the decimal mark, . or , (default: a comma where the cells '
+                        'hold commas and the delimiter is not one)')
     g.add_argument('--input-kind', choices=INPUT_KINDS,
                    help='plant kind when the input name cannot tell (torque: also force)')
     g.add_argument('--input', metavar='TOPIC[:FIELD]',
@@ -128,7 +134,9 @@ def load_from_args(args: argparse.Namespace, path: str | None = None, validate: 
     path = str(args.data if path is None else path)
     s = settings_from_args(args)
     rec = load_recording(path, columns=s['columns'], input_kind=s['input_kind'],
-                         mapping=s['mapping'], log_entries=log_entries_from_args(args))
+                         mapping=s['mapping'], log_entries=log_entries_from_args(args),
+                         delimiter=getattr(args, 'delimiter', None),
+                         decimal=getattr(args, 'decimal', None))
     for note in rec.meta.get('warnings') or ():
         print(f'warning: {path}: {note}', file=stream or sys.stderr)
     if s['shift']:

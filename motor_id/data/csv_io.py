@@ -3,6 +3,7 @@
 import csv
 import itertools
 import os
+import re
 from typing import Any
 
 import numpy as np
@@ -15,6 +16,10 @@ ROLES = ('time', 'input', 'speed', 'current', 'position')
 """Channels a column can be mapped to (``--columns ROLE=NAME,...``)."""
 INPUT_NAMES = {'voltage': 'voltage', 'torque': 'torque', 'force': 'torque'}
 """Input column names recognised without a mapping, and the plant kind each one sets."""
+DELIMITERS = (',', ';', '\t', '|')
+"""Cell delimiters a CSV may use (found from its header, or given)."""
+DECIMALS = ('.', ',')
+"""Decimal marks (a comma only with another delimiter, as spreadsheets write)."""
 
 
 def parse_columns(text: str | dict[str, str] | None) -> dict[str, str]:
@@ -54,13 +59,17 @@ def parse_columns(text: str | dict[str, str] | None) -> dict[str, str]:
 
 def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
              columns: str | dict[str, str] | None = None,
-             input_kind: str | None = None) -> Recording:
+             input_kind: str | None = None, delimiter: str | None = None,
+             decimal: str | None = None) -> Recording:
     """Read a recording from CSV with a header naming its columns.
 
     Columns ``time`` [s], the input and ``speed`` [rad/s] are required, ``current`` [A]
     and ``position`` [rad] (or [m]) optional; other columns are ignored. The input
     column is named ``voltage`` [V] (voltage plant), ``torque`` [N m] or ``force`` [N]
-    (torque plant), or mapped with ``columns``. Comma-separated; lines starting with
+    (torque plant), or mapped with ``columns``. Comma-separated, or as a spreadsheet
+    exports it where the decimal mark is a comma: ``;`` between cells and ``0,5`` for one
+    half (the delimiter is found from the header, a ``sep=;`` first line or
+    ``delimiter``; the decimal comma from the cells or ``decimal``). Lines starting with
     ``#`` are comments (``# input_kind: torque`` sets the plant kind); a UTF-8 byte-order
     mark is accepted.
 
@@ -73,11 +82,17 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
         :func:`parse_columns`); unmapped roles use the standard names.
     input_kind : {'voltage', 'torque'}, optional
         Overrides the kind given by a comment or by the input column's name.
+    delimiter : {',', ';', '\\t', '|'}, optional
+        The cell delimiter (default: found from the header).
+    decimal : {'.', ','}, optional
+        The decimal mark (default: ``,`` where the delimiter is not a comma and the
+        cells hold commas, else ``.``).
 
     Returns
     -------
     Recording
-        Validated.
+        Validated; ``meta['csv_dialect']`` says the delimiter and decimal mark of a file
+        that is not plain comma-separated.
 
     Raises
     ------
@@ -96,9 +111,17 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
     if input_kind is not None and input_kind not in INPUT_KINDS:
         raise ConfigError(f'input kind must be voltage or torque, got {input_kind!r}')
     meta, body, linenos = _split_lines(path)
+    if body and body[0].replace(' ', '').lower().startswith('sep=') and delimiter is None:
+        delimiter = body[0].strip()[4:5] or None   # a spreadsheet's delimiter hint line
+        body, linenos = body[1:], linenos[1:]
     if not body:
         raise DataError(f'{path}: empty file, expected a header line '
                         f'with columns time, voltage (or torque, force), speed')
+    dialect = _dialect(path, body, delimiter, decimal)
+    if dialect != (',', '.'):
+        meta['csv_dialect'] = {'delimiter': dialect[0], 'decimal': dialect[1]}
+        table = str.maketrans({dialect[0]: ',', **({',': '.'} if dialect[1] == ',' else {})})
+        body = [line.translate(table) for line in body]
     header_line, header = int(linenos[0]), body[0]
     names = [c.strip().lower() for c in next(csv.reader([header]))]
     cols, input_name = _find_columns(path, header_line, header, names, columns)
@@ -127,6 +150,31 @@ def read_csv(path: str | os.PathLike[str], min_samples: int = MIN_SAMPLES,
         return rec.validate(min_samples)
     except DataError as exc:
         raise DataError(f'{path}: {exc}') from None
+
+
+def _dialect(path: str, body: list[str], delimiter: str | None,
+             decimal: str | None) -> tuple[str, str]:
+    """``(delimiter, decimal mark)``: the ones given, or found from the header and cells."""
+    if delimiter is not None and delimiter not in DELIMITERS:
+        raise ConfigError(f'--delimiter must be one of {", ".join(map(repr, DELIMITERS))}, '
+                          f'got {delimiter!r}')
+    if decimal is not None and decimal not in DECIMALS:
+        raise ConfigError(f'--decimal must be "." or ",", got {decimal!r}')
+    if delimiter is None:
+        counts = {d: body[0].count(d) for d in DELIMITERS}
+        delimiter = max(DELIMITERS, key=lambda d: (counts[d], d == ','))
+        if counts[delimiter] == 0:
+            delimiter = ','
+    if decimal is None:
+        sample = body[1:51]
+        decimal = ',' if delimiter != ',' and any(',' in line for line in sample) else '.'
+        if decimal == ',' and any('.' in line for line in sample):
+            raise DataError(f'{path}: cells hold both "." and "," (thousands separators?); '
+                            'say which is the decimal mark with --decimal')
+    if delimiter == decimal:
+        raise ConfigError(f'{path}: the delimiter and the decimal mark cannot both be '
+                          f'{delimiter!r}')
+    return delimiter, decimal
 
 
 def _split_lines(path: str | os.PathLike[str]) -> tuple[dict[str, Any], list[str], np.ndarray]:
@@ -189,8 +237,9 @@ def _find_columns(path: str | os.PathLike[str], header_line: int, header: str,
             missing.append(columns[role])
     if missing:
         hint = ''
-        if len(names) == 1 and any(d in header for d in ';\t|'):
-            hint = ' (the file looks delimited by something other than commas)'
+        if len(names) == 1 and re.search(r'[^\w\s]', header):
+            hint = (' (the file looks delimited by something other than '
+                    f'{", ".join(map(repr, DELIMITERS))})')
         elif all(_is_number(c) for c in names):
             hint = ' (the first line holds numbers: the header is missing)'
         elif columns:

@@ -17,7 +17,8 @@ if TYPE_CHECKING:  # the bag modules load only when a bag is read
 def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] | None = None,
                    input_kind: str | None = None,
                    mapping: 'Mapping | None' = None,
-                   log_entries: LogEntries | None = None) -> Recording:
+                   log_entries: LogEntries | None = None, delimiter: str | None = None,
+                   decimal: str | None = None) -> Recording:
     """Read a recording from a CSV file, a rosbag2 recording or a WPILib SysId log.
 
     Parameters
@@ -38,6 +39,8 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
         log or a DataLog takes only its ``joint`` (the side of a drivetrain).
     log_entries : motor_id.data.wpilog.LogEntries, optional
         A DataLog's motor, or its entries (refused for any other file).
+    delimiter, decimal : str, optional
+        CSV only: the cell delimiter and the decimal mark (default: found in the file).
 
     Returns
     -------
@@ -67,6 +70,8 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     0.01
     """
     joint = None if mapping is None else mapping.joint
+    if (delimiter or decimal) and (is_wpilog(path) or is_sysid_log(path)):
+        raise ConfigError(f'{path}: --delimiter and --decimal describe a CSV file')
     if is_wpilog(path):
         _check_sysid_options(path, columns, input_kind, mapping)
         entries = log_entries or LogEntries()
@@ -82,9 +87,9 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     from motor_id.data.mapping import Mapping
     from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
-        if columns:
-            raise ConfigError('--columns maps CSV columns; a bag is mapped with --input, '
-                              '--speed, --current')
+        if columns or delimiter or decimal:
+            raise ConfigError('--columns, --delimiter and --decimal describe CSV files; a '
+                              'bag is mapped with --input, --speed, --current')
         mapping = mapping or Mapping()
         if input_kind is not None:
             mapping.input_kind = input_kind
@@ -92,7 +97,8 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     if mapping is not None and not mapping.is_empty:
         raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
                           'for a CSV map its columns with --columns time=T,input=U,speed=W')
-    return read_csv(path, columns=columns, input_kind=input_kind)
+    return read_csv(path, columns=columns, input_kind=input_kind, delimiter=delimiter,
+                    decimal=decimal)
 
 
 def _check_sysid_options(path: str | os.PathLike[str],
