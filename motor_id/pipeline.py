@@ -60,7 +60,7 @@ class FitReport:
         return bool(self.result.adequate)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``--json`` shape (README): the fit, ``data``, ``controller``, extras."""
+        """The ``--json`` shape (docs/user-guide.md): the fit, ``data``, ``controller``, extras."""
         d = self.result.to_dict()
         d['data'] = dict(self.data)
         if self.controller is not None:

@@ -90,3 +90,33 @@ def test_public_names_have_examples():
     for name in STARTING_POINTS:
         assert counts[name] >= 2, f'{name} shows no example'
     assert sum(counts.values()) >= MIN_EXAMPLE_LINES, counts
+
+
+def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
+    """The README's Python example runs as printed, on two simulated CSV runs of a motor
+    with dry friction (1,000 samples each, so that it stays quick)."""
+    import re
+
+    import numpy as np
+
+    from motor_id.data.csv_io import write_csv
+    from motor_id.excitation import bipolar_steps
+    from motor_id.model import Plant
+    from motor_id.simulate import simulate_recording
+    from motor_id.testing.recordings import SI_MOTOR
+
+    with open(os.path.join(ROOT, 'README.md'), encoding='utf-8') as fh:
+        blocks = re.findall(r'```python\n(.*?)```', fh.read(), re.S)
+    assert len(blocks) == 1
+    t = np.arange(1000) * 0.01
+    plant = Plant(SI_MOTOR, 'voltage', {'coulomb_friction': {'T_c': 0.1}})
+    for name, seed in (('motor.csv', 1), ('other_run.csv', 2)):
+        write_csv(simulate_recording(plant, t, bipolar_steps(t), 0.005, 0.01,
+                                     random_state=seed), tmp_path / name)
+    monkeypatch.chdir(tmp_path)
+    scope = {}
+    exec(compile(blocks[0], 'README.md', 'exec'), scope)
+    out = capsys.readouterr().out
+    assert scope['analysis'].verdict == 'coulomb_friction', out
+    assert scope['kV']['std'] < 0.05 * scope['kV']['value']
+    assert scope['score'].channels['speed']['fit_percent'] > 95, out

@@ -345,7 +345,7 @@ def test_from_identification_on_real_emps_fit(emps_fit):
 
 
 def _speed_only_fit():
-    """Return a fit JSON (README shape) from speed only: J, K_T, K_b, L_m undetermined."""
+    """Return a fit JSON (docs/user-guide.md) from speed only: J, K_T, K_b, L_m undetermined."""
     par = {n: {'value': None, 'std': None, 'determined': False, 'particular_value': 1.0}
            for n in ('J', 'K_T', 'K_b', 'L_m')}
     par['B'] = {'value': 0.002, 'std': 1e-4, 'determined': True}

@@ -1,4 +1,4 @@
-"""Two motors in two namespaces (the README's example), as separate processes."""
+"""Two motors in two namespaces (the user guide's example), as separate processes."""
 
 import json
 

@@ -89,7 +89,7 @@ class IdentificationResult:
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON shape documented in the README (extra keys beyond the contract)."""
+        """The JSON shape documented in docs/user-guide.md (extra keys beyond the contract)."""
         d: dict[str, Any] = {
             'adequate': bool(self.adequate),
             'warnings': list(self.warnings),
