@@ -18,9 +18,9 @@ setup(
     install_requires=['setuptools', 'numpy', 'scipy', 'numba', 'matplotlib', 'pyserial',
                       'mcap', 'PyYAML', 'rosbags', 'robotpy-wpiutil'],
     extras_require={
-        'test': ['pytest', 'pytest-xdist', 'hypothesis', 'mcap-ros2-support', 'colcon-common-extensions',
-                 'import-linter', 'pygad', 'cma', 'psutil', 'control', 'ruff', 'mypy',
-                 'dask[distributed]', 'pyarrow'],
+        'test': ['pytest', 'pytest-xdist', 'hypothesis', 'mcap-ros2-support',
+                 'colcon-common-extensions', 'import-linter', 'pygad', 'cma', 'psutil',
+                 'control', 'ruff', 'mypy', 'dask[distributed]', 'pyarrow'],
         'fleet': ['dask[distributed]', 'pyarrow'],
         'bench': ['pygad', 'cma', 'psutil'],
     },

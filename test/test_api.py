@@ -118,5 +118,6 @@ def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     exec(compile(blocks[0], 'README.md', 'exec'), scope)
     out = capsys.readouterr().out
     assert scope['analysis'].verdict == 'coulomb_friction', out
-    assert scope['kV']['std'] < 0.05 * scope['kV']['value']
+    kv = scope['ff']['kV']
+    assert kv['std'] < 0.05 * kv['value'], out
     assert scope['score'].channels['speed']['fit_percent'] > 95, out
