@@ -13,13 +13,14 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 import functools
+import inspect
 import time
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motor_id.effects import EFFECTS, validate_effects
+from motor_id.effects import as_batch, EFFECTS, FRICTION_COLUMNS, validate_effects
 from motor_id.errors import ConfigError
 from motor_id.model import continuous_matrices, discretize, interval_integrals, Plant
 from motor_id.simulate_kernels import (
@@ -79,7 +80,7 @@ def warm_up() -> dict[str, Any]:
         simulate_batch(p, t[:3], u[:3])  # regular grid, no effects
         simulate_batch(p, t, u)  # irregular grid
         simulate_batch(p, t, u, 'torque')  # a one-state plant
-        simulate_batch(p, t, u, effects={'coulomb_friction': {'T_c': 0.0}})
+        simulate_batch(p, t, u, effects={FRICTION_EFFECTS[0]: {}})
     ours = {id(compiled(f)) for f in KERNELS}
     fresh = sum(1 for _, ev in recorder.buffer  # (time, event) pairs
                 if ev.is_start and id(ev.data['dispatcher']) in ours)
@@ -115,15 +116,6 @@ def _interval_table(stamps: bytes) -> tuple[np.ndarray, np.ndarray]:
     return dts, idx.astype(np.int64)
 
 
-def _as_batch(value: ArrayLike, P: int) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
-    if arr.ndim == 0:
-        return np.full(P, float(arr))
-    if arr.shape != (P,):
-        raise ConfigError(f'batch parameter has shape {arr.shape}, expected ({P},)')
-    return arr.astype(float)
-
-
 def batch_size(theta: Mapping[str, ArrayLike]) -> int:
     """Number of members in a batch of parameters ``{name: (P,) array or scalar}``."""
     sizes = {np.asarray(v).size for v in theta.values() if np.asarray(v).ndim > 0}
@@ -132,9 +124,11 @@ def batch_size(theta: Mapping[str, ArrayLike]) -> int:
     return sizes.pop() if sizes else 1
 
 
-INPUT_MAPS = ('input_delay', 'start_latency', 'dead_zone', 'voltage_saturation')
-"""Effects that act on the input before the dynamics (:func:`apply_input_maps`); a
-delay reaches back in time, so a window of a record takes them from the whole record."""
+INPUT_MAPS = tuple(spec.name for spec in sorted(
+    (s for s in EFFECTS.values() if s.input_map), key=lambda s: s.input_map.rank))
+"""Effects that act on the input before the dynamics (:func:`apply_input_maps`), in the
+order they apply; a delay reaches back in time, so a window of a record takes them from
+the whole record."""
 
 
 def split_input_maps(effects: Mapping[str, Mapping[str, ArrayLike]]
@@ -148,25 +142,10 @@ def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]
                      ) -> np.ndarray:
     """Static input maps and delay, per member: returns ``u_eff`` of shape (P, N)."""
     u = np.broadcast_to(np.asarray(u, dtype=float), (P, np.shape(u)[-1])).copy()
-    if 'input_delay' in effects:
-        d = np.rint(_as_batch(effects['input_delay']['d'], P)).astype(int)
-        for p in range(P):
-            if d[p] > 0:
-                u[p, d[p]:] = u[p, :-d[p]].copy()
-                u[p, :d[p]] = u[p, 0]
-    if 'start_latency' in effects:
-        d = np.rint(_as_batch(effects['start_latency']['d'], P)).astype(int)
-        for p in range(P):
-            if d[p] > 0:   # the d samples from each sample where the input leaves zero
-                row = u[p]
-                for k in np.flatnonzero((row[1:] != 0.0) & (row[:-1] == 0.0)) + 1:
-                    row[k:k + d[p]] = 0.0
-    if 'dead_zone' in effects:
-        vdz = _as_batch(effects['dead_zone']['V_dz'], P)[:, None]
-        u = np.sign(u) * np.maximum(np.abs(u) - vdz, 0.0)
-    if 'voltage_saturation' in effects:
-        vmax = _as_batch(effects['voltage_saturation']['V_max'], P)[:, None]
-        u = np.clip(u, -vmax, vmax)
+    for name in INPUT_MAPS:
+        if name in effects:
+            spec = EFFECTS[name]
+            u = spec.input_map.apply(u, spec.batch(effects[name], P))
     return u
 
 
@@ -222,9 +201,16 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
     return discretise_batch(theta, t, input_kind, method, effects, position).run(u, x0)
 
 
-KERNEL_EFFECTS = frozenset({'coulomb_friction', 'load_torque', 'quadratic_load', 'brush_drop',
-                            'resistance_drift', 'sensor_lag', 'asymmetric_friction',
-                            'stribeck_friction', 'stiction'})
+FRICTION_EFFECTS = tuple(n for n, spec in EFFECTS.items() if spec.friction_term)
+"""Effects that fill the kernel's dry-friction table (:func:`friction_table`), in order."""
+KERNEL_ARGS = {a.arg: (n, a) for n, spec in EFFECTS.items() for a in spec.kernel_args}
+"""The kernel's arguments that effects declare: ``{argument: (effect, KernelArg)}``."""
+_EFFECT_ARGS = tuple(a for a in inspect.signature(_kernel).parameters if a in KERNEL_ARGS)
+"""Those arguments in the order of the kernel's signature."""
+if len(_EFFECT_ARGS) != len(KERNEL_ARGS):   # a declared argument the kernel lacks
+    raise ConfigError(f'the simulation kernel has no argument(s) '
+                      f'{sorted(set(KERNEL_ARGS) - set(_EFFECT_ARGS))}')
+KERNEL_EFFECTS = frozenset(FRICTION_EFFECTS) | {n for n, _ in KERNEL_ARGS.values()}
 """Effects the general kernel steps (the others are input or output maps)."""
 
 
@@ -275,29 +261,33 @@ class DiscretisedBatch:
             else:
                 X = compiled(_linear_kernel)(A, Bd, idx, ueff, x0b)
             # state-major from the kernel: each channel is one contiguous (P, N) block
-            out = {'speed': _speed_reading(X[0], effects, P), 'states': X.transpose(1, 2, 0)}
+            out = {'speed': output_maps(X[0], 'speed', effects, P),
+                   'states': X.transpose(1, 2, 0)}
             if self.input_kind == 'voltage':
-                out['current'] = _quantize(X[1], effects, P, 'current_quantization', 'q_i')
+                out['current'] = output_maps(X[1], 'current', effects, P)
             return out
-
-        def eff(name: str, key: str, default: float = 0.0) -> np.ndarray:
-            if name in effects:
-                return _as_batch(effects[name][key], P)
-            return np.full(P, default)
 
         X, Y = compiled(_kernel)(A, Bd, idx, self.dts, ueff, x0b,
                                  self.input_kind == 'voltage', friction_table(effects, P),
-                                 eff('load_torque', 'T_L'), eff('quadratic_load', 'k_q'),
-                                 eff('brush_drop', 'V_b'), eff('resistance_drift', 'k_h'),
-                                 eff('resistance_drift', 'tau_th', 1.0),
-                                 eff('sensor_lag', 'tau_s'), full.get('R_m', np.ones(P)), Hm,
+                                 *kernel_args(effects, P), full.get('R_m', np.ones(P)), Hm,
                                  Hq, n - 1 if self.position else -1)
-        out = {'speed': _speed_reading(Y, effects, P), 'states': X}
+        out = {'speed': output_maps(Y, 'speed', effects, P), 'states': X}
         if self.position:
             out['position'] = np.ascontiguousarray(X[:, :, n - 1])
         if self.input_kind == 'voltage':
-            out['current'] = _quantize(X[:, :, 1], effects, P, 'current_quantization', 'q_i')
+            out['current'] = output_maps(X[:, :, 1], 'current', effects, P)
         return out
+
+
+def kernel_args(effects: Mapping[str, Mapping[str, ArrayLike]], P: int) -> list[np.ndarray]:
+    """The kernel's effect arguments in its signature's order, each (P,): the effect's
+    parameter where it is in ``effects``, else the argument's value for its absence."""
+    out = []
+    for arg in _EFFECT_ARGS:
+        name, karg = KERNEL_ARGS[arg]
+        out.append(as_batch(effects[name][karg.param], P) if name in effects
+                   else np.full(P, karg.absent))
+    return out
 
 
 def discretise_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, input_kind: str,
@@ -316,16 +306,16 @@ def discretise_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, input_kind: s
     P = batch_size({**theta, **{f'{e}.{k}': v for e, d in effects.items()
                                 for k, v in d.items()}})
     dts, idx = interval_table(np.asarray(t, dtype=float))
-    full = {k: _as_batch(v, P) for k, v in theta.items()}
-    res = effects.get('resonance')
-    res_b = {k: _as_batch(v, P) for k, v in res.items()} if res else None
+    full = {k: as_batch(v, P) for k, v in theta.items()}
+    res = next((v for e, v in effects.items() if EFFECTS[e].plant_term), None)
+    res_b = {k: as_batch(v, P) for k, v in res.items()} if res else None
     F, G = continuous_matrices(full, input_kind, res_b)
     n_dyn = F.shape[1]
     if position:
         F, G = with_position(F, G)
     A, Bd = discretize(F, G, dts, method)
     nz = F.shape[1] + G.shape[2]
-    if input_kind == 'voltage' and 'resistance_drift' in effects:
+    if input_kind == 'voltage' and any(EFFECTS[e].heating for e in effects):
         Hm, Hq = interval_integrals(F, G, dts, row=1)
     else:
         Hm, Hq = np.zeros((1, 1, nz)), np.zeros((1, 1, nz, nz))
@@ -345,23 +335,18 @@ def with_position(F: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def friction_table(effects: Mapping[str, Mapping[str, ArrayLike]], P: int) -> np.ndarray:
-    """The kernel's dry-friction parameters, shape (P, 5).
+    """The kernel's dry-friction parameters, shape (P, 5): each effect of
+    :data:`FRICTION_EFFECTS` in ``effects`` fills its columns, in catalogue order.
 
-    Columns: Coulomb level for positive and for negative motion, the extra viscous
-    friction of negative motion, the static (break-away) level, the Stribeck speed.
+    Columns (:data:`motor_id.effects.FRICTION_COLUMNS`): Coulomb level for positive and
+    for negative motion, the extra viscous friction of negative motion, the static
+    (break-away) level, the Stribeck speed.
     """
-    fr = np.zeros((P, 5))
-    if 'coulomb_friction' in effects:
-        fr[:, 0] = fr[:, 1] = _as_batch(effects['coulomb_friction']['T_c'], P)
-    if 'asymmetric_friction' in effects:
-        asym = effects['asymmetric_friction']
-        fr[:, 1] = np.maximum(fr[:, 0] + _as_batch(asym.get('dT_c', 0.0), P), 0.0)
-        fr[:, 2] = _as_batch(asym.get('dB', 0.0), P)
-    for name in ('stiction', 'stribeck_friction'):
+    fr = np.zeros((P, FRICTION_COLUMNS))
+    for name in FRICTION_EFFECTS:
         if name in effects:
-            fr[:, 3] = np.maximum(fr[:, 3], _as_batch(effects[name]['T_s'], P))
-    if 'stribeck_friction' in effects:
-        fr[:, 4] = _as_batch(effects['stribeck_friction']['v_s'], P)
+            spec = EFFECTS[name]
+            spec.friction_term(fr, spec.batch(effects[name], P))
     return fr
 
 
@@ -415,7 +400,7 @@ def _member_table(theta: Mapping[str, ArrayLike],
     """Every batch parameter as a column, one row per member (None for one member)."""
     values = list(theta.values()) + [v for d in effects.values() for v in d.values()]
     P = batch_size({str(k): v for k, v in enumerate(values)})
-    return np.column_stack([_as_batch(v, P) for v in values]) if P > 1 else None
+    return np.column_stack([as_batch(v, P) for v in values]) if P > 1 else None
 
 
 def _take(values: Mapping[str, ArrayLike], rows: np.ndarray) -> dict[str, ArrayLike]:
@@ -423,51 +408,15 @@ def _take(values: Mapping[str, ArrayLike], rows: np.ndarray) -> dict[str, ArrayL
     return {k: (np.asarray(v)[rows] if np.ndim(v) else v) for k, v in values.items()}
 
 
-def interval_mean(y: ArrayLike) -> np.ndarray:
-    """Mean of a sampled signal over each sample's preceding interval (trapezoid rule).
-
-    What a count difference measures: ``(theta[k] - theta[k-1]) / (t[k] - t[k-1])`` is
-    the mean speed over ``(t[k-1], t[k]]``. The first sample has no preceding interval
-    and keeps its value.
-
-    Parameters
-    ----------
-    y : ndarray, shape (..., N)
-
-    Returns
-    -------
-    ndarray, shape (..., N)
-    """
-    y = np.asarray(y, dtype=float)
-    out = y.copy()
-    out[..., 1:] = 0.5 * (y[..., 1:] + y[..., :-1])
-    return out
-
-
-def _speed_reading(Y: np.ndarray, effects: Mapping[str, Mapping[str, ArrayLike]], P: int
-                   ) -> np.ndarray:
-    """The speed as the sensor reports it: an encoder's interval mean, then its grid."""
-    if 'speed_quantization' not in effects:
-        return Y
-    counted = _as_batch(effects['speed_quantization'].get('counted', 1.0), P)[:, None]
-    Y = np.where(counted > 0.5, interval_mean(Y), Y)
-    return _quantize(Y, effects, P)
-
-
-def on_grid(y: ArrayLike, q: ArrayLike) -> np.ndarray:
-    """Round to a grid of step ``q`` (a counter or an ADC); where ``q <= 0``, ``y`` as is.
-
-    The one quantiser: the simulator's sensors and the project's case generator use it.
-    """
-    q = np.asarray(q, dtype=float)
-    return np.where(q > 0, np.round(y / np.where(q > 0, q, 1.0)) * q, y)
-
-
-def _quantize(Y: np.ndarray, effects: Mapping[str, Mapping[str, ArrayLike]], P: int,
-              name: str = 'speed_quantization', key: str = 'q') -> np.ndarray:
-    if name not in effects:
-        return Y
-    return on_grid(Y, _as_batch(effects[name][key], P)[:, None])
+def output_maps(Y: np.ndarray, channel: str,
+                effects: Mapping[str, Mapping[str, ArrayLike]], P: int) -> np.ndarray:
+    """The simulated ``channel`` (P, N) as its sensor reports it: the output maps of the
+    effects on that channel (an encoder's count difference and grid, an ADC's grid)."""
+    for name, vals in effects.items():
+        spec = EFFECTS[name]
+        if spec.output_map and spec.channel == channel:
+            Y = spec.output_map.apply(Y, spec.batch(vals, P))
+    return Y
 
 
 def simulate_recording(plant: Plant, t: ArrayLike, u: ArrayLike, speed_noise: float = 0.0,

@@ -175,7 +175,7 @@ def test_heating_on_a_drive_whose_current_settles_within_a_sample_matches_the_ph
 
 
 def test_interval_mean_of_a_ramp_is_its_value_at_mid_interval():
-    from motor_id.simulate import interval_mean
+    from motor_id.effects import interval_mean
     y = 3.0 * np.arange(6.0) - 1.0
     np.testing.assert_allclose(interval_mean(y)[1:], y[1:] - 1.5)
     assert interval_mean(y)[0] == y[0]

@@ -9,7 +9,9 @@ need on purpose, apart from the product. The tests state their expectations them
 
 import ast
 import functools
+import importlib
 from pathlib import Path
+import re
 
 from motor_id.contracts import (
     CHANNEL_TOPICS,
@@ -230,3 +232,44 @@ def test_names_are_imported_from_their_home():
         f'{m}: {what} (home {where})' for (m, what), where in sorted(new.items()))
     gone = sorted(pending - set(found))
     assert not gone, f'imported from the home now: remove {gone} from PENDING'
+
+
+EFFECT_HOME = ROOT / 'motor_id' / 'effects'
+"""Where each effect lives: one module per effect (``motor_id/effects/<name>.py``)."""
+MAX_EFFECT_LITERALS = 15
+MAX_EFFECT_MODULES = 3
+"""Most effect names written as string literals outside the effects' home and the test
+support, and most modules they may be in (issue 29): other code finds an effect by its
+entry's attributes and its parameters' roles, never by its name."""
+
+
+def _effect_literals():
+    """``{module: count}`` of quoted effect names (``'dead_zone'``, as ``grep`` finds
+    them: code, docstrings and comments alike) in motor_id outside the home and testing."""
+    from motor_id.effects import EFFECTS
+
+    names = '|'.join(sorted(EFFECTS, key=len, reverse=True))
+    pattern = re.compile(rf"'({names})'")
+    found = {}
+    for path in sorted((ROOT / 'motor_id').rglob('*.py')):
+        if 'testing' in path.parts or EFFECT_HOME in path.parents:
+            continue
+        n = len(pattern.findall(path.read_text(encoding='utf-8')))
+        if n:
+            found[_rel(path)] = n
+    return found
+
+
+def test_each_effect_lives_in_one_home():
+    from motor_id.effects import EFFECTS
+
+    found = _effect_literals()
+    assert sum(found.values()) <= MAX_EFFECT_LITERALS and len(found) <= MAX_EFFECT_MODULES, (
+        f'effect names written outside motor_id/effects/ ({sum(found.values())} in '
+        f'{len(found)} modules; at most {MAX_EFFECT_LITERALS} in {MAX_EFFECT_MODULES}): '
+        f'{found}; read the entry (EFFECTS[name].<hook>, a parameter role) instead')
+    # every entry sits in its own module, named after it
+    for name, spec in EFFECTS.items():
+        assert (EFFECT_HOME / f'{name}.py').exists(), f'{name} has no module of its own'
+        assert importlib.import_module(f'motor_id.effects.{name}').SPEC is spec
+    assert not (ROOT / 'motor_id' / 'effects.py').exists()

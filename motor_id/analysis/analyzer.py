@@ -31,7 +31,7 @@ from motor_id.analysis.measurement import find_measurement_effects
 from motor_id.analysis.search import CandidateSearch
 from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.analysis.workers import FitPool
-from motor_id.effects import EFFECTS
+from motor_id.effects import count_reading, EFFECTS
 from motor_id.errors import ConfigError, DataError, IdentificationError
 from motor_id.identify.validation import SavedModel
 from motor_id.metrics import noise_floor
@@ -209,7 +209,7 @@ class DiscrepancyAnalysis:
             raise IdentificationError(f'the linear model cannot be fitted: {base.failed}')
         base = self._speed_reading(ctx, base)
         ctx.resistance = f.resistance
-        counted = any(m.name == 'speed_quantization' for m in ctx.measurement)
+        counted = any(m.name in count_reading() for m in ctx.measurement)
         f.scales = data_scales(rec, base.physical, f.R_m, float(rec.time[-1] - rec.time[0]),
                                float(np.median(np.diff(rec.time))), f.max_delay, counted)
         if ctx.electrical:
@@ -231,12 +231,12 @@ class DiscrepancyAnalysis:
         the lower held-out error holds for every model of the analysis (an unmodelled
         reading would otherwise be credited to a dynamic effect).
         """
-        grid = next((m for m in ctx.measurement if m.name == 'speed_quantization'), None)
+        grid = next((m for m in ctx.measurement if m.name in count_reading()), None)
         if grid is None:
             return base
         f = ctx.fitter
         kept = (f.resistance, f.linear_estimator, f.physical_bounds)
-        f.reading = {'speed_quantization': {'q': 0.0, 'counted': 1.0}}
+        f.reading = count_reading()
         counted: ModelScore | None
         try:
             counted = f.fit_linear(self.generations)

@@ -18,6 +18,7 @@ from motor_id.analysis import outcome, selection
 from motor_id.analysis.candidates import dynamic_effects
 from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
 from motor_id.analysis.report import DiscrepancyReport
+from motor_id.effects import EFFECTS
 from motor_id.identify import determinacy
 from motor_id.metrics import normalised_fit
 
@@ -155,7 +156,8 @@ def _adequacy(ctx: RecordContext, chosen: ModelScore, verdict: str, params: dict
                 p['value'], p['std'], p['determined'] = None, None, False
                 p['reason'] = 'model inadequate'
     steady = ctx.steady
-    if steady and not any(e in verdict for e in ('coulomb_friction', 'dead_zone', 'brush_drop')):
+    offset = [n for n, spec in EFFECTS.items() if spec.shows_offset]
+    if steady and not any(e in verdict for e in offset):
         warnings.append('the steady states show a static offset both ways (zero speed '
                         f'at input {steady[0]:.3g} and {steady[1]:.3g}): '
                         'Coulomb friction or a dead band that the verdict does not name')

@@ -171,7 +171,7 @@ class CandidateFitter:
         self.physical_bounds: dict[str, tuple[float, float]] = {}
         self.spread = False
         self.reading: dict[str, dict[str, float]] = {}
-        """``{'speed_quantization': {'q': 0, 'counted': 1}}`` when the speed is a count
+        """:func:`motor_id.effects.count_reading` when the speed is a count
         difference (the mean over each sample period; the grid itself is scored by the
         split, as noise), else ``{}`` (the speed read at the samples)."""
 

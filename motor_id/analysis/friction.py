@@ -4,26 +4,32 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from motor_id.effects import EFFECTS
+from motor_id.effects import role_keys, role_value
 
 
 def friction_summary(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]],
                      input_kind: str) -> dict[str, float] | None:
     """Friction by direction, as axis makers state it: Fc+/Fc- (dry, with a constant
-    load or force offset folded in) and Fv+/Fv- (viscous); None without dry friction."""
-    if 'coulomb_friction' not in effects:
+    load or force offset folded in) and Fv+/Fv- (viscous); None without dry friction.
+
+    The effects' parameters are read by their roles (:data:`motor_id.effects.ROLES`):
+    the dry friction torque (``kS`` in torque units), a constant ``load``, the extras of
+    negative motion, the ``static`` level (the largest where two effects set one, as
+    the simulator takes it) and the ``stribeck_speed``.
+    """
+    if not role_keys(effects, 'kS', 'torque'):
         return None
-    tc = effects['coulomb_friction']['T_c']
-    tl = effects.get('load_torque', {}).get('T_L', 0.0)
-    asym = effects.get('asymmetric_friction', {})
+    tc = role_value(effects, 'kS', scale='torque')
+    tl = role_value(effects, 'load')
     b = params['B']
-    out = {'Fc+': tc + tl, 'Fc-': tc + asym.get('dT_c', 0.0) - tl,
-           'Fv+': b, 'Fv-': b + asym.get('dB', 0.0)}
-    for e in ('stiction', 'stribeck_friction'):
-        if e in effects:
-            out['F_static'] = effects[e]['T_s']
-    if 'stribeck_friction' in effects:
-        out['v_stribeck'] = effects['stribeck_friction']['v_s']
+    out = {'Fc+': tc + tl, 'Fc-': tc + role_value(effects, 'kS_extra_negative') - tl,
+           'Fv+': b, 'Fv-': b + role_value(effects, 'kV_extra_negative')}
+    static = [effects[k.partition('.')[0]][k.partition('.')[2]]
+              for k in role_keys(effects, 'static')]
+    if static:
+        out['F_static'] = max(static)
+    if role_keys(effects, 'stribeck_speed'):
+        out['v_stribeck'] = role_value(effects, 'stribeck_speed')
     return out
 
 
@@ -36,7 +42,5 @@ def folded_load(effects: Mapping[str, Mapping[str, float]]) -> bool:
     unless a static level (stiction, Stribeck friction: break-away at ``T_s +- T_L``)
     tells the load apart.
     """
-    static = any(e in EFFECTS and 'T_s' in {q.name for q in EFFECTS[e].params}
-                 for e in effects)
-    return {'coulomb_friction', 'asymmetric_friction', 'load_torque'} <= set(effects) \
-        and not static
+    return bool(role_keys(effects, 'kS', 'torque') and role_keys(effects, 'kS_extra_negative')
+                and role_keys(effects, 'load') and not role_keys(effects, 'static'))

@@ -14,6 +14,7 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
+from motor_id.effects import EFFECTS, role_params
 from motor_id.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
@@ -26,22 +27,24 @@ def _filter(dt: float, cutoff: float) -> Any:
     return butter(4, wn)
 
 
-def inverse_dynamics(rec: Recording, terms: Sequence[str] = ('coulomb_friction', 'load_torque'),
+def inverse_dynamics(rec: Recording, terms: Sequence[str] | None = None,
                      cutoff: float | None = None, delay: int = 0, min_speed: float = 0.02
                      ) -> dict[str, Any]:
     """Equation-error (inverse dynamics) least squares for a torque-input plant.
 
-    Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for) with
-    the speed, its derivative and the input all low-pass filtered by the same zero-phase
-    Butterworth filter (parallel filtering, as in IDIM-LS); the first and last 2 % of
-    samples are dropped, and with Coulomb friction the samples near rest.
+    Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for: each
+    effect's :attr:`~motor_id.effects.EffectSpec.mechanical_term`) with the speed, its
+    derivative and the input all low-pass filtered by the same zero-phase Butterworth
+    filter (parallel filtering, as in IDIM-LS); the first and last 2 % of samples are
+    dropped, and with dry friction the samples near rest.
 
     Parameters
     ----------
     rec : Recording
         ``input_kind == 'torque'``.
-    terms : sequence of str
-        Any of coulomb_friction, load_torque, quadratic_load.
+    terms : sequence of str, optional
+        Effects with a mechanical term (Coulomb friction, a constant load, a quadratic
+        load); default the published EMPS model's: dry friction and a constant load.
     cutoff : float, optional
         Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
     delay : int
@@ -60,6 +63,9 @@ def inverse_dynamics(rec: Recording, terms: Sequence[str] = ('coulomb_friction',
 
     if rec.input_kind != 'torque':
         raise ConfigError('inverse dynamics needs a torque-input recording')
+    if terms is None:
+        terms = [s.name for s, _ in role_params('kS', 'torque')] + \
+            [s.name for s, _ in role_params('load')]
     t = rec.time
     dt = float(np.mean(np.diff(t)))
     cutoff = float(cutoff or 0.05 / dt)
@@ -72,7 +78,7 @@ def inverse_dynamics(rec: Recording, terms: Sequence[str] = ('coulomb_friction',
     trim = max(1, int(0.02 * t.size))
     keep = np.zeros(t.size, dtype=bool)
     keep[trim:-trim] = True
-    if 'coulomb_friction' in terms:
+    if any(MECHANICAL_TERMS[e].away_from_rest for e in terms if e in MECHANICAL_TERMS):
         # at rest the friction is anything up to T_c, not T_c sgn(w): leave out the
         # samples near zero speed
         keep &= np.abs(w) > min_speed * np.max(np.abs(w))
@@ -85,57 +91,41 @@ def inverse_dynamics(rec: Recording, terms: Sequence[str] = ('coulomb_friction',
     params = {k: {'value': float(v), 'std': float(s)}
               for k, v, s in zip(cols, theta, std, strict=True)}
     physical = bool(theta[0] > 0 and theta[1] >= 0 and all(
-        params[k]['value'] >= 0 for k in params if k in ('coulomb_friction.T_c',
-                                                         'quadratic_load.k_q')))
+        params[k]['value'] >= 0 for k in params if k in _NON_NEGATIVE))
     return {'parameters': params, 'cutoff': cutoff, 'delay': int(delay),
             'physical': physical,
             'relative_error': float(np.linalg.norm(res) / (np.linalg.norm(y) or 1.0)),
-            'model': 'u = J dw/dt + B w' + ''.join(MECHANICAL_TERMS[k] for k in terms
+            'model': 'u = J dw/dt + B w' + ''.join(MECHANICAL_TERMS[k].text for k in terms
                                                     if k in MECHANICAL_TERMS)}
 
 
-MECHANICAL_TERMS = {'coulomb_friction': ' + T_c sgn(w)', 'load_torque': ' + T_L',
-                    'quadratic_load': ' + k_q w|w|'}
-"""Torque terms the mechanical equation error can carry, and how they read."""
+MECHANICAL_TERMS = {n: spec.mechanical_term for n, spec in EFFECTS.items()
+                    if spec.mechanical_term}
+"""Torque terms the mechanical equation error can carry (each effect's own)."""
+_NON_NEGATIVE = {f'{n}.{term.param}' for n, term in MECHANICAL_TERMS.items()
+                 if EFFECTS[n].param(term.param).low >= 0}
+"""Mechanical terms whose sign is physical: a negative value is not a motor."""
 
 
 def _mechanical_columns(w: np.ndarray, t: np.ndarray, terms: Sequence[str]
                        ) -> dict[str, np.ndarray]:
-    """Regressors of ``u = J dw/dt + B w + ...`` from the filtered speed."""
+    """Regressors of ``u = J dw/dt + B w + ...`` from the filtered speed, the terms in
+    catalogue order."""
     cols = {'J': np.gradient(w, t), 'B': w}
-    if 'coulomb_friction' in terms:
-        cols['coulomb_friction.T_c'] = np.sign(w)
-    if 'load_torque' in terms:
-        cols['load_torque.T_L'] = np.ones_like(w)
-    if 'quadratic_load' in terms:
-        cols['quadratic_load.k_q'] = w * np.abs(w)
+    for n, term in MECHANICAL_TERMS.items():
+        if n in terms:
+            cols[f'{n}.{term.param}'] = term.column(w)
     return cols
 
 
-def _heating_regressor(t: np.ndarray, i: np.ndarray, tau: float) -> np.ndarray:
-    """First-order lag of i^2 from zero (a winding that starts cold) times i."""
-    from scipy.signal import lfilter
-    dt = float(np.mean(np.diff(t)))
-    a = np.exp(-dt / tau)
-    h = lfilter([1.0 - a], [1.0, -a], i * i)
-    return h * i
-
-
-def _electrical_columns(rec: Recording, scales: object
-                       ) -> dict[str, list[tuple[float | None, np.ndarray]]]:
-    """Candidate regressors ``{effect: [(param value, column), ...]}`` (unfiltered)."""
+def _electrical_columns(rec: Recording) -> dict[str, list[tuple[float | None, np.ndarray]]]:
+    """Candidate regressors ``{effect: [(param value, column), ...]}`` (unfiltered), each
+    effect's :attr:`~motor_id.effects.EffectSpec.electrical_term`."""
     t, u, i = rec.time, rec.input, rec.current
     if i is None:
         raise DataError('the electrical regressors need the measured current')
-    T = float(t[-1] - t[0])
-    u_max = float(np.max(np.abs(u))) or 1.0
-    cols: dict[str, list[tuple[float | None, np.ndarray]]] = {
-        'brush_drop': [(None, np.sign(i))],
-        'dead_zone': [(f * u_max, np.sign(u) * np.minimum(np.abs(u), f * u_max))
-                      for f in (0.02, 0.05, 0.1, 0.2, 0.3, 0.45)],
-        'resistance_drift': [(f * T, _heating_regressor(t, i, f * T))
-                             for f in (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)]}
-    return cols
+    return {n: spec.electrical_term.columns(t, u, i) for n, spec in EFFECTS.items()
+            if spec.electrical_term}
 
 
 def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str, Any]:
@@ -187,7 +177,7 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
     best: dict[str, float | None] = {}
     R: dict[str, float] = {}
     starts: dict[str, dict[str, float]] = {}
-    for name, cols in _electrical_columns(rec, None).items():
+    for name, cols in _electrical_columns(rec).items():
         explained[name], best[name], R[name] = 0.0, None, float(th0[0])
         coef = 0.0
         for value, col in cols:
@@ -201,7 +191,7 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
             if th[-1] > 0 and gain > explained[name]:
                 explained[name], best[name], R[name] = float(gain), value, float(th[0])
                 coef = float(th[-1])
-        starts[name] = _start_values(name, best[name], coef)
+        starts[name] = EFFECTS[name].electrical_term.start(best[name], coef)
     order = sorted(explained, key=lambda k: -explained[k])
     top, second = explained[order[0]], explained[order[1]]
     favoured = order[0] if top >= 0.2 and top >= 1.5 * second + 0.05 else None
@@ -209,18 +199,6 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
             'R_m': R[favoured] if favoured else float(th0[0]), 'R_m_base': float(th0[0]),
             'start': {k: v for k, v in starts.items() if v and explained[k] > 0},
             'model': 'V = R_m i + L_m di/dt + K_b w [+ term]'}
-
-
-def _start_values(name, value, coef):
-    """Effect parameters from the equation error's best term (start of a refinement)."""
-    if value is None and name != 'brush_drop':
-        return {}
-    if name == 'brush_drop':
-        return {'V_b': coef} if coef > 0 else {}
-    if name == 'dead_zone':
-        return {'V_dz': value}
-    # the heating regressor has unit DC gain: dR = k_h tau_th h, so coef = k_h tau_th
-    return {'k_h': coef / value, 'tau_th': value}
 
 
 def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:

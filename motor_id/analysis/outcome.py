@@ -9,6 +9,7 @@ import numpy as np
 
 from motor_id.analysis.candidates import dynamic_effects, FIT_ERRORS, grid_only
 from motor_id.analysis.inverse_dynamics import inverse_dynamics
+from motor_id.effects import EFFECTS, role_value
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
@@ -75,9 +76,8 @@ def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
     differently from the equation; the inverse-dynamics estimate uses the measured
     motion itself and is the published method.
     """
-    terms = [e for e in chosen.effects
-             if e in ('coulomb_friction', 'load_torque', 'quadratic_load')]
-    delay = int(chosen.effects.get('input_delay', {}).get('d', 0))
+    terms = [e for e in chosen.effects if e in EFFECTS and EFFECTS[e].mechanical_term]
+    delay = int(role_value(chosen.effects, 'delay', 0))
     try:
         idyn = inverse_dynamics(rec, terms, delay=delay)
     except FIT_ERRORS as exc:

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 from motor_id.analysis import selection
 from motor_id.analysis.workers import FitTask
+from motor_id.effects import EFFECTS, role_value
 
 if TYPE_CHECKING:
     from motor_id.analysis.context import RecordContext
@@ -99,7 +100,7 @@ class CandidateSearch:
     def _evidence_against(self, s: ModelScore) -> None:
         """What the record itself says against a candidate (in place): a delay of two
         samples or more while the speed answers input steps within one."""
-        d = s.effects.get('input_delay', {}).get('d')
+        d = role_value(s.effects, 'delay', None)
         if d is not None and d >= 2 and self.ctx.at_once:
             s.implausible = (f'a delay of {d:.0f} samples, but the speed answers input '
                              'steps within one sample')
@@ -114,11 +115,11 @@ class CandidateSearch:
         self._added = {}
         chosen = selection.pick_single(singles, self.catalogue, self.structure,
                                        self.ambiguity, self.ctx.electrical) or base
-        if self.ctx.steady and chosen.name not in ('coulomb_friction', 'dead_zone'):
+        first = [n for n, spec in EFFECTS.items() if spec.named_on_offset]
+        if self.ctx.steady and chosen.name not in first:
             # the plateaus show a static offset both ways: a friction-like effect that
             # does as well on held-out data is named before others
-            alt = [s for s in singles if s.significant and s.name in
-                   ('coulomb_friction', 'dead_zone') and
+            alt = [s for s in singles if s.significant and s.name in first and
                    s.heldout_error <= (1 + self.ambiguity) * chosen.heldout_error]
             if alt:
                 chosen = alt[0]
@@ -145,7 +146,8 @@ class CandidateSearch:
                 and not s.at_bound and not s.implausible
                 and s.name not in have and self._added.get(s.name, 1.0) > 0]
         if self.ctx.one_way:  # one sign of speed: friction and a constant load are one term
-            pool = [s for s in pool if not set(selection.ONE_WAY) <= set(have + [s.name])]
+            pool = [s for s in pool if not any(set(pair) <= set(have + [s.name])
+                                               for pair in selection.one_way_pairs())]
         pool = pool[:self.pool_size]
         trials: list[ModelScore] = []
         fitted = self.fits.map([FitTask(s.name, base, prior=chosen) for s in pool])

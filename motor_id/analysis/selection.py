@@ -18,74 +18,40 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.effects import EFFECTS
+from motor_id.effects import Confusion, EFFECTS
 
 if TYPE_CHECKING:
     from motor_id.analysis.heldout import HeldOutSplit
     from motor_id.analysis.report import ModelScore
     from motor_id.recording import Recording
 
-EXPERIMENTS = {
-    frozenset(('coulomb_friction', 'load_torque')):
-        'reverse the motor (bipolar_steps with rests): Coulomb friction changes sign '
-        'with the speed, a constant load torque does not',
-    frozenset(('coulomb_friction', 'brush_drop')):
-        'measure the current and brake hard (steps down) so that the current reverses '
-        'while the speed keeps its sign: friction follows the speed, the brush drop the '
-        'current',
-    frozenset(('coulomb_friction', 'dead_zone')):
-        'measure the current and decelerate with the input still positive: friction '
-        'raises the current needed at a given speed, a dead zone lowers the voltage '
-        'that reaches the motor',
-    frozenset(('brush_drop', 'dead_zone')):
-        'braking steps in which the current reverses while the input keeps its sign: '
-        'a brush drop follows the current sign, a dead zone the input sign',
-    frozenset(('resistance_drift', 'brush_drop')):
-        'measure the current over a long run at a constant load: heating makes the '
-        'voltage error grow with the integral of i^2, a brush drop is there at once',
-    frozenset(('resistance_drift', 'dead_zone')):
-        'measure the current and repeat the same steps cold and warm: heating changes '
-        'the response over time, a dead zone does not',
-    frozenset(('load_torque', 'brush_drop')):
-        'reverse the motor: a brush drop changes sign with the current, a load torque '
-        'keeps its sign',
-    frozenset(('load_torque', 'dead_zone')):
-        'reverse the input: a dead zone is symmetric, a constant load is not',
-    frozenset(('quadratic_load', 'voltage_saturation')):
-        'a staircase of input levels below and above the suspected limit: a quadratic '
-        'load bends the steady-state map smoothly, saturation cuts it flat',
-    frozenset(('quadratic_load', 'coulomb_friction')):
-        'a staircase of several steady speeds: friction offsets the speed-input map by '
-        'a constant, a quadratic load bends it',
-    frozenset(('sensor_lag', 'input_delay')):
-        'fast steps or a PRBS with the current measured: a delay shifts the whole '
-        'response, a sensor lag smooths only the speed reading',
-    frozenset(('sensor_lag', 'resonance')):
-        'a multisine through the suspected resonance: a lag only attenuates, a '
-        'compliant shaft rings',
-    frozenset(('input_delay', 'resonance')):
-        'a multisine through the suspected resonance: a delay only shifts the phase, '
-        'a compliant shaft rings',
-}
-TORQUE_EXPERIMENTS = {
-    frozenset(('coulomb_friction', 'dead_zone')):
-        'log the current with its sign and brake with the torque reversed while the '
-        'shaft still turns: friction follows the speed sign, a dead zone the torque sign '
-        '(a torque whose sign is inferred from the speed makes both act alike)',
-    frozenset(('coulomb_friction', 'load_torque')):
-        'reverse the motion: friction changes sign with the speed, a constant load or '
-        'force offset does not',
-}
-"""Experiments for torque-input plants where they differ from :data:`EXPERIMENTS`."""
 GENERIC_EXPERIMENT = ('an excitation that visits more operating points: bipolar steps with '
                       'rests at several amplitudes, a PRBS, and the current measured')
 
 
+def confusion(a: str, b: str) -> Confusion | None:
+    """What the entry of ``a`` or of ``b`` says about taking one for the other."""
+    for x, y in ((a, b), (b, a)):
+        spec = EFFECTS.get(x)
+        found = next((c for c in spec.confused_with if c.other == y), None) if spec else None
+        if found:
+            return found
+    return None
+
+
 def experiment(a: str, b: str, input_kind: str) -> str:
-    """The experiment that separates effects ``a`` and ``b``."""
-    key = frozenset((a, b))
-    return ((TORQUE_EXPERIMENTS.get(key) if input_kind == 'torque' else None)
-            or EXPERIMENTS.get(key, GENERIC_EXPERIMENT))
+    """The experiment that separates effects ``a`` and ``b`` (their entries'
+    :class:`~motor_id.effects.Confusion`; a generic one where neither names the other)."""
+    c = confusion(a, b)
+    if c is None:
+        return GENERIC_EXPERIMENT
+    return (c.torque_experiment if input_kind == 'torque' else '') or c.experiment
+
+
+def one_way_pairs() -> list[tuple[str, str]]:
+    """Pairs of effects that act alike on a record whose speed keeps one sign."""
+    return [(name, c.other) for name, spec in EFFECTS.items() for c in spec.confused_with
+            if c.one_way]
 
 
 CONSISTENT = 0.4
@@ -138,24 +104,15 @@ def judge(score: ModelScore, ref: ModelScore, split: HeldOutSplit, min_gain: flo
     return score
 
 
-ALIAS = 0.8
-"""A mode above this fraction of the Nyquist frequency is an alias, not a resonance."""
-
-
 def aliased(effects: Mapping[str, Mapping[str, float]], scales: Mapping[str, float]) -> str:
-    """Why a model's pole is an alias of the sampling ('' when it is not).
-
-    A resonance at or near the Nyquist frequency (half the sample rate) cannot be told
-    from an alias of anything faster, nor from a discrete-time artefact of the fit.
-    """
-    res = effects.get('resonance')
-    rate = scales.get('per_sample')
-    if not res or not rate or 'f_r' not in res:
-        return ''
-    nyquist = 0.5 * rate
-    if res['f_r'] >= ALIAS * nyquist:
-        return (f'a resonance at {res["f_r"]:.3g} Hz is at or above {ALIAS:.0%} of the '
-                f'Nyquist frequency ({nyquist:.3g} Hz): an alias, not a physical mode')
+    """Why a model is implausible by an effect's own rule
+    (:attr:`motor_id.effects.EffectSpec.check`: a resonance at the Nyquist frequency is an
+    alias of the sampling), '' when none."""
+    for e, vals in effects.items():
+        spec = EFFECTS.get(e)
+        reason = spec.check(vals, scales) if spec and spec.check else ''
+        if reason:
+            return reason
     return ''
 
 
@@ -226,9 +183,9 @@ def pick_single(singles: Sequence[ModelScore], catalogue: Sequence[str],
 
     The best significant single by held-out error; when even it leaves structure,
     error differences within ``ambiguity`` reflect the misfit, so the more common effect
-    (catalogue order) is named. Among heating, brush drop and dead zone the electrical
-    equation error (``electrical['favoured']``) decides when it is one of the
-    significant candidates.
+    (catalogue order) is named. Among the effects the electrical equation error tells
+    apart (heating, brush drop, dead zone: each with an ``electrical_term``) its verdict
+    (``electrical['favoured']``) decides when it is one of the significant candidates.
     """
     sig = [s for s in singles if s.significant]
     if not sig:
@@ -238,7 +195,7 @@ def pick_single(singles: Sequence[ModelScore], catalogue: Sequence[str],
         ties = [s for s in sig if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error]
         chosen = min(ties, key=lambda s: catalogue.index(s.name))
     fav = (electrical or {}).get('favoured')
-    trio = ('resistance_drift', 'brush_drop', 'dead_zone')
+    trio = [n for n, spec in EFFECTS.items() if spec.electrical_term]
     if fav and chosen.name in trio and fav != chosen.name:
         alt = [s for s in sig if s.name == fav]
         if alt:
@@ -262,9 +219,6 @@ def components(combo: ModelScore, singles: Sequence[ModelScore], parts_error: Ma
     return out
 
 
-ONE_WAY = ('coulomb_friction', 'load_torque')
-
-
 def ambiguous(chosen: ModelScore, ranked: Sequence[ModelScore], ambiguity: float, input_kind: str,
               one_way: bool = False) -> list[dict[str, Any]]:
     """Other significant single models as good as the chosen one, with experiments.
@@ -276,7 +230,7 @@ def ambiguous(chosen: ModelScore, ranked: Sequence[ModelScore], ambiguity: float
     out: list[dict[str, Any]] = []
     have = chosen.name.split('+')
     if one_way:
-        for a, b in (ONE_WAY, ONE_WAY[::-1]):
+        for a, b in [p for pair in one_way_pairs() for p in (pair, pair[::-1])]:
             if a in have and b not in have:
                 out.append({'name': b, 'gain': None,
                             'experiment': experiment(a, b, input_kind),

@@ -42,7 +42,7 @@ from motor_id.analysis.simulation_problem import (
 )
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.analysis.workers import _worker_start, longest_first
-from motor_id.effects import EFFECTS
+from motor_id.effects import EFFECTS, role_value
 from motor_id.identify.validation import SavedModel
 
 if TYPE_CHECKING:
@@ -98,18 +98,32 @@ def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:
            and model.input_kind in spec.kinds]
     bases = {spec.extends for spec in EFFECTS.values() if spec.extends}
     out += sorted(b for b in bases if b not in model.effects)
-    out += ['input_delay'] if 'input_delay' not in model.effects else []
-    if rec is not None and 'start_latency' not in model.effects and _leaves_zero(rec):
-        out.append('start_latency')
-    both = rec is not None and {'position', 'speed'} <= set(sim_channels(rec))
-    return out + (['sensor_lag'] if both and 'sensor_lag' not in model.effects else [])
+    for rule, applies in STAGE_RULES.items():
+        out += [e for e, spec in EFFECTS.items() if spec.stage_rule == rule
+                and e not in model.effects and applies(rec)]
+    return out
 
 
-def _leaves_zero(rec: Recording) -> bool:
+def _position_and_speed(rec: Recording | None) -> bool:
+    """Both a position and a speed are scored (a sensor lag shows as their mismatch)."""
+    return rec is not None and {'position', 'speed'} <= set(sim_channels(rec))
+
+
+def _leaves_zero(rec: Recording | None) -> bool:
     """The input of some run leaves zero after resting there (a drive that is enabled
     during the record: where a start latency would show)."""
-    return any(bool(np.any((rec.input[a + 1:b] != 0.0) & (rec.input[a:b - 1] == 0.0)))
-               for a, b in rec.segment_ranges)
+    return rec is not None and any(
+        bool(np.any((rec.input[a + 1:b] != 0.0) & (rec.input[a:b - 1] == 0.0)))
+        for a, b in rec.segment_ranges)
+
+
+STAGE_RULES: dict[str, Callable[[Recording | None], bool]] = {
+    'always': lambda rec: True,
+    'input_leaves_zero': _leaves_zero,
+    'position_and_speed': _position_and_speed,
+}
+"""When the stage tries an effect that is not in the model
+(:attr:`motor_id.effects.EffectSpec.stage_rule`), in the order the rules are tried."""
 
 
 def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
@@ -118,7 +132,8 @@ def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
     not both); an added base effect (Coulomb friction) that
     helped is also paired with each of its refinements."""
     out: list[tuple[str, ...]] = [(a, b) for a, b in itertools.combinations(helpful, 2)
-           if {a, b} != {'stiction', 'stribeck_friction'} and {a, b} != set(PROFILED)
+           if a not in EFFECTS[b].excludes and b not in EFFECTS[a].excludes
+           and not (a in PROFILED and b in PROFILED)
            and not (EFFECTS[a].extends == b or EFFECTS[b].extends == a)]
     for base in helpful:
         out += [(base, e) for e, spec in EFFECTS.items() if spec.extends == base]
@@ -127,19 +142,17 @@ def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
 
 def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
                   drive_scale: float) -> dict[str, float]:
-    """A refinement's start: no change from the model it refines (static friction at the
-    Coulomb level plus a little); an added Coulomb friction at 2 % of the largest drive
-    torque ``drive_scale``; a delay of none (its grid search follows)."""
-    vals = EFFECTS[effect].defaults()
-    tc = effects.get('coulomb_friction', {}).get('T_c', 0.0)
-    if effect == 'coulomb_friction':
-        vals['T_c'] = 0.02 * drive_scale
-    elif effect == 'asymmetric_friction':
-        vals = {'dT_c': 0.0, 'dB': 0.0}
-    elif effect in ('stiction', 'stribeck_friction'):
-        vals['T_s'] = 1.2 * tc
+    """A refinement's start (its entry's
+    :attr:`~motor_id.effects.EffectSpec.stage_start`): no change from the model it
+    refines (static friction at the Coulomb level plus a little); an added Coulomb
+    friction at 2 % of the largest drive torque ``drive_scale``; a delay of none (its
+    grid search follows)."""
+    spec = EFFECTS[effect]
+    vals = spec.defaults()
+    if spec.stage_start:
+        vals.update(spec.stage_start(drive_scale, role_value(effects, 'kS', scale='torque')))
     elif effect in PROFILED:
-        vals = {'d': 0.0}
+        vals = {p.name: 0.0 for p in spec.params}
     return vals
 
 
@@ -281,7 +294,7 @@ def _values(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
     """A fitted family's values by free name, and the delays its profile found
     (``input_delay.d``, ``start_latency.d``): what a larger family starts from."""
     out = dict(zip(prob.free, z, strict=True))
-    out.update({f'{e}.d': float(prob.model.effects[e]['d']) for e in PROFILED
+    out.update({_profile_key(e): float(prob.model.effects[e][_samples(e)]) for e in PROFILED
                 if e in prob.model.effects})
     return out
 
@@ -384,7 +397,7 @@ def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple
     for f, (cand, z) in zip(families, done, strict=True):
         prob = _family_problem(setup, model, f)
         lag = _profiled(f)
-        d = cand.effects.get(lag, {}).get('d') if lag else None
+        d = cand.effects.get(lag, {}).get(_samples(lag)) if lag else None
         out.append((cand, z, prob if d is None else _with_delay(prob, d, lag)))
     return out
 
@@ -430,7 +443,7 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
             lag = _profiled(extra)
             if lag:
                 prob, z, cand.nfev = _profile_delay(prob, setup.train, z, lag,
-                                                    (warm or {}).get(f'{lag}.d'))
+                                                    (warm or {}).get(_profile_key(lag)))
             else:
                 z, cand.nfev = prob.fit(setup.train, z)
             cand.parameters, cand.effects = prob.to_model(z)
@@ -455,8 +468,19 @@ def delay_grid(rec: Recording, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
     return grid[grid <= top]
 
 
-PROFILED = ('input_delay', 'start_latency')
+PROFILED = tuple(e for e, spec in EFFECTS.items()
+                 if spec.params and all(p.spacing == 'integer' for p in spec.params))
 """Effects of a whole number of samples, found by :func:`_profile_delay`."""
+
+
+def _samples(effect: str) -> str:
+    """The parameter of a :data:`PROFILED` effect: its number of samples."""
+    return str(EFFECTS[effect].params[0].name)
+
+
+def _profile_key(effect: str) -> str:
+    """``'effect.param'`` of a :data:`PROFILED` effect's number of samples."""
+    return f'{effect}.{_samples(effect)}'
 
 
 def _profiled(family: Sequence[str]) -> str:
@@ -465,17 +489,16 @@ def _profiled(family: Sequence[str]) -> str:
     return next((e for e in family if e in PROFILED), '')
 
 
-def _with_delay(prob: SimulationProblem, d: float, effect: str = 'input_delay'
-                ) -> SimulationProblem:
+def _with_delay(prob: SimulationProblem, d: float, effect: str) -> SimulationProblem:
     """``prob`` with its delay ``effect`` set to ``d`` samples."""
-    effects = {**prob.model.effects, effect: {'d': float(d)}}
+    effects = {**prob.model.effects, effect: {_samples(effect): float(d)}}
     m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
                    prob.model.source)
     return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
 
 
 def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
-                   z0: np.ndarray | None = None, effect: str = 'input_delay',
+                   z0: np.ndarray | None, effect: str,
                    around: float | None = None) -> tuple[SimulationProblem, np.ndarray, int]:
     """The delay (of ``effect``: an input delay, a start latency) by profile: the model
     refitted (briefly) at each delay of a coarse grid, then at the neighbours of the

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from motor_id.analysis.friction import folded_load
-from motor_id.effects import EFFECTS
+from motor_id.effects import EFFECTS, role_keys
 from motor_id.identify.space import VOLTAGE_FREE
 from motor_id.identify.validation import initial_state_at, SavedModel
 from motor_id.metrics import noise_floor
@@ -280,7 +280,7 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
         # too would pin kV = K_b + R_m B / K_T above K_b: an equation-error K_b too
         # high would be out of reach)
         names = ['J', 'B', 'L_m', 'K_b']
-    held = {'load_torque.T_L'} if folded_load(model.effects) else set()
+    held = set(role_keys(model.effects, 'load')) if folded_load(model.effects) else set()
     for e, vals in model.effects.items():
         spec = EFFECTS[e]
         if spec.category != 'dynamic':

@@ -38,7 +38,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 
 from motor_id.analysis.friction import folded_load, friction_summary
-from motor_id.effects import EFFECTS
+from motor_id.effects import EFFECTS, role_keys, role_value
 from motor_id.identify.determinacy import MAX_RELATIVE_STD
 from motor_id.identify.uncertainty import combine, delta_method, robust_covariance
 
@@ -144,17 +144,14 @@ def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[st
     direction when friction is asymmetric (``kS-``, ``kV-``)."""
     R, K_T, K_b = params['R_m'], params['K_T'], params['K_b']
     B, J, L = params['B'], params['J'], params['L_m']
-    tc = effects.get('coulomb_friction', {}).get('T_c', 0.0)
-    tl = effects.get('load_torque', {}).get('T_L', 0.0)
-    v0 = effects.get('brush_drop', {}).get('V_b', 0.0) + \
-        effects.get('dead_zone', {}).get('V_dz', 0.0)
+    tc = role_value(effects, 'kS', scale='torque')
+    tl = role_value(effects, 'load')
+    v0 = role_value(effects, 'kS', scale='input') + role_value(effects, 'dead_band')
     out = {'kS': v0 + (tc + tl) * R / K_T, 'kV': (R * B + K_T * K_b) / K_T,
            'kA': (R * J + B * L) / K_T}
-    asym = effects.get('asymmetric_friction')
-    if asym is not None or tl:
-        a = asym or {}
-        out['kS-'] = v0 + (tc + a.get('dT_c', 0.0) - tl) * R / K_T
-        out['kV-'] = (R * (B + a.get('dB', 0.0)) + K_T * K_b) / K_T
+    if role_keys(effects, 'kS_extra_negative') or tl:
+        out['kS-'] = v0 + (tc + role_value(effects, 'kS_extra_negative') - tl) * R / K_T
+        out['kV-'] = (R * (B + role_value(effects, 'kV_extra_negative')) + K_T * K_b) / K_T
     return out
 
 
@@ -251,12 +248,13 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
             entry['std'] = None
         params[name] = entry
     if folded_load(prob.model.effects):
-        for name in ('coulomb_friction.T_c', 'asymmetric_friction.dT_c'):
+        for name in (role_keys(prob.model.effects, 'kS', 'torque')
+                     + role_keys(prob.model.effects, 'kS_extra_negative')):
             if name in params and params[name]['determined']:
                 params[name].update(determined=False, std=None, note=(
                     'only as Fc+ and Fc- (see friction): a constant load folds into them'))
-        params['load_torque.T_L'] = {
-            'value': prob.model.effects['load_torque']['T_L'], 'std': None,
+        params[role_keys(prob.model.effects, 'load')[0]] = {
+            'value': role_value(prob.model.effects, 'load'), 'std': None,
             'std_model': None, 'determined': False,
             'note': 'held at the equation-error value: a constant load and asymmetric '
             'Coulomb levels act alike (only Fc+ = T_c + T_L and Fc- = T_c + dT_c - T_L '

@@ -24,11 +24,6 @@ if TYPE_CHECKING:
     from motor_id.identify import IdentificationResult
     from motor_id.recording import Recording
 
-GRID_ONLY = {'input_delay': ('d',), 'speed_quantization': ('q',)}
-"""Effect parameters that a least-squares refinement cannot move (integer or steps):
-``--effect`` keeps them at the given value."""
-
-
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Options shared by `fit` and `replay --offline`."""
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
@@ -122,8 +117,9 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
             raise ConfigError(f'--{opt.replace("_", "-")} must be a frequency > 0 Hz, '
                               f'got {hz}')
     effects = parse_effect_args(getattr(args, 'effect', []))
-    free = [f'{e}.{p.name}' for e in effects for p in EFFECTS[e].params
-            if p.name not in GRID_ONLY.get(e, ())]
+    # a parameter a least-squares refinement cannot move (a whole number of samples, a
+    # grid step) is kept at the value given
+    free = [f'{e}.{p.name}' for e in effects for p in EFFECTS[e].params if p.refined]
     return Identifier(method=args.method, R_m=r_m, R_m_tolerance=tol / 100.0, tie=args.tie,
                       population=args.population, generations=args.generations,
                       crossover=args.crossover, mutation=args.mutation,

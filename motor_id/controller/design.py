@@ -15,6 +15,7 @@ import numpy as np
 
 from motor_id.contracts import INPUT_KINDS, units_of
 from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
+from motor_id.effects import role_params
 from motor_id.errors import ConfigError
 from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 
@@ -22,8 +23,9 @@ VOLTAGE_NAMES = PARAM_NAMES
 TORQUE_NAMES = MECHANICAL_PARAMS
 """The parameters a design reads, for a voltage and a torque plant (the model's names)."""
 CONVENTION = 'WPILib SysId: V = kS sgn(w) + kV w + kA dw/dt'
-KS_SOURCES = ('coulomb_friction', 'brush_drop', 'coulomb_friction+brush_drop', 'measured',
-              'user')
+KS_EFFECTS = tuple(spec.name for spec, _ in role_params('kS'))
+"""Effects whose parameter gives kS (static friction, a brush drop)."""
+KS_SOURCES = (*KS_EFFECTS, '+'.join(KS_EFFECTS), 'measured', 'user')
 
 # Default bandwidth rule: a loop's crossover a decade above the open-loop pole it speeds
 # up (1/tau_e for the current loop, 1/tau_m for a torque plant's speed loop), and a

@@ -7,13 +7,15 @@ from typing import Any
 import numpy as np
 
 from motor_id.controller.design import check_input_kind, ControllerDesign, design_controller
+from motor_id.effects import role_params
 from motor_id.errors import ConfigError
 
 
 def _kS_from_effects(  # noqa: N802 - kS: WPILib's symbol
         effects: Mapping[str, Any], vals: Mapping[str, float],
         input_kind: str) -> dict[str, Any] | None:
-    """Return kS from fitted coulomb_friction T_c and/or brush_drop V_b (None if neither).
+    """Return kS from the fitted effect parameters whose role is ``'kS'`` (a dry friction
+    torque through R_m / K_T, a voltage drop as it is; None if none).
 
     The std comes from the effect parameters' stds only: R_m / K_T is taken as exact.
     """
@@ -23,23 +25,21 @@ def _kS_from_effects(  # noqa: N802 - kS: WPILib's symbol
         return entry, 0.0
 
     value, var, sources = 0.0, 0.0, []
-    tc = (effects.get('coulomb_friction') or {}).get('T_c')
-    if tc is not None:
-        t, ts = val_std(tc)
+    for spec, p in role_params('kS'):
+        entry = (effects.get(spec.name) or {}).get(p.name)
+        if entry is None or input_kind not in spec.kinds:
+            continue
+        t, ts = val_std(entry)
         if t is None:
             return None
-        scale = 1.0 if input_kind == 'torque' else vals['R_m'] / vals['K_T']
-        if not np.isfinite(scale):
-            return None
-        value, var = value + abs(t) * scale, var + (ts * scale) ** 2
-        sources.append('coulomb_friction')
-    vb = (effects.get('brush_drop') or {}).get('V_b')
-    if vb is not None and input_kind == 'voltage':
-        b, bs = val_std(vb)
-        if b is None:
-            return None
-        value, var = value + abs(b), var + bs ** 2
-        sources.append('brush_drop')
+        if p.scale != 'torque':   # a voltage drop
+            value, var = value + abs(t), var + ts ** 2
+        else:
+            scale = 1.0 if input_kind == 'torque' else vals['R_m'] / vals['K_T']
+            if not np.isfinite(scale):
+                return None
+            value, var = value + abs(t) * scale, var + (ts * scale) ** 2
+        sources.append(spec.name)
     if not sources:
         return None
     return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}

@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.contracts import INPUT_KINDS
-from motor_id.effects import EFFECTS
+from motor_id.effects import count_reading, EFFECTS, role_keys
 from motor_id.errors import ConfigError, DataError
 from motor_id.metrics import normalised_fit
 from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
@@ -90,16 +90,18 @@ def _effects(report: dict[str, Any]) -> dict[str, dict[str, float]]:
         for e, vals in (report.get('chosen') or {}).get('effects', {}).items():
             out[e] = {p: float(v['value'] if isinstance(v, dict) else v)
                       for p, v in vals.items()}
-        counted = report['parameters'].get('speed_quantization.counted')
-        if isinstance(counted, dict) and counted.get('value'):
-            out['speed_quantization'] = {'q': 0.0, 'counted': 1.0}
+        for key in role_keys(count_reading(), 'counted'):
+            counted = report['parameters'].get(key)
+            if isinstance(counted, dict) and counted.get('value'):
+                out.update(count_reading())
         return out
     for e, vals in (report.get('effects') or {}).items():
         if e not in EFFECTS:
             raise ConfigError(f'unknown effect {e!r} in the model')
         out[e] = {p: float(v['value'] if isinstance(v, dict) else v) for p, v in vals.items()}
-        if e in ('speed_quantization', 'current_quantization'):
-            out[e] = {k: (0.0 if k in ('q', 'q_i') else v) for k, v in out[e].items()}
+        grid = {k.partition('.')[2] for k in role_keys({e: None}, 'grid')}
+        if grid:   # a sensor's grid is not simulated
+            out[e] = {k: (0.0 if k in grid else v) for k, v in out[e].items()}
     return out
 
 

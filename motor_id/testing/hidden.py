@@ -47,12 +47,12 @@ from typing import Any
 
 import numpy as np
 
-from motor_id.effects import EFFECTS
+from motor_id.effects import EFFECTS, on_grid
 from motor_id.errors import ConfigError
 from motor_id.excitation import make_excitation, PROFILES
 from motor_id.model import MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
-from motor_id.simulate import on_grid, simulate_batch
+from motor_id.simulate import simulate_batch
 
 VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds
                         and not e.extends and not e.simulation_only)
