@@ -9,7 +9,7 @@ from common import render_table, target
 import numpy as np
 
 from motor_id.data.csv_io import read_csv
-from motor_id.data.mapping import Mapping
+from motor_id.data.mapping import TopicMapping
 from motor_id.data.rosbag import read_bag
 from motor_id.errors import DataError
 
@@ -102,7 +102,7 @@ def run(quick=False):
         rows.append({'case': 'CSV, text in the last row (error: ' + message[0].split(': ', 1)[
             0].rsplit('/', 1)[-1] + ')', 'items': n_csv, 'seconds': s_bad,
             'cpu_seconds': cpu_bad, 'us_per_item': 1e6 * s_bad / n_csv})
-        mapping = Mapping(input='/motor_voltage_cmd', speed='/joint_states:velocity',
+        mapping = TopicMapping(input='/motor_voltage_cmd', speed='/joint_states:velocity',
                           current='/joint_states:effort', joint='wheel_left',
                           effort_is='current')
         bag_s = {}

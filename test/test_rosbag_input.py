@@ -12,7 +12,7 @@ import yaml
 
 from motor_id.cli import main
 from motor_id.data.csv_io import write_csv
-from motor_id.data.mapping import Mapping, parse_field_spec
+from motor_id.data.mapping import parse_field_spec, TopicMapping
 from motor_id.data.rosbag import read_bag
 from motor_id.data.shift import detect_shift, shift_input
 from motor_id.errors import BagError, ConfigError
@@ -123,7 +123,7 @@ def mapping(**kw):
     base = dict(input='/motor_voltage_cmd', speed='/joint_states:velocity',
                 current='/joint_states:effort', joint='wheel_left', effort_is='current')
     base.update(kw)
-    return Mapping(**base)
+    return TopicMapping(**base)
 
 
 @pytest.mark.parametrize('storage, split', [('mcap', None), ('sqlite3', None),
@@ -191,7 +191,8 @@ def test_missing_topic_joint_and_field_name_what_exists(tmp_path, rec):
                                        r'wheel_right, wheel_left\)'),
         (mapping(joint=None), 'has joints wheel_right, wheel_left; choose one with --joint'),
         (mapping(speed='/joint_states:speed'), 'the field is one of position, velocity'),
-        (Mapping(speed='/joint_states:velocity', joint='wheel_left'), 'no input: give --input'),
+        (TopicMapping(speed='/joint_states:velocity', joint='wheel_left'),
+         'no input: give --input'),
     ]
     for m, message in cases:
         with pytest.raises(BagError, match=message) as info:
@@ -205,21 +206,21 @@ def test_missing_topic_joint_and_field_name_what_exists(tmp_path, rec):
 
 def test_effort_rules_give_the_plant_kind(tmp_path, rec):
     bag = write_robot_bag(tmp_path / 't', rec.slice(0, 300), effort='torque')
-    torque = read_bag(bag, Mapping(speed='/joint_states:velocity', joint='wheel_left',
+    torque = read_bag(bag, TopicMapping(speed='/joint_states:velocity', joint='wheel_left',
                                    effort_is='torque'))
     assert torque.input_kind == 'torque' and torque.current is None
     np.testing.assert_array_equal(torque.input, rec.input[:300])
-    implied = read_bag(bag, Mapping(input='/joint_states:effort', joint=1))
+    implied = read_bag(bag, TopicMapping(input='/joint_states:effort', joint=1))
     assert implied.input_kind == 'torque'
     with pytest.raises(ConfigError, match='--effort-is torque makes the joint effort the '
                                           'plant input'):
         read_bag(bag, mapping(effort_is='torque', current=None))
     with pytest.raises(ConfigError, match='the joint effort is a torque, it cannot be the '
                                           '--current'):
-        read_bag(bag, Mapping(speed='/joint_states:velocity', joint='wheel_left',
+        read_bag(bag, TopicMapping(speed='/joint_states:velocity', joint='wheel_left',
                               current='/joint_states:effort', effort_is='torque'))
     with pytest.raises(ConfigError, match='is a joint effort \\(a torque\\), not a voltage'):
-        read_bag(bag, Mapping(input='/joint_states:effort', joint='wheel_left',
+        read_bag(bag, TopicMapping(input='/joint_states:effort', joint='wheel_left',
                               input_kind='voltage'))
 
 
@@ -371,7 +372,7 @@ def test_clocks_that_do_not_overlap_and_a_stray_effort_flag(tmp_path, rec):
         read_bag(bag, mapping())
     with pytest.raises(ConfigError, match='--effort-is current but no JointState effort is '
                                           'mapped'):
-        read_bag(bag, Mapping(input='/joint_states:position', speed='/motor_voltage_cmd',
+        read_bag(bag, TopicMapping(input='/joint_states:position', speed='/motor_voltage_cmd',
                               joint='wheel_left', effort_is='current'))
 
 

@@ -18,7 +18,7 @@ from motor_id.bag import BagWriter, read_recording, write_recording
 from motor_id.cli import main
 from motor_id.cli.data_args import add_data_arguments, load_runs
 from motor_id.data.load import load_recording
-from motor_id.data.mapping import Mapping
+from motor_id.data.mapping import TopicMapping
 from motor_id.data.sysid import load_sysid, MIN_TEST_ROWS, TESTS
 from motor_id.errors import BagError, ConfigError, DataError
 from motor_id.identify.validation import SavedModel
@@ -113,7 +113,7 @@ def test_reader_reads_each_side_of_a_drivetrain_log(tmp_path):
     assert left.meta['sysid']['joint'] == 'left' and right.meta['sysid']['joint'] == 'right'
     # the right side has more inertia and friction: it is slower
     assert np.max(right.speed) < 0.99 * np.max(left.speed)
-    rec = load_recording(path, mapping=Mapping(joint='right'))
+    rec = load_recording(path, mapping=TopicMapping(joint='right'))
     np.testing.assert_array_equal(rec.speed, right.speed)
 
 
@@ -211,7 +211,7 @@ def test_bag_and_csv_options_do_not_apply_to_a_sysid_log(clean_log):
     with pytest.raises(ConfigError, match='voltage input, not torque'):
         load_recording(path, input_kind='torque')
     with pytest.raises(ConfigError, match='takes only --joint'):
-        load_recording(path, mapping=Mapping(speed='/joint_states:velocity'))
+        load_recording(path, mapping=TopicMapping(speed='/joint_states:velocity'))
 
 
 # --------------------------------------------------------------------------------- CLI

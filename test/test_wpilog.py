@@ -16,7 +16,7 @@ from wpiutil.log import DataLogReader
 from motor_id.bag import read_recording
 from motor_id.cli import main
 from motor_id.data.load import load_recording
-from motor_id.data.mapping import Mapping
+from motor_id.data.mapping import TopicMapping
 from motor_id.data.wpilog import load_wpilog, LogEntries, parse_unit
 from motor_id.errors import ConfigError, DataError
 from motor_id.testing.sysid_log import DEFAULT_MOTOR
@@ -146,7 +146,7 @@ def test_several_motors_are_listed_and_picked(tmp_path, capsys):
     a, b = left.segment_ranges[2]
     assert right.speed[a + 5] < 0.8 * left.speed[a + 5]
     # --joint picks a side by the word in the motor's name, as for a JSON drivetrain log
-    side = load_recording(path, mapping=Mapping(joint='right'))
+    side = load_recording(path, mapping=TopicMapping(joint='right'))
     np.testing.assert_array_equal(side.speed, right.speed)
     with pytest.raises(DataError, match="no motor 'arm' .motors: drive-left, drive-right"):
         load_wpilog(path, LogEntries(motor='arm'))
@@ -272,7 +272,7 @@ def test_datalog_options_are_refused_for_other_files(tmp_path):
     with pytest.raises(ConfigError, match='pick the entries of a WPILib DataLog'):
         load_recording(csv, log_entries=LogEntries(motor='m'))
     with pytest.raises(ConfigError, match='takes only --joint'):
-        load_recording(tmp_path / 'y.wpilog', mapping=Mapping(speed='/js'))
+        load_recording(tmp_path / 'y.wpilog', mapping=TopicMapping(speed='/js'))
 
 
 def _cli(*args):

@@ -98,7 +98,7 @@ def settings_from_args(args: argparse.Namespace) -> dict[str, Any]:
     Returns
     -------
     dict
-        Keys ``columns, input_kind, shift, mapping`` (a :class:`Mapping`).
+        Keys ``columns, input_kind, shift, mapping`` (a :class:`TopicMapping`).
     """
     prof = getattr(args, 'profile', None)
     merged = load_profile(prof) if isinstance(prof, str) and prof else {}

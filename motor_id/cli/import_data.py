@@ -8,7 +8,7 @@ from motor_id.bag import write_recording
 from motor_id.cli.data_args import add_data_arguments, load_from_args, log_entries_from_args
 from motor_id.data.importers import load, SOURCES
 from motor_id.data.load import load_recording
-from motor_id.data.mapping import Mapping
+from motor_id.data.mapping import TopicMapping
 from motor_id.errors import ConfigError
 
 
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     if args.source in ('csv', 'bag'):
         rec = load_from_args(args, args.src)
     elif args.source == 'sysid':
-        rec = load_recording(args.src, mapping=Mapping(joint=args.joint),
+        rec = load_recording(args.src, mapping=TopicMapping(joint=args.joint),
                              log_entries=log_entries_from_args(args))
         for note in rec.meta.get('warnings') or ():
             print(f'warning: {args.src}: {note}', file=sys.stderr)

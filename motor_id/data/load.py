@@ -11,12 +11,12 @@ from motor_id.errors import ConfigError
 from motor_id.recording import Recording
 
 if TYPE_CHECKING:  # the bag modules load only when a bag is read
-    from motor_id.data.mapping import Mapping
+    from motor_id.data.mapping import TopicMapping
 
 
 def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] | None = None,
                    input_kind: str | None = None,
-                   mapping: 'Mapping | None' = None,
+                   mapping: 'TopicMapping | None' = None,
                    log_entries: LogEntries | None = None, delimiter: str | None = None,
                    decimal: str | None = None) -> Recording:
     """Read a recording from a CSV file, a rosbag2 recording or a WPILib SysId log.
@@ -34,7 +34,7 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
         CSV only: column mapping ``{role: name}``.
     input_kind : {'voltage', 'torque'}, optional
         Plant kind when the names cannot tell (CSV, or a bag mapping).
-    mapping : motor_id.data.mapping.Mapping, optional
+    mapping : motor_id.data.mapping.TopicMapping, optional
         Bags: the topic/field mapping (None or empty: the ``/samples`` topic); a SysId
         log or a DataLog takes only its ``joint`` (the side of a drivetrain).
     log_entries : motor_id.data.wpilog.LogEntries, optional
@@ -84,13 +84,13 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     if is_sysid_log(path):
         _check_sysid_options(path, columns, input_kind, mapping)
         return load_sysid(path, joint=joint)
-    from motor_id.data.mapping import Mapping
+    from motor_id.data.mapping import TopicMapping
     from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
         if columns or delimiter or decimal:
             raise ConfigError('--columns, --delimiter and --decimal describe CSV files; a '
                               'bag is mapped with --input, --speed, --current')
-        mapping = mapping or Mapping()
+        mapping = mapping or TopicMapping()
         if input_kind is not None:
             mapping.input_kind = input_kind
         return read_bag(path, mapping)
@@ -103,7 +103,7 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
 
 def _check_sysid_options(path: str | os.PathLike[str],
                          columns: str | dict[str, str] | None, input_kind: str | None,
-                         mapping: 'Mapping | None') -> None:
+                         mapping: 'TopicMapping | None') -> None:
     """ConfigError for the CSV and bag options that a SysId log cannot take."""
     if columns:
         raise ConfigError(f'{path}: a SysId log has fixed columns; --columns maps CSV '

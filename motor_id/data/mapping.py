@@ -50,7 +50,7 @@ _STEP_RE = re.compile(r'^([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$')
 
 
 @dataclass
-class Mapping:
+class TopicMapping:
     """Where each channel of the recording comes from in a bag.
 
     Attributes
@@ -157,7 +157,7 @@ def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     return check_keys(data, f'--profile {path}', PROFILE_KEYS)
 
 
-def mapping_settings(settings: dict[str, Any], where: str) -> tuple[Mapping, int | None]:
+def mapping_settings(settings: dict[str, Any], where: str) -> tuple[TopicMapping, int | None]:
     """The bag mapping and the input shift that a profile's keys describe.
 
     The one reading of :data:`PROFILE_KEYS` (``columns`` aside): ``--profile`` with the
@@ -172,7 +172,7 @@ def mapping_settings(settings: dict[str, Any], where: str) -> tuple[Mapping, int
 
     Returns
     -------
-    mapping : Mapping
+    mapping : TopicMapping
         ``joint`` as text (YAML reads an index as a number), ``align`` ``'hold'`` unless
         set.
     shift : int or None
@@ -191,7 +191,7 @@ def mapping_settings(settings: dict[str, Any], where: str) -> tuple[Mapping, int
         raise ConfigError(f'{where}: input_kind must be {" or ".join(INPUT_KINDS)}, got '
                           f'{kind!r}')
     joint = settings.get('joint')
-    mapping = Mapping(input=settings.get('input'), speed=settings.get('speed'),
+    mapping = TopicMapping(input=settings.get('input'), speed=settings.get('speed'),
                       current=settings.get('current'),
                       joint=None if joint is None else str(joint),
                       effort_is=settings.get('effort_is'),
@@ -212,13 +212,13 @@ def check_keys(entry: Any, where: str, known: Sequence[str]) -> dict[str, Any]:
     return entry
 
 
-def resolve(mapping: Mapping, topics: dict[str, Any],
+def resolve(mapping: TopicMapping, topics: dict[str, Any],
             path: str | os.PathLike[str] = '') -> tuple[dict[str, FieldSpec], str, str | None]:
     """Field specs per role and the plant kind, by the rule of the module docstring.
 
     Parameters
     ----------
-    mapping : Mapping
+    mapping : TopicMapping
     topics : dict
         ``reader.topics`` of the bag: name -> info with ``msgtype`` and ``msgcount``.
     path : str
@@ -245,7 +245,7 @@ def resolve(mapping: Mapping, topics: dict[str, Any],
     return specs, kind, effort_is
 
 
-def _check_settings(m: Mapping) -> None:
+def _check_settings(m: TopicMapping) -> None:
     if m.effort_is is not None and m.effort_is not in EFFORT_KINDS:
         raise ConfigError(f'--effort-is must be current or torque, got {m.effort_is!r}')
     if m.input_kind is not None and m.input_kind not in INPUT_KINDS:
@@ -254,7 +254,7 @@ def _check_settings(m: Mapping) -> None:
         raise ConfigError(f'--align must be one of {", ".join(ALIGN_RULES)}, got {m.align!r}')
 
 
-def _field_specs(m: Mapping, topics: dict[str, Any],
+def _field_specs(m: TopicMapping, topics: dict[str, Any],
                  path: str | os.PathLike[str]) -> dict[str, FieldSpec]:
     """The mapped specs, each on a topic of the bag; the speed defaults to a JointState's."""
     specs = {r: parse_field_spec(getattr(m, r), '--' + r) for r in ROLES if getattr(m, r)}
@@ -279,7 +279,7 @@ def _is_effort(spec: FieldSpec, role: str, topics: dict[str, Any]) -> bool:
     return _is_joint(spec, topics) and (spec.first or _DEFAULT_JOINT_FIELD[role]) == 'effort'
 
 
-def _effort_roles(m: Mapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+def _effort_roles(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
                   path: str | os.PathLike[str]) -> tuple[bool, bool]:
     """Map the speed topic's effort by ``effort_is``; whether the input / current is an effort."""
     speed = specs['speed']
@@ -297,7 +297,7 @@ def _effort_roles(m: Mapping, specs: dict[str, FieldSpec], topics: dict[str, Any
     return input_effort, current_effort
 
 
-def _plant_kind(m: Mapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+def _plant_kind(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
                 input_effort: bool, current_effort: bool) -> tuple[str, str | None]:
     """``(input_kind, effort_is)`` after checking that the settings agree."""
     effort_is = m.effort_is

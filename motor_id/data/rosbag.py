@@ -2,7 +2,7 @@
 
 Without a mapping the bag must hold this project's ``/samples`` topic, read by the one
 reader of that topic, :func:`motor_id.bag.read_any_recording`. With one
-(:class:`motor_id.data.mapping.Mapping`: which topic and field each channel comes from,
+(:class:`motor_id.data.mapping.TopicMapping`: which topic and field each channel comes from,
 and the plant kind), the mapped topics are read through ``rosbags.highlevel.AnyReader``.
 
 Times: the header stamp where the message has a (non-zero) header, else the receive
@@ -22,7 +22,7 @@ from motor_id.bag import read_any_recording
 from motor_id.bag.anyreader import open_reader, reading
 from motor_id.contracts import BAG_SAMPLES_TOPIC
 from motor_id.data.align import held_command_index
-from motor_id.data.mapping import field_getter, FieldSpec, kind_note, Mapping, resolve
+from motor_id.data.mapping import field_getter, FieldSpec, kind_note, resolve, TopicMapping
 from motor_id.errors import BagError
 from motor_id.recording import Recording
 
@@ -33,14 +33,14 @@ def is_rosbag(path: str | os.PathLike[str]) -> bool:
     return p.is_dir() or p.suffix in ('.mcap', '.db3')
 
 
-def read_bag(path: str | os.PathLike[str], mapping: Mapping | None = None) -> Recording:
+def read_bag(path: str | os.PathLike[str], mapping: TopicMapping | None = None) -> Recording:
     """Read a rosbag2 recording as a :class:`Recording` (not validated).
 
     Parameters
     ----------
     path : str or os.PathLike
         An MCAP file, a ``.db3`` file or a rosbag2 folder (``metadata.yaml``, split files).
-    mapping : Mapping, optional
+    mapping : TopicMapping, optional
         Empty or None: the project's ``/samples`` topic.
 
     Returns
@@ -57,7 +57,7 @@ def read_bag(path: str | os.PathLike[str], mapping: Mapping | None = None) -> Re
     ConfigError
         Contradicting mapping settings.
     """
-    mapping = mapping or Mapping()
+    mapping = mapping or TopicMapping()
     if mapping.is_empty:
         try:
             rec = read_any_recording(path)
@@ -76,7 +76,7 @@ def read_bag(path: str | os.PathLike[str], mapping: Mapping | None = None) -> Re
         reader.close()
 
 
-def _read_mapped(reader: Any, path: str | os.PathLike[str], mapping: Mapping) -> Recording:
+def _read_mapped(reader: Any, path: str | os.PathLike[str], mapping: TopicMapping) -> Recording:
     topics = reader.topics
     specs, kind, effort_is = resolve(mapping, topics, path)
     by_topic: dict[str, list[str]] = {}

@@ -27,10 +27,10 @@ from typing import Any
 
 from motor_id.data.mapping import (
     check_keys,
-    Mapping,
     mapping_settings,
     PROFILE_KEYS,
     read_yaml,
+    TopicMapping,
 )
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
@@ -59,7 +59,7 @@ class MotorSpec:
     fix: dict[str, Any] = field(default_factory=dict)
     bounds: dict[str, Any] = field(default_factory=dict)
 
-    def mapping(self) -> Mapping:
+    def mapping(self) -> TopicMapping:
         """The bag mapping of :mod:`motor_id.data.rosbag`."""
         return mapping_settings(asdict(self), f'motor {self.name}')[0]
 
