@@ -40,3 +40,11 @@ class BagError(MotorIdError):
 
 class IdentificationError(MotorIdError):
     """The fit cannot run or did not produce a usable result."""
+
+
+FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError)
+"""What a numerical fit may raise where a failed fit is a result and not the end (a
+candidate of the discrepancy analysis, a model of its simulation-error stage): the
+domain errors, overflow and division by zero, bad values (numpy's ``LinAlgError`` is a
+``ValueError``) and solvers' ``RuntimeError``. Each is recorded as a failed fit with its
+reason, and the analysis goes on."""

@@ -121,3 +121,17 @@ def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     kv = scope['ff']['kV']
     assert kv['std'] < 0.05 * kv['value'], out
     assert scope['score'].channels['speed']['fit_percent'] > 95, out
+
+
+def test_fit_errors_cover_what_a_fit_raises():
+    """One tuple of what a failed fit may raise (issue 29 item 5: there were two, with
+    different contents): numpy's LinAlgError and scipy's RuntimeError included, a bug's
+    TypeError or an interrupt not."""
+    import numpy as np
+
+    from motor_id.errors import FIT_ERRORS, IdentificationError
+    for exc in (np.linalg.LinAlgError('singular'), FloatingPointError('overflow'),
+                IdentificationError('diverges'), RuntimeError('solver')):
+        assert isinstance(exc, FIT_ERRORS), exc
+    for exc in (TypeError('bug'), KeyboardInterrupt(), AttributeError('bug')):
+        assert not isinstance(exc, FIT_ERRORS), exc

@@ -22,7 +22,7 @@ import numpy as np
 
 from motor_id.analysis import selection
 from motor_id.analysis.assembly import build_report
-from motor_id.analysis.candidates import CandidateFitter, data_scales, FIT_ERRORS
+from motor_id.analysis.candidates import CandidateFitter, data_scales
 from motor_id.analysis.context import RecordContext
 from motor_id.analysis.diagnostics import map_summary, steady_state_map
 from motor_id.analysis.heldout import HeldOutSplit
@@ -32,7 +32,7 @@ from motor_id.analysis.search import CandidateSearch
 from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.analysis.workers import FitPool
 from motor_id.effects import count_reading, EFFECTS
-from motor_id.errors import ConfigError, DataError, IdentificationError
+from motor_id.errors import ConfigError, DataError, FIT_ERRORS, IdentificationError
 from motor_id.identify.validation import SavedModel
 from motor_id.metrics import noise_floor
 

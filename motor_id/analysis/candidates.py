@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from motor_id.analysis.report import ModelScore
 from motor_id.effects import EFFECTS
-from motor_id.errors import MotorIdError
+from motor_id.errors import FIT_ERRORS
 from motor_id.identify import Identifier
 from motor_id.simulate import simulate_runs
 
@@ -50,10 +50,6 @@ CANDIDATE_NFEV = 25
 """Residual evaluations of a candidate's refinement: enough to rank it (most converge in
 5-15; a fit still crawling along a friction kink at 25 gains little more by 60, and the
 final fit of the chosen model runs to the Identifier's full budget)."""
-
-FIT_ERRORS = (MotorIdError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
-"""What a candidate's fit may raise; each is recorded as a failed candidate."""
-
 
 def grid_only(effect: str) -> tuple[str, ...]:
     """Parameters of ``effect`` found by its grid only (integer ones), never refined."""

@@ -7,9 +7,10 @@ from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.analysis.candidates import dynamic_effects, FIT_ERRORS, grid_only
+from motor_id.analysis.candidates import dynamic_effects, grid_only
 from motor_id.analysis.inverse_dynamics import inverse_dynamics
 from motor_id.effects import EFFECTS, role_value
+from motor_id.errors import FIT_ERRORS
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter

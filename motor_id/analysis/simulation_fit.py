@@ -34,7 +34,6 @@ import numpy as np
 from motor_id.analysis.frames import held_channels
 from motor_id.analysis.friction import friction_summary
 from motor_id.analysis.simulation_problem import (
-    FIT_ERRORS,
     free_names,
     make_blocks,
     sim_channels,
@@ -43,6 +42,7 @@ from motor_id.analysis.simulation_problem import (
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.analysis.workers import _worker_start, longest_first
 from motor_id.effects import EFFECTS, role_value
+from motor_id.errors import FIT_ERRORS
 from motor_id.identify.validation import SavedModel
 
 if TYPE_CHECKING:

@@ -33,7 +33,6 @@ MIN_BLOCK = 50
 MAX_NFEV = 60
 """Residual evaluations of one candidate's least-squares fit (each one Jacobian is one
 batched simulation of all the perturbed parameter sets)."""
-FIT_ERRORS = (ValueError, ArithmeticError, np.linalg.LinAlgError)
 LOG_REACH = math.log(1e6)
 """A physical parameter is simulated within this (log) distance of its start: a fit that
 drifts towards L_m = 0 meets a flat cost instead of a singular model."""
