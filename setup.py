@@ -35,6 +35,7 @@ setup(
             'motor-id = motor_id.cli:main',
             'driver = motor_id.nodes.driver:main',
             'identifier = motor_id.nodes.identifier:main',
+            'sim-robot = motor_id.testing.sim_robot:main',
         ],
     },
 )

@@ -9,6 +9,8 @@ hidden             seeded hidden-effect cases on this package's own model
 independent_sim    seeded cases on a second simulator written from the equations
 independent_physics  that simulator's motor, joint, amplifier, integrator and sensors (numpy)
 independent_kernel   its compiled event-located RK4 integrator (numba)
+sim_joint          the simulated robot's joint: mechanisms, real-time stepping, truth
+sim_robot          a simulated ros2_control robot (controller + joint_state_broadcaster)
 procs              node processes and their ROS environment (no rclpy)
 client             a threaded ROS client (rclpy) for scripts and tests
 demo_client        the demo's client
