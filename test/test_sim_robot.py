@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from motor_id.testing.independent_physics import feedforward
-from motor_id.testing.ros import stop_cleanly, wait_until
+from motor_id.testing.procs import wait_until
+from motor_id.testing.ros import stop_cleanly
 from motor_id.testing.sim_joint import (
     JointSim,
     MECHANISMS,
@@ -215,9 +216,11 @@ def test_elevator_rests_on_its_bottom_stop_and_a_force_pins_it_to_the_top(
     assert abs(np.mean([_joint(m, 'elevator_joint')[0] for _, m in box[-20:]])) < 1e-3
     n = len(box)
     pub.publish(Float64MultiArray(data=[0.0, 200.0]))   # above T_g + T_s = 136 N
-    assert wait_until(lambda: len(box) > n + 100
-                      and abs(_joint(box[-1][1], 'elevator_joint')[0] - 1.2) < 2e-3, 60.0)
-    top = [_joint(m, 'elevator_joint') for _, m in box[-20:]]
+    assert wait_until(lambda: abs(_joint(box[-1][1], 'elevator_joint')[0] - 1.2) < 2e-3
+                      and len(box) > n, 60.0)
+    n = len(box)
+    assert wait_until(lambda: len(box) >= n + 20, 60.0)   # 20 samples on the stop
+    top = [_joint(m, 'elevator_joint') for _, m in box[n:n + 20]]
     assert np.mean([p for p, _, _ in top]) == pytest.approx(1.2, abs=1e-3)
     assert abs(np.mean([v for _, v, _ in top])) < 0.01
     assert np.mean([e for _, _, e in top]) == pytest.approx(200.0, rel=0.01)   # the force
