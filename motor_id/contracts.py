@@ -84,11 +84,28 @@ TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N 
 """Units that differ for a torque- (or force-) input plant."""
 
 
-def units_of(input_kind: str = 'voltage') -> dict[str, str]:
-    """SI units by parameter (and channel) name for a ``voltage`` or ``torque`` plant."""
+LINEAR_SUBSTITUTIONS = (('kg m^2 (or kg)', 'kg'), ('N m s/rad (or N s/m)', 'N s/m'),
+                        ('N m (or N)', 'N'), ('kg m^2', 'kg'), ('N m', 'N'), ('rad', 'm'))
+"""How a rotary unit reads on a linear axis (in this order): torque becomes force, an
+inertia a mass, an angle a length."""
+
+
+def linear_unit(unit: str) -> str:
+    """The unit ``unit`` of a rotary axis as it reads on a linear one (``V s/rad`` ->
+    ``V s/m``, ``N m/A`` -> ``N/A``, ``kg m^2`` -> ``kg``, ``rad/s`` -> ``m/s``)."""
+    for rotary, linear in LINEAR_SUBSTITUTIONS:
+        unit = unit.replace(rotary, linear)
+    return unit
+
+
+def units_of(input_kind: str = 'voltage', linear: bool = False) -> dict[str, str]:
+    """SI units by parameter (and channel) name for a ``voltage`` or ``torque`` plant, of a
+    rotary axis or (``linear``) a linear one: speed in m/s, kV in V s/m, K_T in N/A."""
     units = dict(UNITS)
     if input_kind == 'torque':
         units.update(TORQUE_UNITS)
+    if linear:
+        units = {k: linear_unit(u) for k, u in units.items()}
     return units
 
 

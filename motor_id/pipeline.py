@@ -17,7 +17,7 @@ from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
 from motor_id.identify.result import IdentificationResult
 from motor_id.recording import Recording
-from motor_id.report import to_jsonable
+from motor_id.report import attach_units, to_jsonable
 
 
 def data_block(rec: Recording, **extra: Any) -> dict[str, Any]:
@@ -25,7 +25,7 @@ def data_block(rec: Recording, **extra: Any) -> dict[str, Any]:
     out = {'source': rec.meta.get('source'), 'samples': len(rec),
            'sample_period': rec.sample_period, 'regular': rec.is_regular,
            'channels': list(rec.channels()), 'input_kind': rec.input_kind,
-           'runs': len(rec.segment_ranges)}
+           'runs': len(rec.segment_ranges), 'linear': rec.linear}
     out.update(extra)
     return out
 
@@ -60,7 +60,8 @@ class FitReport:
         return bool(self.result.adequate)
 
     def to_dict(self) -> dict[str, Any]:
-        """The ``--json`` shape (docs/user-guide.md): the fit, ``data``, ``controller``, extras."""
+        """The ``--json`` shape (docs/user-guide.md): the fit, ``data``, ``controller``,
+        extras; every constant with its ``unit`` (:func:`motor_id.report.attach_units`)."""
         d = self.result.to_dict()
         d['data'] = dict(self.data)
         if self.controller is not None:
@@ -68,7 +69,7 @@ class FitReport:
         elif self.controller_error is not None:
             d['controller'] = {'error': self.controller_error}
         d.update(self.extra)
-        return d
+        return attach_units(d, self.result.input_kind, bool(self.data.get('linear')))
 
     def to_ros_parameters(self, node_name: str = '/**', unknown: str = 'omit'
                           ) -> dict[str, Any]:

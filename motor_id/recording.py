@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.contracts import channel_units
 from motor_id.errors import DataError
 
 MIN_SAMPLES = 20
@@ -92,6 +93,12 @@ class Recording:
     def has_position(self) -> bool:
         """True when a position channel is present."""
         return self.position is not None
+
+    @property
+    def linear(self) -> bool:
+        """True for a linear axis: the reader gave the speed in m/s (``meta['units']``)."""
+        units = self.meta.get('units') or {}
+        return bool(units.get('speed') == channel_units(linear=True)['speed'])
 
     @property
     def sample_period(self) -> float:

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import json
 import math
 import os
+import re
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.contracts import channel_units
+from motor_id.contracts import channel_units, linear_unit, UNITS, units_of
+from motor_id.effects import EFFECTS
 
 if TYPE_CHECKING:
     from motor_id.identify.result import IdentificationResult
@@ -51,6 +54,124 @@ def write_json(data: Any, path: str | os.PathLike[str]) -> None:
         fh.write('\n')
 
 
+def attach_units(report: Any, input_kind: str = 'voltage', linear: bool = False) -> Any:
+    """Give every constant of a report its ``"unit"``, in place; returns the report.
+
+    A constant is a dict with a ``value``. Its unit comes from its name: a parameter or a
+    feedforward constant (:func:`motor_id.contracts.units_of` of the plant kind, a linear
+    axis in metres), an effect's parameter (``effect.param``, or ``param`` under its
+    effect's key: the catalogue's unit), a loop gain or feedforward entry beside a
+    ``units`` block, a time constant [s], or a combination of parameters named by its
+    expression (``K_T/(J*L_m)`` -> ``(N m/A)/(kg m^2 H)``). A constant that already has
+    a unit keeps it.
+    """
+    units = units_of(input_kind, linear)
+    units.setdefault('kG', units['kS'])
+    _attach(report, units, linear, (), None)
+    return report
+
+
+def _attach(node: Any, units: Mapping[str, str], linear: bool, path: tuple[str, ...],
+            parent: Mapping[str, Any] | None) -> None:
+    if isinstance(node, list):
+        for item in node:
+            _attach(item, units, linear, path, None)
+        return
+    if not isinstance(node, dict):
+        return
+    if 'value' in node and 'unit' not in node:
+        unit = _unit_of(node, units, linear, path, parent)
+        if unit is not None:
+            node['unit'] = unit
+    for k, v in list(node.items()):
+        if k != 'units':
+            _attach(v, units, linear, (*path, str(k)), node)
+
+
+def _unit_of(entry: Mapping[str, Any], units: Mapping[str, str], linear: bool,
+             path: tuple[str, ...], parent: Mapping[str, Any] | None) -> str | None:
+    """The unit of one constant (None: its name says nothing known)."""
+    name = entry.get('name') if isinstance(entry.get('name'), str) else (
+        path[-1] if path else None)
+    if name is None:
+        return None
+    beside = (parent or {}).get('units')
+    if isinstance(beside, dict) and isinstance(beside.get(name), str):
+        return str(beside[name])
+    if name in units:
+        return units[name]
+    if name in ('electrical', 'mechanical'):
+        return UNITS['time']
+    effect, _, param = name.rpartition('.')
+    if not effect and len(path) > 1:
+        effect = path[-2]
+    spec = EFFECTS.get(effect)
+    unit = next((p.unit for p in spec.params if p.name == param), None) if spec else None
+    if unit is not None:
+        return linear_unit(unit) if linear else unit
+    return expression_unit(name, units)
+
+
+_TOKEN = re.compile(r'\s*([A-Za-z_][A-Za-z0-9_]*|\d+(?:\.\d*)?(?:[eE][-+]?\d+)?|\*\*|.)')
+
+
+def expression_unit(expr: str, units: Mapping[str, str]) -> str | None:
+    """The unit of a combination of parameters, from their units (None: not one).
+
+    A sum has the unit of its first term; products and quotients are written out
+    (``(R_m*B + K_T*K_b)/(J*L_m)`` -> ``(Ohm N m s/rad)/(kg m^2 H)``), not simplified.
+    """
+    tokens = [t for t in _TOKEN.findall(expr) if t.strip()]
+    if not tokens or not any(t in units for t in tokens):
+        return None
+    try:
+        unit, rest = _sum(tokens, units)
+    except (KeyError, IndexError, ValueError):
+        return None
+    return unit if not rest and unit else None
+
+
+def _sum(tokens: list[str], units: Mapping[str, str]) -> tuple[str, list[str]]:
+    first, tokens = _product(tokens, units)
+    while tokens and tokens[0] in '+-':
+        _, tokens = _product(tokens[1:], units)
+    return first, tokens
+
+
+def _product(tokens: list[str], units: Mapping[str, str]) -> tuple[str, list[str]]:
+    out, tokens = _power(tokens, units)
+    while tokens and tokens[0] in ('*', '/'):
+        op = tokens[0]
+        nxt, tokens = _power(tokens[1:], units)
+        if nxt != '1':
+            out = (nxt if out == '1' and op == '*' else
+                   f'{out} {_wrap(nxt)}' if op == '*' else f'{out}/{_wrap(nxt)}')
+    return out, tokens
+
+
+def _power(tokens: list[str], units: Mapping[str, str]) -> tuple[str, list[str]]:
+    tok = tokens[0]
+    if tok == '(':
+        inner, tokens = _sum(tokens[1:], units)
+        if tokens[0] != ')':
+            raise ValueError('unbalanced')
+        base, tokens = inner, tokens[1:]
+    elif tok in units:
+        base, tokens = units[tok], tokens[1:]
+    else:
+        float(tok)
+        base, tokens = '1', tokens[1:]
+    if tokens and tokens[0] in ('^', '**'):
+        exp = tokens[1]
+        float(exp)
+        return (base if base == '1' else f'{_wrap(base)}^{exp}'), tokens[2:]
+    return base, tokens
+
+
+def _wrap(unit: str) -> str:
+    return f'({unit})' if (' ' in unit or '/' in unit) else unit
+
+
 def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, Any]:
     import matplotlib
     matplotlib.use('Agg')
@@ -60,7 +181,7 @@ def _figure(rows: int, cols: int, size: tuple[float, float]) -> tuple[Any, Any, 
 
 
 def plot_fit(result: IdentificationResult, path: str | os.PathLike[str],
-             title: str | None = None) -> str | os.PathLike[str]:
+             title: str | None = None, linear: bool = False) -> str | os.PathLike[str]:
     """Measured vs model outputs (paper Fig. 4), GA parameter trajectories (Fig. 3),
     GA cost, and residual diagnostics, in one PNG.
 
@@ -69,9 +190,12 @@ def plot_fit(result: IdentificationResult, path: str | os.PathLike[str],
     result : motor_id.identify.IdentificationResult
     path : str
         Output PNG path.
+    title : str, optional
+    linear : bool
+        A linear axis: speed in m/s.
     """
     plt, fig, axes = _figure(3, 2, (13, 11))
-    _plot_outputs(result, axes[0])
+    _plot_outputs(result, axes[0], linear)
     _plot_ga(result.ga.get('history', []), axes[1])
     _plot_residuals(result, axes[2])
     fig.suptitle(title or f'motor_id fit ({result.method})')
@@ -81,11 +205,11 @@ def plot_fit(result: IdentificationResult, path: str | os.PathLike[str],
     return path
 
 
-def _plot_outputs(result: IdentificationResult, row: Any) -> None:
+def _plot_outputs(result: IdentificationResult, row: Any, linear: bool = False) -> None:
     pred = result.prediction
     channels = list(result.channels)
     t = pred['time']
-    units = channel_units()
+    units = channel_units(result.input_kind, linear, position=True)
     for k, ch in enumerate(channels[:2]):
         ax = row[k]
         ax.plot(t, pred[ch + '_measured'], lw=1.0, label='measured')
@@ -100,7 +224,7 @@ def _plot_outputs(result: IdentificationResult, row: Any) -> None:
         ax.plot(t, pred['input'], lw=1.0, color='k')
         ax.set_title('input')
         ax.set_xlabel('time [s]')
-        ax.set_ylabel('input [V]' if result.input_kind == 'voltage' else 'input [N m]')
+        ax.set_ylabel(f'input [{units["voltage"]}]')
 
 
 def _plot_ga(hist: list[dict[str, Any]], row: Any) -> None:

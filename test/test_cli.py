@@ -96,7 +96,7 @@ def test_fit_estimates_r_m_with_the_given_value_as_prior(paper_csv, tmp_path):
 def test_fit_fix_r_m_and_the_tolerance_option(paper_csv, tmp_path):
     proc, rep = fit_json(tmp_path, paper_csv, '--fix', 'R_m=2.2')  # no -R needed
     assert rep['parameters']['R_m'] == {'value': 2.2, 'std': 0.0, 'determined': True,
-                                        'at_bound': False, 'assumed': True}
+                                        'at_bound': False, 'assumed': True, 'unit': 'Ohm'}
     assert rep['resistance']['estimated'] is False and 'identifiability: rank 4 of 4' in \
         proc.stdout
     assert set(rep['r_m_sensitivity']) == {'J', 'K_T', 'K_b', 'B', 'L_m'}
@@ -117,7 +117,7 @@ def test_fit_fix_determines_a_speed_only_record(paper_csv, tmp_path):
     assert 'not determined' not in proc.stdout
     p = rep['parameters']
     assert p['J'] == {'value': 0.052, 'std': 0.0, 'determined': True, 'at_bound': False,
-                      'assumed': True}
+                      'assumed': True, 'unit': 'kg m^2'}
     for name, truth in (('K_T', 0.66), ('B', 0.002), ('L_m', 0.0345)):
         assert p[name]['determined'], name
         assert abs(p[name]['value'] - truth) < max(4 * p[name]['std'], 0.01 * truth), name

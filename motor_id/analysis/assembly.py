@@ -78,7 +78,7 @@ def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
         heldout=_heldout_block(ctx, base, chosen, n_blocks, min_gain),
         input_kind=rec.input_kind, channels=split.channels,
         measurement=ctx.measurement_evidence, failed=failed, inverse_dynamics=idyn,
-        plot_data=plot_data, adequate=adequate, warnings=warnings)
+        plot_data=plot_data, adequate=adequate, warnings=warnings, linear=rec.linear)
 
 
 def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None, dyn: str

@@ -7,6 +7,9 @@ import math
 import os
 from typing import Any
 
+from motor_id.contracts import units_of
+from motor_id.report import attach_units
+
 
 @dataclass
 class ModelScore:
@@ -68,7 +71,9 @@ class DiscrepancyReport:
 
     ``verdict`` names the chosen dynamic effects and then the measurement effects found,
     joined by ``+`` (``'none'`` when there are neither); ``effects`` lists the
-    measurement effects first, then every dynamic model tried (chosen first).
+    measurement effects first, then every dynamic model tried (chosen first). ``linear``:
+    the record is of a linear axis (constants per metre). Every constant of
+    :meth:`to_dict` carries its ``unit``.
     """
 
     verdict: str
@@ -90,6 +95,7 @@ class DiscrepancyReport:
     adequate: bool = True
     warnings: list = field(default_factory=list)
     simulation: dict | None = None
+    linear: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
@@ -115,7 +121,7 @@ class DiscrepancyReport:
         controller = self.controller()
         if controller is not None:
             d['controller'] = controller
-        return d
+        return attach_units(d, self.input_kind, self.linear)
 
     def controller(self) -> dict[str, Any] | None:
         """The ``controller`` block of the chosen model of a voltage plant: WPILib
@@ -142,7 +148,9 @@ class DiscrepancyReport:
         """A readable report for people."""
         lines = _fit_lines(self) + _diagnostic_lines(self.diagnostics)
         lines += _measurement_lines(self) + _candidate_lines(self)
-        lines += _parameter_lines(self) + _simulation_lines(self.simulation)
+        lines += _parameter_lines(self) + _simulation_lines(self.simulation,
+                                                            units_of(self.input_kind,
+                                                                     self.linear))
         if not self.adequate:
             lines.append('MODEL INADEQUATE: ' + self.warnings[0])
         for w in self.warnings[(0 if self.adequate else 1):]:
@@ -151,7 +159,8 @@ class DiscrepancyReport:
         return '\n'.join(lines)
 
 
-def _simulation_lines(sim: dict[str, Any] | None) -> list[str]:
+def _simulation_lines(sim: dict[str, Any] | None,
+                      units: dict[str, str] | None = None) -> list[str]:
     """The simulation-error stage: held readings, each candidate's held-out RMSE, the
     chosen model's gains, and its estimates with their error bars."""
     if not sim:
@@ -183,6 +192,7 @@ def _simulation_lines(sim: dict[str, Any] | None) -> list[str]:
                 lines.append('  ' + ('SysId constants: ' if key == 'combinations' else
                                      'friction by direction: ') + ', '.join(
                     f'{e["name"]} {e["value"]:.4g} +- {e["std"]:.2g}'
+                    + (f' {(units or {})[e["name"]]}' if e['name'] in (units or {}) else '')
                     + ('' if e.get('determined', True) else f' ({e["note"]})')
                     for e in est[key]))
     elif sim.get('model'):
@@ -367,8 +377,9 @@ def _plot_map(ax: Any, report: DiscrepancyReport) -> None:
                     label=report.chosen['name'])
         ax.legend(loc='best', fontsize=8)
     ax.set_title('steady-state map')
-    ax.set_xlabel('input')
-    ax.set_ylabel('speed')
+    units = units_of(report.input_kind, report.linear)
+    ax.set_xlabel(f'input [{units["input"]}]')
+    ax.set_ylabel(f'speed [{units["speed"]}]')
 
 
 def _plot_gains(ax: Any, report: DiscrepancyReport) -> None:

@@ -185,7 +185,7 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
         print(f'wrote {args.yaml}')
     if args.plot:
         names = ', '.join(os.path.basename(str(p)) for p in _paths(args.data))
-        plot_fit(res, args.plot, title=f'motor_id fit: {names}')
+        plot_fit(res, args.plot, title=f'motor_id fit: {names}', linear=rec.linear)
         print(f'wrote {args.plot}')
     return res, report
 

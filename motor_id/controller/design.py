@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from motor_id.contracts import INPUT_KINDS, units_of
+from motor_id.contracts import INPUT_KINDS, linear_unit, units_of
 from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
 from motor_id.effects import role_params
 from motor_id.errors import ConfigError
@@ -378,7 +378,8 @@ def design_controller(values: Mapping[str, float | None],
                       current_bandwidth_hz: float | None = None,
                       speed_bandwidth_hz: float | None = None,
                       phase_margin_min_deg: float = 45.0,
-                      sample_period: float | None = None) -> ControllerDesign:
+                      sample_period: float | None = None,
+                      linear: bool = False) -> ControllerDesign:
     """Feedforward constants and cascaded PI gains from identified motor parameters.
 
     Parameters
@@ -409,6 +410,8 @@ def design_controller(values: Mapping[str, float | None],
     sample_period : float, optional
         Controller sample period [s]: caps the default bandwidths and adds 1.5 samples of
         delay to each loop's check.
+    linear : bool
+        A linear axis: the units say metres (kV in V s/m, kA in V s^2/m).
 
     Returns
     -------
@@ -473,14 +476,14 @@ def design_controller(values: Mapping[str, float | None],
         notes.append(f'loops checked with {DELAY_SAMPLES:g} samples of delay '
                      f'({DELAY_SAMPLES * sample_period:.3g} s, 3rd-order Pade)')
     return _assemble(input_kind, nominal, std, (kS_value, kS_std, kS_source), bandwidths,
-                     checks, cov is not None, notes)
+                     checks, cov is not None, notes, linear)
 
 
 def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, float | None],
               kS: tuple[float, float | None, str | None],
               bandwidths: tuple[float | None, float],
               checks: Mapping[str, dict[str, Any]], has_cov: bool,
-              notes: list[str]) -> ControllerDesign:
+              notes: list[str], linear: bool = False) -> ControllerDesign:
     """Build the ControllerDesign in the contract's shape."""
     e = {k: _entry(nominal[k], std[k]) for k in _OUTPUTS}
     kS_value, kS_std, kS_source = kS
@@ -490,7 +493,7 @@ def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, flo
         notes.insert(0, f'kS = 0: no static friction given (pass kS = {how})')
     if not has_cov:
         notes.append('no covariance given: std is null')
-    units = {k: units_of(input_kind)[k] for k in ('kS', 'kV', 'kA')}
+    units = {k: units_of(input_kind, linear)[k] for k in ('kS', 'kV', 'kA')}
     if input_kind == 'voltage':
         speed_units = {'kp': 'A s/rad', 'ki': 'A/rad'}
         assert bandwidths[0] is not None   # a voltage plant has a current loop
@@ -501,6 +504,8 @@ def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, flo
         notes.append('torque plant: kV = B and kA = J in input units per rad/s and per '
                      'rad/s^2 (N per m/s and per m/s^2 for a linear axis); no current loop '
                      'and no tau_e (the drive closes the current loop): both null')
+    if linear:
+        speed_units = {k: linear_unit(u) for k, u in speed_units.items()}
     pi: dict[str, dict[str, Any] | None] = {'current': None, 'speed': None}
     if input_kind == 'voltage':
         pi['current'] = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],

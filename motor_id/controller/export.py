@@ -81,8 +81,9 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
         ``{'parameters': {name: {'value', 'std', 'determined'}}, ...}``; an optional
         top-level ``'parameter_covariance': {'names', 'matrix'}`` (linear units) is used
         as the covariance, else the stds form a diagonal one (correlations ignored, said
-        in the notes). ``'input_kind'`` and fitted ``'effects'`` (coulomb_friction T_c,
-        brush_drop V_b, for kS) are used when present.
+        in the notes). ``'input_kind'``, fitted ``'effects'`` (coulomb_friction T_c,
+        brush_drop V_b, for kS) and ``data.linear`` (a linear axis: units per metre) are
+        used when present.
     **kw
         Passed to :func:`design_controller` (``covariance`` and ``values`` are taken from
         the dict; ``input_kind`` and ``kS`` override what the dict says).
@@ -116,6 +117,8 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
     if 'kS' not in kw and isinstance(result_dict.get('effects'), dict):
         vals = {n: math.nan if values[n] is None else values[n] for n in names}
         kw['kS'] = _kS_from_effects(result_dict['effects'], vals, input_kind)
+    if 'linear' not in kw:
+        kw['linear'] = bool((result_dict.get('data') or {}).get('linear', False))
     design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
     _feedforward_from_combinations(design, result_dict, notes)
     if undetermined:
