@@ -117,10 +117,9 @@ class SimRobot(Node):
         self.pub = self.broadcaster.create_publisher(JointState, '/joint_states', QOS)
         self.names = list(reversed(self.joints))
         self._index = self.names.index(self.joint)
-        self._outbox: deque[Sample] = deque()
+        self._outbox: deque[tuple[Sample, int]] = deque()   # with its stamp [ns]
         compile_physics(self.config)
         self.sim = JointSim(self.config, time.monotonic())
-        self._epoch = self.get_clock().now().nanoseconds * 1e-9 - self.sim.start
         self._lock = threading.Lock()
         self._halt = threading.Event()
         self._tick_max = p['tick_period']
@@ -184,25 +183,25 @@ class SimRobot(Node):
         wake = time.monotonic()
         while not self._halt.wait(max(0.0, wake - time.monotonic())):
             now = time.monotonic()
+            wall = self.get_clock().now().nanoseconds   # the ROS clock now, as `now`
             with self._lock:
-                self._outbox.extend(self.sim.advance(now))
+                self._outbox.extend((s, wall - round((now - s.t) * 1e9))
+                                    for s in self.sim.advance(now))
                 wake = min(now + self._tick_max, self.sim.next_sample)
-            while self._outbox and self._outbox[0].due <= now:
-                self.pub.publish(self._message(self._outbox.popleft()))
+            while self._outbox and self._outbox[0][0].due <= now:
+                self.pub.publish(self._message(*self._outbox.popleft()))
             if self._outbox:
-                wake = min(wake, self._outbox[0].due)
+                wake = min(wake, self._outbox[0][0].due)
 
     def stop(self) -> None:
         """End the physics thread (before the nodes are destroyed)."""
         self._halt.set()
         self._thread.join()
 
-    def _message(self, s: Sample) -> JointState:
+    def _message(self, s: Sample, stamp_ns: int) -> JointState:
         msg = JointState()
-        if self.stamp:
-            stamp = self._epoch + s.t
-            msg.header.stamp.sec = int(stamp)
-            msg.header.stamp.nanosec = int((stamp - int(stamp)) * 1e9)
+        if self.stamp:   # the ROS clock at the measurement (it follows clock steps)
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 10 ** 9)
         n = len(self.names)
         msg.name = self.names
         msg.position, msg.velocity, msg.effort = [0.0] * n, [0.0] * n, [0.0] * n
