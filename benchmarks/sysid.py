@@ -1,11 +1,12 @@
 #!/usr/bin/env python3
 """WPILib SysId's own feedforward fit against motor_id's model on a SysId log (issue 19).
 
-For one ``sysid_data.json`` (its four tests: quasistatic ramps and voltage steps, forward
-and backward) this prints, test by test, how well each model simulates the measured
-velocity from the logged voltage alone: the fit ``100 (1 - ||y - y_sim|| / ||y - mean
-y||)`` over each test after its first two samples (the ones that set the initial state
-of motor_id's model), and the constants kS, kV, kA of each model in the log's units.
+For one SysId log (``sysid_data.json``, or a ``.wpilog`` of a SysId routine: its four
+tests, quasistatic ramps and voltage steps, forward and backward) this prints, test by
+test, how well each model simulates the measured velocity from the logged voltage alone:
+the fit ``100 (1 - ||y - y_sim|| / ||y - mean y||)`` over each test after its first two
+samples (the ones that set the initial state of motor_id's model), and the constants kS,
+kV, kA of each model in the log's units.
 
 - SysId: the method of WPILib's SysId as it fits these logs (2022-2023: its data
   preparation, then OLS of acceleration on velocity, voltage and sign;
@@ -15,15 +16,15 @@ of motor_id's model), and the constants kS, kV, kA of each model in the log's un
 - motor_id: ``motor-id analyze LOG --resistance R --json`` (``--fit-only``: ``motor-id fit
   LOG --resistance R --effect coulomb_friction --json``) in a child process, then its
   saved model simulated on every test with :func:`motor_id.identify.validation.validate`
-  (each test a run from its first samples). Its kS, kV, kA are the first-order equivalents
-  of the fitted motor, which are independent of the assumed R (a speed-only record cannot
-  see R): ``kV = (R_m B + K_T K_b) / K_T``, ``kA = (R_m J + B L_m) / K_T``,
-  ``kS = T_c R_m / K_T`` (+ a brush drop V_b).
+  (each test a run from its first samples: the per-test fit % that ``motor-id validate``
+  and the analyze report print). Its kS, kV, kA are the report's
+  ``controller.feedforward``, the constants the CLI prints (a constant the record does not
+  determine is printed as such, with its interval).
 
 Usage::
 
     python benchmarks/sysid.py [--log PATH] [--json OUT] [--fit-only] [--resistance R]
-                               [--joint left|right] [--timeout S]
+                               [--joint left|right] [--motor NAME] [--timeout S]
 
 The log defaults to ``../shared/data/sysid/sysid_data.json`` beside the repository; the
 script says so and exits with status 2 when it is absent. Progress lines go to stderr, the
@@ -43,7 +44,9 @@ import time
 from common import render_table
 import numpy as np
 
-from motor_id.data.sysid import load_sysid
+from motor_id.data.load import load_recording
+from motor_id.data.mapping import TopicMapping
+from motor_id.data.wpilog import LogEntries
 from motor_id.errors import MotorIdError
 from motor_id.identify.validation import SavedModel, validate
 from motor_id.metrics import normalised_fit
@@ -96,6 +99,8 @@ def run_motor_id(log, out_json, args):
         cmd += ['--effect', 'coulomb_friction', '-q']
     if args.joint:
         cmd += ['--joint', args.joint]
+    if args.motor:
+        cmd += ['--motor', args.motor]
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get('PYTHONPATH',
                                                                                  ''))
     shown = ' '.join(['motor-id'] + [a if a != str(out_json) else 'OUT.json'
@@ -109,34 +114,37 @@ def run_motor_id(log, out_json, args):
     return time.perf_counter() - t0, shown
 
 
-def first_order_gains(model):
-    """kS, kV, kA of a saved voltage-input model (first-order equivalents, SI)."""
-    p = model.parameters
-    k_t, r = p['K_T'], p['R_m']
-    kS = 0.0
-    if 'coulomb_friction' in model.effects:
-        kS += abs(model.effects['coulomb_friction'].get('T_c', 0.0)) * r / k_t
-    if 'brush_drop' in model.effects:
-        kS += abs(model.effects['brush_drop'].get('V_b', 0.0))
-    return {'kS': kS, 'kV': (r * p['B'] + k_t * p['K_b']) / k_t,
-            'kA': (r * p['J'] + p['B'] * p['L_m']) / k_t}
+def report_gains(report):
+    """kS, kV, kA as the report gives them (``controller.feedforward``, what the CLI
+    prints), and the interval of each one the record does not determine."""
+    ff = (report.get('controller') or {}).get('feedforward') or {}
+    gains, undetermined = {}, {}
+    for k in ('kS', 'kV', 'kA'):
+        entry = ff.get(k) or {}
+        gains[k] = entry.get('value')
+        if gains[k] is None:
+            gains[k] = entry.get('particular_value', math.nan)
+            undetermined[k] = entry.get('interval')
+    return gains, undetermined
 
 
 def motor_id_side(rec, log, args):
-    """motor_id's model: fitted by the CLI, simulated per test by validation."""
+    """motor_id's model: fitted by the CLI, simulated per test by validation (the scores
+    that ``motor-id validate`` and the analyze report give each run)."""
     with tempfile.TemporaryDirectory() as tmp:
         out_json = Path(tmp) / 'model.json'
         seconds, command = run_motor_id(log, out_json, args)
         report = json.loads(out_json.read_text())
     model = SavedModel.from_report(report, source=command)
     val = validate(model, rec, INIT_SAMPLES)
-    ff = (report.get('controller') or {}).get('feedforward') or {}
-    return {'command': command, 'seconds': seconds, 'gains': first_order_gains(model),
-            'undetermined': {k: v.get('interval') for k, v in ff.items()
-                             if isinstance(v, dict) and v.get('value') is None},
-            'effects': model.effects, 'parameters': model.parameters,
-            'fit_percent': per_test_fit(rec, val.simulated['speed']),
+    gains, undetermined = report_gains(report)
+    return {'command': command, 'seconds': seconds, 'gains': gains,
+            'undetermined': undetermined, 'effects': model.effects,
+            'parameters': model.parameters,
+            'fit_percent': {r.name: r.channels['speed']['fit_percent'] for r in val.runs},
             'fit_percent_all': val.channels['speed']['fit_percent'],
+            'report_runs': {r['name']: r['channels']['speed']['fit_percent']
+                            for r in report.get('runs') or []},
             'verdict': report.get('verdict')}
 
 
@@ -154,7 +162,7 @@ def tables(rec, models):
         rows.append(row)
     units = rec.meta['sysid']['units']
     per = rec.meta['sysid']['si_to_units']
-    unit = UNIT_SYMBOLS[units]
+    unit = UNIT_SYMBOLS.get(units, units)
     gain_cols = [('model', 'model', 's'), ('kS', 'kS [V]', '.4g'),
                  ('kV', f'kV [V s/{unit}]', '.4g'), ('kA', f'kA [V s^2/{unit}]', '.4g')]
     gain_rows = []
@@ -185,6 +193,7 @@ def parse(argv):
                     help='R_m [Ohm] given to motor-id (a speed-only log cannot see it; the '
                          'I/O behaviour and kS, kV, kA do not depend on it; default 1)')
     ap.add_argument('--joint', choices=('left', 'right'), help='side of a Drivetrain log')
+    ap.add_argument('--motor', metavar='NAME', help='.wpilog: the motor, where it has several')
     ap.add_argument('--timeout', type=float, default=3600.0, metavar='S',
                     help='give up on motor-id after S seconds (default 3600)')
     return ap.parse_args(argv)
@@ -199,7 +208,8 @@ def main(argv=None):
         return 2
     t0 = time.perf_counter()
     try:
-        rec = load_sysid(log, args.joint)
+        rec = load_recording(log, mapping=TopicMapping(joint=args.joint),
+                             log_entries=LogEntries(motor=args.motor) if args.motor else None)
     except MotorIdError as exc:
         print(f'sysid benchmark: {exc}', file=sys.stderr)
         return 2

@@ -8,8 +8,9 @@ import pytest
 from motor_id.cli import main
 from motor_id.contracts import linear_unit, units_of
 from motor_id.data.wpilog import load_wpilog
+from motor_id.identify.validation import SavedModel, validate
 from motor_id.report import attach_units, expression_unit
-from motor_id.testing.sysid_wpilog import RoutineMotor, write_sysid_wpilog
+from motor_id.testing.sysid_wpilog import ROUTINE, RoutineMotor, write_sysid_wpilog
 
 SHORT = {'ramp_duration': 2.0, 'step_duration': 0.8, 'rest': 0.5, 'loop_period': 0.005}
 
@@ -102,9 +103,17 @@ def test_analyze_of_a_metre_log_reports_every_unit(metre_log, tmp_path, capsys):
     assert main(['analyze', metre_log.path, '-R', '0.5', '-q', '--candidates',
                  'coulomb_friction', '--json', str(out), '--plot',
                  str(tmp_path / 'a.png')]) == 0
-    capsys.readouterr()
+    text = capsys.readouterr().out
     report = json.loads(out.read_text())
     missing = [p for p, c in constants(report) if 'unit' not in c]
     assert not missing
     ff = report['controller']['feedforward']
     assert (ff['kV']['unit'], ff['kA']['unit']) == ('V s/m', 'V s^2/m')
+    # the fit % of each test by name, as motor-id validate scores the saved model
+    assert [r['name'] for r in report['runs']] == list(ROUTINE)
+    assert 'fit % per run' in text
+    val = validate(SavedModel.from_report(report), load_wpilog(metre_log.path))
+    for mine, theirs in zip(report['runs'], val.runs, strict=True):
+        assert mine['channels'] == theirs.channels
+        line = next(x for x in text.splitlines() if x.strip().startswith(mine['name']))
+        assert f'speed {mine["channels"]["speed"]["fit_percent"]:6.2f} %' in line

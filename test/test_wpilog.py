@@ -292,3 +292,45 @@ def test_fit_reads_a_wpilog_and_recovers_kv_ka(tmp_path):
     truth = log.truth['motors']['flywheel']
     np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.02)
     np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.1)
+
+
+def test_validate_scores_each_test_by_name(tmp_path):
+    log = write_sysid_wpilog(tmp_path / 'v.wpilog', 8, loop_period=0.005,
+                             motors=(RoutineMotor('flywheel', kS=0.0),), **SHORT)
+    model = tmp_path / 'fit.json'
+    assert _cli('fit', log.path, '-R', '0.5', '--json', model, '-q').returncode == 0
+    out = tmp_path / 'val.json'
+    proc = _cli('validate', model, log.path, '--json', out)
+    assert proc.returncode == 0, proc.stderr
+    val = json.loads(out.read_text())
+    assert [r['name'] for r in val['runs']] == list(ROUTINE)
+    assert all(set(r['channels']) == set(val['channels']) for r in val['runs'])
+    assert all(set(r['channels']['speed']) == set(val['channels']['speed'])
+               for r in val['runs'])
+    for name in ROUTINE:
+        line = next(x for x in proc.stdout.splitlines() if x.strip().startswith(name))
+        fit = next(r for r in val['runs'] if r['name'] == name)['channels']['speed']
+        assert f'speed {fit["fit_percent"]:6.2f} %' in line
+    # each run's score is the fit % of that test alone, after its first two samples
+    rec = load_wpilog(log.path)
+    sim = np.loadtxt(_csv(tmp_path, model, log.path), delimiter=',', skiprows=1)
+    for r, (a, b) in zip(val['runs'], rec.segment_ranges, strict=True):
+        y, yh = sim[a + 2:b, 2], sim[a + 2:b, 3]
+        expected = 100 * (1 - np.linalg.norm(y - yh) / np.linalg.norm(y - y.mean()))
+        np.testing.assert_allclose(r['channels']['speed']['fit_percent'], expected,
+                                   rtol=1e-9)
+        assert r['channels']['speed']['samples'] == b - a - 2
+    samples = sum(r['channels']['speed']['samples'] for r in val['runs'])
+    assert samples == val['channels']['speed']['samples']
+
+
+def _csv(tmp_path, model, data):
+    out = tmp_path / 'val.csv'
+    proc = _cli('validate', model, data, '--csv', out)
+    assert proc.returncode == 0, proc.stderr
+    header = out.read_text().splitlines()[0].split(',')
+    assert header[:4] == ['time', 'segment', 'position_measured', 'position_simulated']
+    rows = np.loadtxt(out, delimiter=',', skiprows=1)
+    keep = tmp_path / 'speed.csv'
+    np.savetxt(keep, rows[:, [0, 1, 4, 5]], delimiter=',', header='t,seg,y,yh')
+    return keep

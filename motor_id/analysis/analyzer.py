@@ -32,12 +32,18 @@ from motor_id.analysis.search import CandidateSearch
 from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.analysis.workers import FitPool
 from motor_id.effects import count_reading, EFFECTS
-from motor_id.errors import ConfigError, DataError, FIT_ERRORS, IdentificationError
-from motor_id.identify.validation import SavedModel
+from motor_id.errors import (
+    ConfigError,
+    DataError,
+    FIT_ERRORS,
+    IdentificationError,
+    MotorIdError,
+)
+from motor_id.identify.validation import RunScore, SavedModel, validate
 from motor_id.metrics import noise_floor
 
 if TYPE_CHECKING:
-    from motor_id.analysis.report import ModelScore
+    from motor_id.analysis.report import DiscrepancyReport, ModelScore
     from motor_id.recording import Recording
 
 CANDIDATES = tuple(e for e, spec in EFFECTS.items()
@@ -284,8 +290,18 @@ class DiscrepancyAnalysis:
             self.report_.simulation = simulation_stage(
                 rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say,
                 jobs=self.jobs)
+        self.report_.runs = _run_scores(self.report_, rec)
         self.report_.seconds = time.perf_counter() - t_start
         return self
+
+
+def _run_scores(report: DiscrepancyReport, rec: Recording) -> tuple[RunScore, ...]:
+    """The reported model simulated on each run of the record, as ``motor-id validate``
+    scores it (nothing where it cannot be simulated: the report says so elsewhere)."""
+    try:
+        return validate(SavedModel.from_report(report.to_dict()), rec).runs
+    except MotorIdError:
+        return ()
 
 
 def _single_blas_thread() -> contextlib.AbstractContextManager[Any]:

@@ -8,6 +8,7 @@ import os
 from typing import Any
 
 from motor_id.contracts import units_of
+from motor_id.identify.validation import run_lines, RunScore
 from motor_id.report import attach_units
 
 
@@ -72,8 +73,9 @@ class DiscrepancyReport:
     ``verdict`` names the chosen dynamic effects and then the measurement effects found,
     joined by ``+`` (``'none'`` when there are neither); ``effects`` lists the
     measurement effects first, then every dynamic model tried (chosen first). ``linear``:
-    the record is of a linear axis (constants per metre). Every constant of
-    :meth:`to_dict` carries its ``unit``.
+    the record is of a linear axis (constants per metre). ``runs``: the chosen model
+    simulated on each run of the record from its input alone (as ``motor-id validate``
+    scores it), by name. Every constant of :meth:`to_dict` carries its ``unit``.
     """
 
     verdict: str
@@ -96,6 +98,7 @@ class DiscrepancyReport:
     warnings: list = field(default_factory=list)
     simulation: dict | None = None
     linear: bool = False
+    runs: tuple[RunScore, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
@@ -121,6 +124,8 @@ class DiscrepancyReport:
         controller = self.controller()
         if controller is not None:
             d['controller'] = controller
+        if self.runs:
+            d['runs'] = [r.to_dict() for r in self.runs]
         return attach_units(d, self.input_kind, self.linear)
 
     def controller(self) -> dict[str, Any] | None:
@@ -151,6 +156,7 @@ class DiscrepancyReport:
         lines += _parameter_lines(self) + _simulation_lines(self.simulation,
                                                             units_of(self.input_kind,
                                                                      self.linear))
+        lines += run_lines(self.runs)
         if not self.adequate:
             lines.append('MODEL INADEQUATE: ' + self.warnings[0])
         for w in self.warnings[(0 if self.adequate else 1):]:

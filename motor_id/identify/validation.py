@@ -105,9 +105,23 @@ def _effects(report: dict[str, Any]) -> dict[str, dict[str, float]]:
     return out
 
 
+@dataclass(frozen=True)
+class RunScore:
+    """The scores of one run (a SysId test, a joined file): its name and per channel
+    ``{'fit_percent', 'rmse', 'samples'}``, as the whole recording's."""
+
+    name: str
+    channels: dict[str, dict[str, float]]
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{'name', 'channels'}``."""
+        return {'name': self.name, 'channels': self.channels}
+
+
 @dataclass
 class Validation:
-    """What a model does on a recording: per-channel scores and the simulation."""
+    """What a model does on a recording: per-channel scores (of the whole recording and
+    of each run) and the simulation."""
 
     channels: dict[str, dict[str, float]]
     init_samples: int
@@ -117,22 +131,24 @@ class Validation:
     measured: dict[str, np.ndarray] = field(repr=False)
     simulated: dict[str, np.ndarray] = field(repr=False)
     model: str = ''
+    runs: tuple[RunScore, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready (no sample arrays)."""
         return {'model': self.model, 'init_samples': self.init_samples,
                 'channels': self.channels, 'initial_states': self.initial_states,
                 'samples': int(self.time.size),
-                'segments': int(self.segment.max()) + 1 if self.segment.size else 0}
+                'segments': int(self.segment.max()) + 1 if self.segment.size else 0,
+                'runs': [r.to_dict() for r in self.runs]}
 
     def summary(self) -> str:
-        """One line per channel for people."""
+        """One line per channel for people, then one per run."""
         lines = [f'model {self.model or "(given)"} on {self.time.size} samples, '
                  f'{int(self.segment.max()) + 1} run(s); the first {self.init_samples} '
                  'sample(s) of each run set its initial state']
         for ch, m in self.channels.items():
             lines.append(f'  {ch:<8} fit {m["fit_percent"]:7.2f} %   RMSE {m["rmse"]:.4g}')
-        return '\n'.join(lines)
+        return '\n'.join(lines + run_lines(self.runs))
 
     def rows(self) -> tuple[list[str], np.ndarray]:
         """CSV header and rows: ``time,segment,<ch>_measured,<ch>_simulated,...``."""
@@ -142,6 +158,43 @@ class Validation:
             header += [f'{ch}_measured', f'{ch}_simulated']
             cols += [self.measured[ch], self.simulated[ch]]
         return header, np.column_stack(cols)
+
+
+def run_lines(runs: tuple[RunScore, ...] | list[RunScore]) -> list[str]:
+    """The fit % of each run by name (nothing for a single run)."""
+    if len(runs) < 2:
+        return []
+    width = max(len(r.name) for r in runs)
+    lines = ['fit % per run (simulated from its input alone):']
+    for r in runs:
+        lines.append(f'  {r.name:<{width}}  ' + '   '.join(
+            f'{ch} {m["fit_percent"]:6.2f} %' for ch, m in r.channels.items()))
+    return lines
+
+
+def _scores(rec: Recording, sims: Mapping[str, np.ndarray], mask: np.ndarray,
+            channels: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Fit % and RMSE per channel over the samples of ``mask``."""
+    out = {}
+    for ch in channels:
+        y = getattr(rec, ch)[mask]
+        yh = sims[ch][mask]
+        out[ch] = {'fit_percent': normalised_fit(y, yh),
+                   'rmse': float(np.sqrt(np.mean((y - yh) ** 2))), 'samples': int(y.size)}
+    return out
+
+
+def _run_scores(rec: Recording, sims: Mapping[str, np.ndarray], mask: np.ndarray,
+                channels: tuple[str, ...]) -> tuple[RunScore, ...]:
+    """The scores of each run, named by ``meta['segment_names']`` (or ``run N``)."""
+    names = list(rec.meta.get('segment_names') or [])
+    out = []
+    for k, (a, b) in enumerate(rec.segment_ranges):
+        inside = np.zeros(len(rec), dtype=bool)
+        inside[a:b] = True
+        name = names[k] if k < len(names) else f'run {k + 1}'
+        out.append(RunScore(name=name, channels=_scores(rec, sims, mask & inside, channels)))
+    return tuple(out)
 
 
 def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
@@ -161,6 +214,8 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
     Returns
     -------
     Validation
+        With the scores of each run too (named as ``meta['segment_names']`` names them:
+        a SysId log's tests).
 
     Raises
     ------
@@ -208,17 +263,11 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
             + (('position',) if rec.has_position else ())
         states.append({n: float(v) for n, v in zip(names, x0, strict=False)})
         score_mask[a:a + n_init] = False
-    scores = {}
-    for ch in channels:
-        y = getattr(rec, ch)[score_mask]
-        yh = sims[ch][score_mask]
-        scores[ch] = {'fit_percent': normalised_fit(y, yh),
-                      'rmse': float(np.sqrt(np.mean((y - yh) ** 2))),
-                      'samples': int(y.size)}
-    return Validation(channels=scores, init_samples=n_init, initial_states=states,
-                      time=rec.time, segment=rec.segment_index(),
+    return Validation(channels=_scores(rec, sims, score_mask, channels), init_samples=n_init,
+                      initial_states=states, time=rec.time, segment=rec.segment_index(),
                       measured={ch: getattr(rec, ch) for ch in channels}, simulated=sims,
-                      model=model.source)
+                      model=model.source,
+                      runs=_run_scores(rec, sims, score_mask, channels))
 
 
 def _simulate(model: SavedModel, rec: Recording, x0: np.ndarray) -> dict[str, np.ndarray]:
