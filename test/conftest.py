@@ -63,12 +63,29 @@ ROS_MODULES = frozenset({'test_colcon', 'test_demo', 'test_driver_safety', 'test
 """Modules that start ROS nodes (or the demo, or a colcon build of them)."""
 
 
+@pytest.hookimpl(wrapper=True)
 def pytest_collection_modifyitems(config, items):
     """Put every test that starts ROS nodes in one xdist group: under ``-n 2 --dist
     loadgroup`` they run in one worker, one after another as in a single process (their
     domain ids never meet, and no two node tests load the machine at once), while the
-    other worker runs the rest."""
+    other worker runs the rest.
+
+    The group is marked before every other hook (xdist's worker reads the mark in its
+    own) and checked after them: a pytest whose node ids ignore xdist's group suffix
+    (pytest 9.2 with pytest-xdist 3.8) would silently run node tests on both workers
+    at once, so the run stops with the reason instead."""
+    ros = []
     for item in items:
         module = item.module.__name__.rsplit('.', 1)[-1]
         if module in ROS_MODULES or {'client', 'launch', 'ros_domain'} & set(item.fixturenames):
             item.add_marker(pytest.mark.xdist_group('ros'))
+            ros.append(item)
+    result = yield
+    if getattr(config.option, 'loadgroup', False):
+        lost = [item.nodeid for item in ros if not item.nodeid.endswith('@ros')]
+        if lost:
+            raise pytest.UsageError(
+                f'--dist loadgroup did not group {len(lost)} ROS node tests (e.g. {lost[0]}):'
+                f' this pytest ({pytest.__version__}) and pytest-xdist do not work together;'
+                ' install the versions setup.py pins')
+    return result
