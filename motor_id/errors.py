@@ -1,8 +1,22 @@
 """Domain exceptions: every error the core raises derives from MotorIdError."""
 
+from collections.abc import Sequence
+
 
 class MotorIdError(Exception):
     """Base class of all errors raised by motor_id.
+
+    The library names a setting by its parameter name (``R_m``, ``init_samples``, a
+    mapping's ``speed``), never by a command-line flag; ``params`` lists the names a
+    message is about, and the command line adds its flags for them
+    (:func:`motor_id.cli.flags.flag_hint`).
+
+    Parameters
+    ----------
+    *args
+        The message.
+    params : sequence of str, optional
+        The parameters the message names, as the library calls them.
 
     Examples
     --------
@@ -16,6 +30,10 @@ class MotorIdError(Exception):
     ...     print(type(exc).__name__, isinstance(exc, ValueError))
     DataError True
     """
+
+    def __init__(self, *args: object, params: Sequence[str] = ()) -> None:
+        super().__init__(*args)
+        self.params = tuple(params)
 
 
 class DataError(MotorIdError, ValueError):

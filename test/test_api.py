@@ -4,6 +4,7 @@ their examples (doctests) run."""
 import doctest
 import importlib
 import os
+import re
 import subprocess
 import sys
 
@@ -95,8 +96,6 @@ def test_public_names_have_examples():
 def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     """The README's Python example runs as printed, on two simulated CSV runs of a motor
     with dry friction (1,000 samples each, so that it stays quick)."""
-    import re
-
     import numpy as np
 
     from motor_id.data.csv_io import write_csv
@@ -135,3 +134,54 @@ def test_fit_errors_cover_what_a_fit_raises():
         assert isinstance(exc, FIT_ERRORS), exc
     for exc in (TypeError('bug'), KeyboardInterrupt(), AttributeError('bug')):
         assert not isinstance(exc, FIT_ERRORS), exc
+
+
+FLAGS_PENDING = {'motor_id/experiment/settings.py'}
+"""Modules whose raises still name command-line flags (issue 29 item 5): the experiment,
+being built; the test fails once one of them names none, so that its entry goes too."""
+
+
+def _raises_naming_flags():
+    """``{module: [line, ...]}`` of raises outside motor_id/cli whose text names a flag."""
+    import ast
+
+    found = {}
+    for folder, _, names in os.walk(os.path.join(ROOT, 'motor_id')):
+        rel_folder = os.path.relpath(folder, ROOT).replace(os.sep, '/')
+        if rel_folder.startswith('motor_id/cli'):
+            continue
+        for name in sorted(n for n in names if n.endswith('.py')):
+            rel = f'{rel_folder}/{name}'
+            with open(os.path.join(ROOT, rel), encoding='utf-8') as fh:
+                tree = ast.parse(fh.read())
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Raise) and node.exc is not None and any(
+                        isinstance(c, ast.Constant) and isinstance(c.value, str)
+                        and re.search(r'(?<![\w-])--[a-z]', c.value)
+                        for c in ast.walk(node.exc)):
+                    found.setdefault(rel, []).append(node.lineno)
+    return found
+
+
+def test_the_library_names_parameters_not_flags():
+    """Outside motor_id/cli an error names a setting as the library calls it (``R_m``,
+    ``init_samples``) and lists it in ``params``; the command line adds its flags."""
+    found = _raises_naming_flags()
+    new = {k: v for k, v in found.items() if k not in FLAGS_PENDING}
+    assert not new, f'raises naming command-line flags: {new}'
+    assert not FLAGS_PENDING - set(found), 'these name no flag now: remove them from pending'
+
+
+def test_command_line_adds_its_flags():
+    """``params`` become the subcommand's flags; a flag the subcommand lacks is left out."""
+    from motor_id.cli.flags import flag_hint
+    from motor_id.errors import ConfigError
+
+    exc = ConfigError('R_m is required', params=('R_m', 'init_samples', 'R_m'))
+    assert exc.params == ('R_m', 'init_samples', 'R_m') and str(exc) == 'R_m is required'
+    assert flag_hint(exc.params) == ' (command line: -R/--resistance, --init-samples)'
+    fleet_help = 'usage: motor-id fleet [--profile FLEET.yaml] [--robot-from RULE] [--out DIR]'
+    assert flag_hint(('speed', 'robot_from', 'out_dir'), fleet_help) == \
+        ' (command line: --robot-from, --out)'
+    assert flag_hint(('input',), 'usage: ... [--input-kind KIND]') == ''
+    assert flag_hint(()) == ''

@@ -69,9 +69,10 @@ def test_input_kind_comment_and_option(tmp_path):
     with pytest.raises(DataError, match="the input column 'force' is a force, not a voltage"):
         read_csv(write(tmp_path, 'time,force,speed\n' + body), input_kind='voltage')
     with pytest.raises(DataError, match='several input columns \\(voltage, torque\\); '
-                                        'choose one with --columns input=NAME'):
+                                        "choose one with columns 'input=NAME'") as info:
         read_csv(write(tmp_path, 'time,voltage,torque,speed\n' + ''.join(
             f'{0.01 * k},1,{1.0 + (k > 3)},{0.1 * k}\n' for k in range(30))))
+    assert info.value.params == ('columns',)
 
 
 def test_columns_mapping_reads_any_names(tmp_path):
@@ -87,7 +88,7 @@ def test_columns_mapping_reads_any_names(tmp_path):
                                         r'present: t, u_cmd, omega, i_a, extra\)'):
         read_csv(p, columns='time=t,input=volts,speed=omega')
     with pytest.raises(DataError, match=r'missing column\(s\) time, voltage \(or torque, '
-                                        r'force\), speed .*--columns'):
+                                        r"force\), speed .*columns 'time=T"):
         read_csv(p)
     with pytest.raises(ConfigError, match='ROLE one of time, input, speed, current'):
         parse_columns('time=t,volt=u')
@@ -227,7 +228,7 @@ def test_a_semicolon_csv_with_decimal_points_and_bad_dialects(tmp_path):
         read_csv(mixed)
     with pytest.raises(ConfigError, match='cannot both be'):
         read_csv(write(tmp_path, text), decimal=',')
-    with pytest.raises(ConfigError, match='--delimiter must be one of'):
+    with pytest.raises(ConfigError, match='delimiter must be one of'):
         read_csv(write(tmp_path, text), delimiter=':')
 
 

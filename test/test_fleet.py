@@ -169,7 +169,7 @@ def test_recordings_found_in_folders_files_and_globs(tmp_path):
     assert robot_rule('parent:2')('/logs/site_a/robot_01/bag') == 'site_a'
     with pytest.raises(ConfigError, match='no such file'):
         find_recordings([str(tmp_path / 'nothing')])
-    with pytest.raises(ConfigError, match='--robot-from'):
+    with pytest.raises(ConfigError, match='robot_from grandma: want'):
         robot_rule('grandma')
 
 

@@ -163,7 +163,7 @@ def test_json_shape():
 
 def test_bad_requests_say_what_to_do():
     rec = paper_recording(params=SI_MOTOR)
-    with pytest.raises(ConfigError, match='R_m is required'):
+    with pytest.raises(ConfigError, match=r'R_m \(the armature resistance.*\) is required'):
         Identifier().fit(rec)
     with pytest.raises(ConfigError, match='method must be one of'):
         Identifier(method='magic', R_m=2.3).fit(rec)

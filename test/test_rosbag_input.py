@@ -189,16 +189,17 @@ def test_missing_topic_joint_and_field_name_what_exists(tmp_path, rec):
                                 r'JointState, 100\), /motor_voltage_cmd'),
         (mapping(joint='wheel_front'), r"no joint 'wheel_front' in /joint_states \(joints: "
                                        r'wheel_right, wheel_left\)'),
-        (mapping(joint=None), 'has joints wheel_right, wheel_left; choose one with --joint'),
+        (mapping(joint=None), r'has joints wheel_right, wheel_left; choose one \(joint\)'),
         (mapping(speed='/joint_states:speed'), 'the field is one of position, velocity'),
         (TopicMapping(speed='/joint_states:velocity', joint='wheel_left'),
-         'no input: give --input'),
+         'no input: give input as TOPIC'),
     ]
     for m, message in cases:
         with pytest.raises(BagError, match=message) as info:
             read_bag(bag, m)
         assert '\n' not in str(info.value)
-    with pytest.raises(BagError, match=r'no /samples topic.*--input TOPIC'):
+    with pytest.raises(BagError, match=r'no /samples topic.*input, speed \(and current\) as '
+                                       r'TOPIC\[:FIELD\]'):
         read_bag(bag)
     with pytest.raises(BagError, match='no such file'):
         read_bag(tmp_path / 'none.mcap', mapping())
@@ -212,16 +213,16 @@ def test_effort_rules_give_the_plant_kind(tmp_path, rec):
     np.testing.assert_array_equal(torque.input, rec.input[:300])
     implied = read_bag(bag, TopicMapping(input='/joint_states:effort', joint=1))
     assert implied.input_kind == 'torque'
-    with pytest.raises(ConfigError, match='--effort-is torque makes the joint effort the '
+    with pytest.raises(ConfigError, match='effort_is torque makes the joint effort the '
                                           'plant input'):
         read_bag(bag, mapping(effort_is='torque', current=None))
     with pytest.raises(ConfigError, match='the joint effort is a torque, it cannot be the '
-                                          '--current'):
+                                          'current'):
         read_bag(bag, TopicMapping(speed='/joint_states:velocity', joint='wheel_left',
-                              current='/joint_states:effort', effort_is='torque'))
+                                   current='/joint_states:effort', effort_is='torque'))
     with pytest.raises(ConfigError, match='is a joint effort \\(a torque\\), not a voltage'):
         read_bag(bag, TopicMapping(input='/joint_states:effort', joint='wheel_left',
-                              input_kind='voltage'))
+                                   input_kind='voltage'))
 
 
 def test_a_late_command_is_detected_and_fixed_by_align_next(tmp_path, rec, capsys):
@@ -370,10 +371,10 @@ def test_clocks_that_do_not_overlap_and_a_stray_effort_flag(tmp_path, rec):
     with pytest.raises(BagError, match=r'do not overlap in time \(/joint_states: header '
                                        r'time, /motor_voltage_cmd: receive time\)'):
         read_bag(bag, mapping())
-    with pytest.raises(ConfigError, match='--effort-is current but no JointState effort is '
+    with pytest.raises(ConfigError, match='effort_is current but no JointState effort is '
                                           'mapped'):
         read_bag(bag, TopicMapping(input='/joint_states:position', speed='/motor_voltage_cmd',
-                              joint='wheel_left', effort_is='current'))
+                                   joint='wheel_left', effort_is='current'))
 
 
 def test_profile_values_are_checked(tmp_path, rec, capsys):

@@ -159,7 +159,7 @@ def test_reader_errors_name_the_file_and_the_problem(tmp_path):
     _fails(_write(path, {**data, 'test': 'Drivetrain (Angular)'}),
            "unsupported SysId test 'Drivetrain \\(Angular\\)'")
     _fails(_write(path, {**data, 'unitsPerRotation': 0}), 'unitsPerRotation.*> 0, got 0')
-    _fails(_write(path, data), 'leave --joint out', joint='left')
+    _fails(_write(path, data), 'leave joint out', joint='left')
     assert not (tmp_path / 'missing.json').exists()
     _fails(tmp_path / 'missing.json', 'no such file')
 
@@ -184,7 +184,7 @@ def test_reader_errors_point_at_the_row(tmp_path):
 def test_drivetrain_log_needs_a_known_side(tmp_path):
     log = make_sysid_log(6, test='Drivetrain', **SHORT)
     path = log.write(tmp_path / 'dt.json')
-    _fails(path, 'pass --joint left or --joint right')
+    _fails(path, "give joint 'left' or 'right'")
     _fails(path, "unknown joint 'middle'", joint='middle')
     bad = copy.deepcopy(log.data)
     bad['slow-forward'][0] = bad['slow-forward'][0][:4]
@@ -210,7 +210,7 @@ def test_bag_and_csv_options_do_not_apply_to_a_sysid_log(clean_log):
         load_recording(path, columns={'time': 't'})
     with pytest.raises(ConfigError, match='voltage input, not torque'):
         load_recording(path, input_kind='torque')
-    with pytest.raises(ConfigError, match='takes only --joint'):
+    with pytest.raises(ConfigError, match="takes only the mapping's joint"):
         load_recording(path, mapping=TopicMapping(speed='/joint_states:velocity'))
 
 
@@ -290,7 +290,7 @@ def test_import_of_a_drivetrain_side_and_a_bad_log(tmp_path, capsys):
     capsys.readouterr()
     assert main(['import', 'sysid', path, str(tmp_path / 'x.mcap')]) == 2
     err = capsys.readouterr().err.strip()
-    assert '\n' not in err and 'pass --joint left or --joint right' in err
+    assert '\n' not in err and err.endswith("give joint 'left' or 'right' (command line: --joint)")
 
 
 def test_fit_recovers_the_feedforward_constants(clean_log, tmp_path):

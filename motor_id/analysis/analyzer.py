@@ -166,8 +166,8 @@ class DiscrepancyAnalysis:
     def _check(self, rec: Recording) -> list[str]:
         rec.validate()  # also rejects corrupt cells (1e300) whose squares would overflow
         if rec.input_kind == 'voltage' and self.R_m is None:
-            raise ConfigError('the armature resistance R_m is required for voltage-input '
-                              'data (--resistance R)')
+            raise ConfigError('R_m (the armature resistance in Ohm, as measured) is required '
+                              'for voltage-input data', params=('R_m',))
         if len(rec) < 10 * self.n_blocks:
             raise DataError(f'too few samples for a held-out analysis: {len(rec)} '
                             f'(need at least {10 * self.n_blocks})')

@@ -163,10 +163,11 @@ class CardSimulator:
             raise ConfigError('the card simulator is already started')
         if self.link:
             if os.path.lexists(self.link) and not os.path.islink(self.link):
-                raise ConfigError(f'--link {self.link} exists and is not a symlink; '
-                                  'choose another path')
+                raise ConfigError(f'link {self.link} exists and is not a symlink; '
+                                  'choose another path', params=('link',))
             if not os.path.isdir(os.path.dirname(self.link)):
-                raise ConfigError(f'--link {self.link}: the directory does not exist')
+                raise ConfigError(f'link {self.link}: the directory does not exist',
+                                  params=('link',))
         self._open_pty()
         self._thread = threading.Thread(target=self._serve, name='card-sim', daemon=True)
         self._thread.start()

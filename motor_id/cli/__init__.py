@@ -56,7 +56,9 @@ def main(argv=None):
                 gc.freeze()
             return code
         except MotorIdError as exc:
-            print(f'motor-id {argv[0]}: error: {exc}', file=sys.stderr)
+            from motor_id.cli.flags import flag_hint
+            hint = flag_hint(exc.params, parser.format_help())
+            print(f'motor-id {argv[0]}: error: {exc}{hint}', file=sys.stderr)
             return 2
         except KeyboardInterrupt:
             print(f'motor-id {argv[0]}: interrupted', file=sys.stderr)

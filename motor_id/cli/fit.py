@@ -124,8 +124,9 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
                       population=args.population, generations=args.generations,
                       crossover=args.crossover, mutation=args.mutation,
                       random_state=args.seed, fixed=fixed or None,
-                      bounds=parse_bounds(args.bounds) or None, bootstrap=args.bootstrap,
-                      effects=effects or None, free_effects=free or None)
+                      bounds=parse_bounds(args.bounds, '--bounds') or None,
+                      bootstrap=args.bootstrap, effects=effects or None,
+                      free_effects=free or None)
 
 
 def controller_options(args: argparse.Namespace, input_kind: str) -> dict[str, Any]:

@@ -96,8 +96,8 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
     """
     if not isinstance(result_dict, dict) or not isinstance(result_dict.get('parameters'),
                                                            dict):
-        raise ConfigError("result_dict must be the fit JSON with a 'parameters' dict "
-                          '(motor-id fit --json OUT)')
+        raise ConfigError("result_dict must be a fit report's dict (FitReport.to_dict(), "
+                          "the JSON of motor-id fit) with a 'parameters' dict")
     for k in ('values', 'covariance'):
         if k in kw:
             raise ConfigError(f'{k} comes from result_dict; do not pass it')

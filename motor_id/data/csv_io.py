@@ -49,10 +49,11 @@ def parse_columns(text: str | dict[str, str] | None) -> dict[str, str]:
     for role, name in items:
         role, name = str(role).strip().lower(), str(name).strip().lower()
         if role not in ROLES or not name:
-            raise ConfigError(f'--columns wants ROLE=NAME items with ROLE one of '
-                              f'{", ".join(ROLES)}; got {role!r}={name!r}')
+            raise ConfigError(f'columns wants ROLE=NAME items with ROLE one of '
+                              f'{", ".join(ROLES)}; got {role!r}={name!r}',
+                              params=('columns',))
         if role in out:
-            raise ConfigError(f'--columns maps {role!r} twice')
+            raise ConfigError(f'columns maps {role!r} twice', params=('columns',))
         out[role] = name
     return out
 
@@ -156,10 +157,11 @@ def _dialect(path: str, body: list[str], delimiter: str | None,
              decimal: str | None) -> tuple[str, str]:
     """``(delimiter, decimal mark)``: the ones given, or found from the header and cells."""
     if delimiter is not None and delimiter not in DELIMITERS:
-        raise ConfigError(f'--delimiter must be one of {", ".join(map(repr, DELIMITERS))}, '
-                          f'got {delimiter!r}')
+        raise ConfigError(f'delimiter must be one of {", ".join(map(repr, DELIMITERS))}, '
+                          f'got {delimiter!r}', params=('delimiter',))
     if decimal is not None and decimal not in DECIMALS:
-        raise ConfigError(f'--decimal must be "." or ",", got {decimal!r}')
+        raise ConfigError(f'decimal must be "." or ",", got {decimal!r}',
+                          params=('decimal',))
     if delimiter is None:
         counts = {d: body[0].count(d) for d in DELIMITERS}
         delimiter = max(DELIMITERS, key=lambda d: (counts[d], d == ','))
@@ -170,7 +172,7 @@ def _dialect(path: str, body: list[str], delimiter: str | None,
         decimal = ',' if delimiter != ',' and any(',' in line for line in sample) else '.'
         if decimal == ',' and any('.' in line for line in sample):
             raise DataError(f'{path}: cells hold both "." and "," (thousands separators?); '
-                            'say which is the decimal mark with --decimal')
+                            'say which is the decimal mark (decimal)', params=('decimal',))
     if delimiter == decimal:
         raise ConfigError(f'{path}: the delimiter and the decimal mark cannot both be '
                           f'{delimiter!r}')
@@ -220,8 +222,8 @@ def _find_columns(path: str | os.PathLike[str], header_line: int, header: str,
             found = [n for n in INPUT_NAMES if n in names]
             if len(found) > 1:
                 raise DataError(f'{path}:{header_line}: the header has several input '
-                                f'columns ({", ".join(found)}); choose one with '
-                                f'--columns input=NAME')
+                                f'columns ({", ".join(found)}); choose one with columns '
+                                "'input=NAME'", params=('columns',))
             wanted[role] = found[0] if found else None
         else:
             wanted[role] = role
@@ -245,9 +247,9 @@ def _find_columns(path: str | os.PathLike[str], header_line: int, header: str,
         elif columns:
             hint = f' (columns present: {", ".join(names)})'
         else:
-            hint = ' (map other names with --columns time=T,input=U,speed=W,current=I)'
+            hint = " (map other names with columns 'time=T,input=U,speed=W,current=I')"
         raise DataError(f'{path}:{header_line}: missing column(s) {", ".join(missing)} in '
-                        f'header {header.strip()!r}{hint}')
+                        f'header {header.strip()!r}{hint}', params=('columns',))
     cols = {role: names.index(name) for role, name in wanted.items()
             if name is not None and name in names}
     return cols, wanted['input']

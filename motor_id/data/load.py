@@ -71,7 +71,8 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     """
     joint = None if mapping is None else mapping.joint
     if (delimiter or decimal) and (is_wpilog(path) or is_sysid_log(path)):
-        raise ConfigError(f'{path}: --delimiter and --decimal describe a CSV file')
+        raise ConfigError(f'{path}: delimiter and decimal describe a CSV file',
+                          params=('delimiter', 'decimal'))
     if is_wpilog(path):
         _check_sysid_options(path, columns, input_kind, mapping)
         entries = log_entries or LogEntries()
@@ -79,8 +80,10 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
             entries = replace(entries, joint=joint)
         return load_wpilog(path, entries)
     if log_entries is not None and log_entries != LogEntries():
-        raise ConfigError(f'{path}: --motor, --voltage, --position, --velocity, --state and '
-                          '--units pick the entries of a WPILib DataLog (.wpilog)')
+        raise ConfigError(f'{path}: log_entries (motor, voltage, position, velocity, state, '
+                          'units) pick the entries of a WPILib DataLog (.wpilog)',
+                          params=('motor', 'voltage', 'position', 'velocity', 'state',
+                                  'units'))
     if is_sysid_log(path):
         _check_sysid_options(path, columns, input_kind, mapping)
         return load_sysid(path, joint=joint)
@@ -88,15 +91,19 @@ def load_recording(path: str | os.PathLike[str], columns: str | dict[str, str] |
     from motor_id.data.rosbag import is_rosbag, read_bag
     if is_rosbag(path):
         if columns or delimiter or decimal:
-            raise ConfigError('--columns, --delimiter and --decimal describe CSV files; a '
-                              'bag is mapped with --input, --speed, --current')
+            raise ConfigError('columns, delimiter and decimal describe CSV files; a bag is '
+                              "mapped by the mapping's input, speed and current",
+                              params=('columns', 'delimiter', 'decimal', 'input', 'speed',
+                                      'current'))
         mapping = mapping or TopicMapping()
         if input_kind is not None:
             mapping.input_kind = input_kind
         return read_bag(path, mapping)
     if mapping is not None and not mapping.is_empty:
-        raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
-                          'for a CSV map its columns with --columns time=T,input=U,speed=W')
+        raise ConfigError(f"{path}: the mapping's input, speed, current and effort_is map bag "
+                          'topics; for a CSV map its columns with columns '
+                          "'time=T,input=U,speed=W'",
+                          params=('input', 'speed', 'current', 'effort_is', 'columns'))
     return read_csv(path, columns=columns, input_kind=input_kind, delimiter=delimiter,
                     decimal=decimal)
 
@@ -106,10 +113,12 @@ def _check_sysid_options(path: str | os.PathLike[str],
                          mapping: 'TopicMapping | None') -> None:
     """ConfigError for the CSV and bag options that a SysId log cannot take."""
     if columns:
-        raise ConfigError(f'{path}: a SysId log has fixed columns; --columns maps CSV '
-                          'columns')
+        raise ConfigError(f'{path}: a SysId log has fixed columns; columns maps CSV columns',
+                          params=('columns',))
     if input_kind not in (None, 'voltage'):
         raise ConfigError(f'{path}: a SysId log has voltage input, not {input_kind}')
     if mapping is not None and not mapping.is_empty:
-        raise ConfigError(f'{path}: --input/--speed/--current/--effort-is map bag topics; '
-                          'a SysId log takes only --joint (left or right, a drivetrain)')
+        raise ConfigError(f"{path}: the mapping's input, speed, current and effort_is map bag "
+                          "topics; a SysId log takes only the mapping's joint (left or right, "
+                          'a drivetrain)',
+                          params=('input', 'speed', 'current', 'effort_is', 'joint'))

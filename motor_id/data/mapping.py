@@ -99,7 +99,7 @@ class FieldSpec:
         return self.path[0][0] if self.path else None
 
 
-def parse_field_spec(text: str, option: str = '--input') -> FieldSpec:
+def parse_field_spec(text: str, option: str = 'input') -> FieldSpec:
     """Parse ``/topic``, ``/topic:field``, ``/topic:data[2]`` or ``/topic:a.b[0].c``.
 
     Raises
@@ -111,7 +111,8 @@ def parse_field_spec(text: str, option: str = '--input') -> FieldSpec:
     topic, _, fieldtext = text.partition(':')
     topic = topic.strip()
     if not topic:
-        raise ConfigError(f'{option} {text!r}: the topic is empty (want TOPIC[:FIELD])')
+        raise ConfigError(f'{option} {text!r}: the topic is empty (want TOPIC[:FIELD])',
+                          params=(option,))
     if not topic.startswith('/'):
         topic = '/' + topic
     path = []
@@ -119,24 +120,25 @@ def parse_field_spec(text: str, option: str = '--input') -> FieldSpec:
         match = _STEP_RE.match(step.strip())
         if not match:
             raise ConfigError(f'{option} {text!r}: bad field {step!r} (want names with '
-                              'optional [index], e.g. velocity or data[2])')
+                              'optional [index], e.g. velocity or data[2])', params=(option,))
         indices = tuple(int(i) for i in re.findall(r'\[(\d+)\]', match.group(2)))
         path.append((match.group(1), indices))
     return FieldSpec(topic, tuple(path), text)
 
 
-def read_yaml(path: str | os.PathLike[str], option: str = '--profile') -> Any:
+def read_yaml(path: str | os.PathLike[str], option: str = 'profile') -> Any:
     """The YAML document of a profile file; one-line errors naming the file and line."""
     import yaml
     try:
         with open(path, encoding='utf-8') as fh:
             return yaml.safe_load(fh)
     except OSError as exc:
-        raise ConfigError(f'{option} {path}: cannot read ({exc.strerror})') from exc
+        raise ConfigError(f'{option} {path}: cannot read ({exc.strerror})',
+                          params=(option,)) from exc
     except yaml.YAMLError as exc:
         where = getattr(exc, 'problem_mark', None)
         line = f' line {where.line + 1}' if where is not None else ''
-        raise ConfigError(f'{option} {path}:{line} not valid YAML') from exc
+        raise ConfigError(f'{option} {path}:{line} not valid YAML', params=(option,)) from exc
 
 
 def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -154,7 +156,7 @@ def load_profile(path: str | os.PathLike[str]) -> dict[str, Any]:
     data = read_yaml(path)
     if data is None:
         return {}
-    return check_keys(data, f'--profile {path}', PROFILE_KEYS)
+    return check_keys(data, f'profile {path}', PROFILE_KEYS)
 
 
 def mapping_settings(settings: dict[str, Any], where: str) -> tuple[TopicMapping, int | None]:
@@ -247,26 +249,29 @@ def resolve(mapping: TopicMapping, topics: dict[str, Any],
 
 def _check_settings(m: TopicMapping) -> None:
     if m.effort_is is not None and m.effort_is not in EFFORT_KINDS:
-        raise ConfigError(f'--effort-is must be current or torque, got {m.effort_is!r}')
+        raise ConfigError(f'effort_is must be current or torque, got {m.effort_is!r}',
+                          params=('effort_is',))
     if m.input_kind is not None and m.input_kind not in INPUT_KINDS:
-        raise ConfigError(f'--input-kind must be voltage or torque, got {m.input_kind!r}')
+        raise ConfigError(f'input_kind must be voltage or torque, got {m.input_kind!r}',
+                          params=('input_kind',))
     if m.align not in ALIGN_RULES:
-        raise ConfigError(f'--align must be one of {", ".join(ALIGN_RULES)}, got {m.align!r}')
+        raise ConfigError(f'align must be one of {", ".join(ALIGN_RULES)}, got {m.align!r}',
+                          params=('align',))
 
 
 def _field_specs(m: TopicMapping, topics: dict[str, Any],
                  path: str | os.PathLike[str]) -> dict[str, FieldSpec]:
     """The mapped specs, each on a topic of the bag; the speed defaults to a JointState's."""
-    specs = {r: parse_field_spec(getattr(m, r), '--' + r) for r in ROLES if getattr(m, r)}
+    specs = {r: parse_field_spec(getattr(m, r), r) for r in ROLES if getattr(m, r)}
     for role, spec in specs.items():
         if spec.topic not in topics:
-            raise BagError(f'{path}: --{role}: no topic {spec.topic} (topics: '
-                           f'{topic_table(topics)})')
+            raise BagError(f'{path}: {role}: no topic {spec.topic} (topics: '
+                           f'{topic_table(topics)})', params=(role,))
     if 'speed' not in specs:
         js = [t for t, info in topics.items() if info.msgtype == JOINT_STATE]
         if len(js) != 1:
-            raise BagError(f'{path}: give --speed TOPIC[:FIELD] (topics: '
-                           f'{topic_table(topics)})')
+            raise BagError(f'{path}: give speed as TOPIC[:FIELD] (topics: '
+                           f'{topic_table(topics)})', params=('speed',))
         specs['speed'] = FieldSpec(js[0], (('velocity', ()),), js[0] + ':velocity')
     return specs
 
@@ -289,9 +294,9 @@ def _effort_roles(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str
     if m.effort_is == 'current' and 'current' not in specs and _is_joint(speed, topics):
         specs['current'] = effort
     if 'input' not in specs:
-        raise BagError(f'{path}: no input: give --input TOPIC[:FIELD] (the voltage command), '
-                       'or --effort-is torque to take the joint effort as a torque input '
-                       f'(topics: {topic_table(topics)})')
+        raise BagError(f'{path}: no input: give input as TOPIC[:FIELD] (the voltage command), '
+                       "or effort_is 'torque' to take the joint effort as a torque input "
+                       f'(topics: {topic_table(topics)})', params=('input', 'effort_is'))
     input_effort = _is_effort(specs['input'], 'input', topics)
     current_effort = 'current' in specs and _is_effort(specs['current'], 'current', topics)
     return input_effort, current_effort
@@ -302,26 +307,31 @@ def _plant_kind(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str, 
     """``(input_kind, effort_is)`` after checking that the settings agree."""
     effort_is = m.effort_is
     if effort_is == 'torque' and current_effort:
-        raise ConfigError(f'--effort-is torque: the joint effort is a torque, it cannot be '
-                          f'the --current ({specs["current"].text})')
+        raise ConfigError(f'effort_is torque: the joint effort is a torque, it cannot be '
+                          f'the current ({specs["current"].text})',
+                          params=('effort_is', 'current'))
     if effort_is == 'torque' and not input_effort:
-        raise ConfigError(f'--effort-is torque makes the joint effort the plant input (a '
-                          f'torque plant), but --input is {specs["input"].text}: drop '
-                          '--input to fit the torque plant, or use --effort-is current')
+        raise ConfigError(f'effort_is torque makes the joint effort the plant input (a '
+                          f'torque plant), but input is {specs["input"].text}: drop '
+                          'input to fit the torque plant, or use effort_is current',
+                          params=('effort_is', 'input'))
     if effort_is == 'current' and input_effort:
-        raise ConfigError(f'--effort-is current: the joint effort is the measured current, '
-                          f'it cannot be the --input ({specs["input"].text})')
+        raise ConfigError(f'effort_is current: the joint effort is the measured current, '
+                          f'it cannot be the input ({specs["input"].text})',
+                          params=('effort_is', 'input'))
     if input_effort and current_effort:
         raise ConfigError('the joint effort cannot be both the input (a torque) and the '
-                          'current; set --effort-is')
+                          'current; set effort_is', params=('effort_is',))
     if effort_is is not None and not (input_effort or current_effort):
         speed = specs['speed']
-        raise ConfigError(f'--effort-is {effort_is} but no JointState effort is mapped (the '
-                          f'speed comes from {speed.text}, a {topics[speed.topic].msgtype})')
+        raise ConfigError(f'effort_is {effort_is} but no JointState effort is mapped (the '
+                          f'speed comes from {speed.text}, a {topics[speed.topic].msgtype})',
+                          params=('effort_is',))
     if input_effort:
         if m.input_kind == 'voltage':
-            raise ConfigError(f'--input {specs["input"].text} is a joint effort (a torque), '
-                              'not a voltage: drop --input-kind voltage')
+            raise ConfigError(f'input {specs["input"].text} is a joint effort (a torque), '
+                              'not a voltage: drop input_kind voltage',
+                              params=('input', 'input_kind'))
         return 'torque', 'torque'
     return m.input_kind or 'voltage', 'current' if current_effort else effort_is
 
@@ -354,12 +364,12 @@ def field_getter(topic: str, msgtype: str, spec: FieldSpec, role: str, joint: st
         The field, index or joint does not exist in ``msg``, or is not a number (one line
         naming what exists).
     """
-    where = f'{path}: --{role} {spec.text}'
+    where = f'{path}: {role} {spec.text}'
     if msgtype == JOINT_STATE:
         return _joint_getter(where, topic, spec, role, joint, msg)
     if joint is not None and role == 'speed':
-        raise BagError(f'{where}: --joint {joint} given but {topic} is {msgtype}, not '
-                       f'{JOINT_STATE}')
+        raise BagError(f'{where}: joint {joint} given but {topic} is {msgtype}, not '
+                       f'{JOINT_STATE}', params=('joint',))
     steps = spec.path or _default_steps(where, topic, msgtype, msg)
     _check_steps(where, steps, msg)
 
@@ -417,12 +427,13 @@ def _joint_getter(where: str, topic: str, spec: FieldSpec, role: str, joint: str
     field = spec.first or _DEFAULT_JOINT_FIELD[role]
     if field not in JOINT_FIELDS or len(spec.path) > 1 or (spec.path and spec.path[0][1]):
         raise BagError(f'{where}: {topic} is a JointState; the field is one of '
-                       f'{", ".join(JOINT_FIELDS)} (the joint is chosen with --joint)')
+                       f'{", ".join(JOINT_FIELDS)} (the joint is chosen by joint)',
+                       params=('joint',))
     names = list(msg.name)
     if joint is None:
         if len(names) > 1:
-            raise BagError(f'{where}: {topic} has joints {", ".join(names)}; choose one with '
-                           '--joint NAME')
+            raise BagError(f'{where}: {topic} has joints {", ".join(names)}; choose one '
+                           '(joint)', params=('joint',))
         index = 0
     elif joint in names:
         index = names.index(joint)

@@ -64,8 +64,8 @@ def read_bag(path: str | os.PathLike[str], mapping: TopicMapping | None = None) 
         except BagError as exc:
             if f'no {BAG_SAMPLES_TOPIC} topic' not in str(exc):
                 raise
-            raise BagError(f'{exc}; map the channels with --input TOPIC[:FIELD] --speed '
-                           'TOPIC[:FIELD] [--current ...]') from exc
+            raise BagError(f'{exc}; map the channels: input, speed (and current) as '
+                           'TOPIC[:FIELD]', params=('input', 'speed', 'current')) from exc
         if mapping.input_kind is not None:
             rec.input_kind = mapping.input_kind
         return rec

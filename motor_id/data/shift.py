@@ -28,7 +28,8 @@ def shift_input(rec: Recording, samples: int) -> Recording:
         return rec
     n = len(rec)
     if abs(s) >= n:
-        raise ConfigError(f'--shift {s} is not smaller than the recording ({n} samples)')
+        raise ConfigError(f'shift {s} is not smaller than the recording ({n} samples)',
+                          params=('shift',))
     keep = slice(0, n - s) if s > 0 else slice(-s, n)
     moved = slice(s, n) if s > 0 else slice(0, n + s)
     meta = dict(rec.meta)

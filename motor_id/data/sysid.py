@@ -181,12 +181,12 @@ def _check_joint(path: str, test_type: str, joint: str | None) -> str | None:
     """The joint in lower case: required for a Drivetrain log, refused for others."""
     if test_type != 'Drivetrain':
         if joint is not None:
-            raise DataError(f'{path}: --joint selects a side of a Drivetrain log; this is '
-                            f'a {test_type} log (leave --joint out)')
+            raise DataError(f'{path}: joint selects a side of a Drivetrain log; this is '
+                            f'a {test_type} log (leave joint out)', params=('joint',))
         return None
     if joint is None:
-        raise DataError(f'{path}: a Drivetrain log has two sides: pass --joint left or '
-                        '--joint right')
+        raise DataError(f"{path}: a Drivetrain log has two sides: give joint 'left' or "
+                        "'right'", params=('joint',))
     side = str(joint).strip().lower()
     if side not in JOINTS:
         raise DataError(f'{path}: unknown joint {joint!r} of a Drivetrain log; choose '

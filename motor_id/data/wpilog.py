@@ -330,8 +330,8 @@ def _choose(path: str, log: dict[str, _Entry], sel: LogEntries) -> _Motor:
     if given:
         missing = [c for c in ('voltage', 'velocity') if c not in named]
         if missing:
-            raise DataError(f'{path}: entries given by name need --voltage and --velocity '
-                            f'(missing: --{", --".join(missing)})')
+            raise DataError(f'{path}: entries given by name need voltage and velocity '
+                            f'(missing: {", ".join(missing)})', params=tuple(missing))
         chans = {c: _find(path, log, named[c], c, _NUMERIC) for c in given}
         return _Motor(label=named['velocity'], channels=chans,
                       state=_state(path, log, states, sel.state))
@@ -343,9 +343,10 @@ def _choose(path: str, log: dict[str, _Entry], sel: LogEntries) -> _Motor:
         numeric = [n for n, e in log.items() if e.type in _NUMERIC]
         raise DataError(f'{path}: no SysIdRoutineLog motor (entries voltage-<motor>-<log '
                         f'name> and velocity-<motor>-<log name> beside a {STATE_PREFIX}<log '
-                        f'name> entry); for another logger name the entries with --voltage, '
-                        f'--velocity, --position and --state (numeric entries: '
-                        f'{_listing(numeric)})')
+                        f'name> entry); for another logger name the entries voltage, '
+                        f'velocity, position and state (numeric entries: '
+                        f'{_listing(numeric)})',
+                        params=('voltage', 'velocity', 'position', 'state'))
     key = _pick_motor(path, motors, sel)
     return _Motor(label=f'{key[0]} (log {key[1]})', channels=motors[key], state=states[key[1]])
 
@@ -359,8 +360,8 @@ def _state(path: str, log: dict[str, _Entry], states: dict[str, _Entry],
         return next(iter(states.values()))
     strings = [n for n, e in log.items() if e.type == 'string']
     raise DataError(f'{path}: {"several" if states else "no"} {STATE_PREFIX}<log name> '
-                    f'entries; name the test-state entry with --state (string entries: '
-                    f'{_listing(strings)})')
+                    f'entries; name the test-state entry (state; string entries: '
+                    f'{_listing(strings)})', params=('state',))
 
 
 def _pick_motor(path: str, motors: dict[tuple[str, str], dict[str, _Entry]],
@@ -380,7 +381,7 @@ def _pick_motor(path: str, motors: dict[tuple[str, str], dict[str, _Entry]],
                             f'{_motor_list(motors)})')
     if len(keys) > 1:
         raise DataError(f'{path}: the log holds several motors: {_motor_list(motors)}; pick '
-                        'one with --motor NAME')
+                        'one (motor)', params=('motor',))
     return keys[0]
 
 
@@ -415,8 +416,8 @@ def _units(path: str, chosen: _Motor, override: str | None) -> _Scales:
         text = override if override is not None else entry.metadata
         if not text.strip():
             raise DataError(f'{path}: the {channel} entry {entry.name!r} has no unit in its '
-                            f'metadata; give the position unit with --units '
-                            f'({", ".join(UNIT_NAMES)})')
+                            f'metadata; give the position unit (units: '
+                            f'{", ".join(UNIT_NAMES)})', params=('units',))
         parsed = parse_unit(text, speed=channel == 'velocity' and override is None)
         if parsed is None:
             raise DataError(f'{path}: unknown unit {text!r} of the {channel} entry '

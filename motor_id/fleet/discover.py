@@ -145,7 +145,8 @@ def robot_rule(text: str) -> Callable[[str | Path], str]:
             except ValueError:
                 levels = 0
             if levels < 1:
-                raise ConfigError(f'--robot-from {text}: want parent:N with N >= 1')
+                raise ConfigError(f'robot_from {text}: want parent:N with N >= 1',
+                                  params=('robot_from',))
 
         def parent(path: str | Path) -> str:
             p = Path(path)
@@ -157,14 +158,16 @@ def robot_rule(text: str) -> Callable[[str | Path], str]:
         try:
             pattern = re.compile(text[len('regex:'):])
         except re.error as exc:
-            raise ConfigError(f'--robot-from {text}: bad pattern ({exc})') from None
+            raise ConfigError(f'robot_from {text}: bad pattern ({exc})',
+                              params=('robot_from',)) from None
 
         def by_regex(path: str | Path) -> str:
             m = pattern.search(str(path))
             if m is None:
-                raise ConfigError(f'--robot-from {text}: no match in {path}')
+                raise ConfigError(f'robot_from {text}: no match in {path}',
+                                  params=('robot_from',))
             if 'robot' in pattern.groupindex:
                 return m.group('robot')
             return m.group(1) if pattern.groups else m.group(0)
         return by_regex
-    raise ConfigError(f'--robot-from {text}: want {ROBOT_RULES}')
+    raise ConfigError(f'robot_from {text}: want {ROBOT_RULES}', params=('robot_from',))

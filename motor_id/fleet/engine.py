@@ -60,7 +60,7 @@ class DaskEngine:
     def __init__(self, workers: int | None = None, scheduler: str | None = None,
                  in_flight: int | None = None) -> None:
         if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
-            raise ConfigError(f'--workers must be >= 1, got {workers}')
+            raise ConfigError(f'workers must be >= 1, got {workers}', params=('workers',))
         self.workers = workers
         self.scheduler = scheduler
         self.in_flight = in_flight
@@ -73,8 +73,8 @@ class DaskEngine:
             try:
                 self.client = dist.Client(self.scheduler, timeout='20s')
             except (OSError, TimeoutError) as exc:
-                raise ConfigError(f'--scheduler {self.scheduler}: cannot connect '
-                                  f'({exc})') from None
+                raise ConfigError(f'scheduler {self.scheduler}: cannot connect ({exc})',
+                                  params=('scheduler',)) from None
         else:
             import dask
             n = int(self.workers or os.cpu_count() or 1)

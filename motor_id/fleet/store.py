@@ -95,7 +95,8 @@ class ResultStore:
         try:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise ConfigError(f'--out {out_dir}: cannot create ({exc.strerror})') from None
+            raise ConfigError(f'out_dir {out_dir}: cannot create ({exc.strerror})',
+                              params=('out_dir',)) from None
         self.flush_every = flush_every
         self.rows: dict[tuple[str, str], dict[str, Any]] = {}
         self.failures: dict[tuple[str, str], dict[str, Any]] = {}

@@ -317,7 +317,8 @@ class Identifier:
             pred = problem.simulate(x_best[None, :])[0]
         if not (np.all(np.isfinite(x_best)) and np.all(np.isfinite(pred))):
             raise IdentificationError('the model diverges at the best parameters found: '
-                                      'check the units of the data and the --bounds')
+                                      'check the units of the data and the search bounds',
+                                      params=('bounds',))
         sigma, w = uncertainty.noise_levels(problem, z_best)
         J = problem.jacobian_z(z_best, w)
         result, self.covariance_ = assembly.build_result(

@@ -10,7 +10,7 @@ from motor_id.errors import ConfigError
 from motor_id.model import PARAM_NAMES
 
 
-def parse_fixed(items: Iterable[str] | None, option: str = '--fix') -> dict[str, float]:
+def parse_fixed(items: Iterable[str] | None, option: str = 'fixed') -> dict[str, float]:
     """Parse ``NAME=VALUE`` items: motor parameters known in advance.
 
     Parameters
@@ -49,7 +49,7 @@ def parse_fixed(items: Iterable[str] | None, option: str = '--fix') -> dict[str,
     return out
 
 
-def parse_bounds(items: Iterable[str] | None, option: str = '--bounds'
+def parse_bounds(items: Iterable[str] | None, option: str = 'bounds'
                  ) -> dict[str, tuple[float, float]]:
     """Parse ``NAME=LOW:HIGH`` items: search ranges.
 

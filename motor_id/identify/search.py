@@ -53,7 +53,7 @@ def run_ga(problem: IdentificationProblem, rng: np.random.Generator,
     if not np.isfinite(ga.best_cost_):
         raise IdentificationError('no parameter set inside the search bounds gives a '
                                   'finite simulation: check the units of the data and '
-                                  'the --bounds')
+                                  'the search bounds', params=('bounds',))
     return ga, cast(np.ndarray, ga.best_), time.perf_counter() - t_ga
 
 

@@ -60,7 +60,8 @@ def _plant_parameters(space: ParameterSpace, R_m: float | None, fixed: dict[str,
         return list(TORQUE_FREE), dict(TORQUE_BOUNDS), None
     given = fixed.get('R_m', R_m)
     if given is None:
-        raise ConfigError('the armature resistance R_m is required (--resistance R)')
+        raise ConfigError('R_m (the armature resistance in Ohm, as measured) is required',
+                          params=('R_m',))
     if not (np.isfinite(given) and given > 0):
         raise ConfigError(f'R_m must be a finite value > 0 Ohm, got {given}')
     tol = space.R_m_tolerance

@@ -242,7 +242,8 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
     unmeasured = model.input_kind == 'voltage' and not rec.has_current
     n_init = init_samples if init_samples is not None else (2 if unmeasured else 1)
     if n_init < 1:
-        raise ConfigError(f'--init-samples must be at least 1, got {n_init}')
+        raise ConfigError(f'init_samples must be at least 1, got {n_init}',
+                          params=('init_samples',))
     channels = (('position',) if rec.has_position else ()) + rec.channels()
     sims = {ch: np.empty(len(rec)) for ch in channels}
     states = []
