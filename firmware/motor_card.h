@@ -13,7 +13,9 @@
  *     byte at a time from a fixed 64-byte buffer;
  *   - mc_clock: a 64-bit card clock [us] from a wrapping 32-bit micros() counter;
  *   - mc_card: the card (commands, replies, the paper_steps and bipolar_steps
- *     profiles, sampling schedule, command watchdog, voltage limit).
+ *     profiles, sampling schedule, command watchdog, voltage limit). The watchdog
+ *     stops a held voltage and a running profile alike when no command (a ping will
+ *     do) arrives for watchdog_us: a host that dies mid-profile leaves the motor at 0 V.
  *
  * No dynamic allocation, no I/O, no struct casting; compiles as C99 and as C++ (for
  * Arduino sketches). Floats are IEEE-754 binary32; profile times and levels use
@@ -517,7 +519,8 @@ MC_API int mc_profile_id(const char *name, uint8_t n)
 typedef struct {
     uint32_t period_us;     /* initial sample period, MC_MIN_PERIOD_US .. MC_MAX_PERIOD_US */
     double v_limit;         /* largest |voltage| and |amplitude| accepted [V] */
-    uint32_t watchdog_us;   /* external mode: 0 V after this long without a command; 0 off */
+    uint32_t watchdog_us;   /* 0 V after this long without a command while a held voltage
+                               or a profile drives the motor; 0 off */
     int with_current;       /* send the current field */
 } mc_config;
 
@@ -701,12 +704,22 @@ MC_API int mc_card_due(mc_card *c, uint32_t micros_now, uint64_t *t_us)
     return 1;
 }
 
-/* The input for the sample about to be taken and its profile flags (advances nothing). */
+/* Is the host silent for the watchdog time while a held voltage or a profile drives? */
+MC_API int mc_card_watchdog_due(const mc_card *c, uint64_t t_us)
+{
+    int driving = c->mode == MC_MODE_EXTERNAL || mc_card_profile_running(c);
+    return driving && c->cfg.watchdog_us && t_us >= c->last_cmd &&
+           t_us - c->last_cmd >= c->cfg.watchdog_us;
+}
+
+/*
+ * The input for the sample about to be taken and its profile flags (advances nothing
+ * but the watchdog: a silent host stops the motor, a held voltage or a profile alike).
+ */
 MC_API float mc_card_input(mc_card *c, uint64_t t_us, uint16_t *flags)
 {
     *flags = 0u;
-    if (c->mode == MC_MODE_EXTERNAL && c->cfg.watchdog_us && t_us >= c->last_cmd &&
-        t_us - c->last_cmd >= c->cfg.watchdog_us) {
+    if (mc_card_watchdog_due(c, t_us)) {
         c->hold = 0.0f;                      /* the host went silent: stop the motor */
         c->mode = MC_MODE_IDLE;
         c->watchdog_trips++;

@@ -17,7 +17,7 @@ from motor_id.card.transport import TransportError
 from motor_id.card.virtual_card import VirtualCard
 from motor_id.cli import card_sim
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
-from motor_id.errors import ConfigError
+from motor_id.errors import ConfigError, MotorIdError
 
 
 class Log:
@@ -99,6 +99,16 @@ def test_link_sends_commands_and_routes_replies():
     assert replies[0] == pr.Reply('start_profile', 'unsupported', 3)
     assert link.counts['reply_unsupported'] == 2 and link.counts['commands_sent'] == 1
     assert log.count('answered unsupported to start_profile') == 1
+    link.close()
+
+
+def test_link_notes_when_the_last_command_went_out():
+    link = CardLink('loop://', read_timeout=0.02)
+    assert link.last_sent == -np.inf
+    link.poll()
+    before = time.monotonic()
+    link.send(pr.Stop())
+    assert before <= link.last_sent <= time.monotonic()
     link.close()
 
 
@@ -307,10 +317,12 @@ def test_card_sim_no_profiles_option():
 
 
 class FakeLink:
-    """What a Session needs of a CardLink: send and fault."""
+    """What a Session needs of a CardLink: send, last_sent and fault (here no command
+    ever counts as recent, so every keep_alive pings while the card drives)."""
 
     def __init__(self):
         self.sent, self.faults = [], []
+        self.last_sent = -np.inf
 
     def send(self, command):
         self.sent.append(command)
@@ -370,3 +382,46 @@ def test_host_profile_ends_even_when_its_last_frames_are_lost():
     ends = [s.seq for s in out if s.flags & FLAG_PROFILE_END]
     assert ends == [54] and host.done
     assert [s.seq for s in out if s.flags & FLAG_PROFILE] == list(range(1, 45)) + [54]
+
+
+def _pings(link, session):
+    n = len(link.sent)
+    session.keep_alive()
+    return [c for c in link.sent[n:] if isinstance(c, pr.Ping)]
+
+
+def test_session_pings_while_the_card_drives_the_motor():
+    link = FakeLink()
+    session = Session(link, Limits(max_voltage=10.0, max_speed=5.0), 'paper_steps', 9.0,
+                      duration=0.05, keepalive=0.1)
+    assert not session.driving and not _pings(link, session)      # idle: no pings
+    session.start()
+    assert session.driving and len(_pings(link, session)) == 1
+    session.on_sample(pr.Sample(1, 0.01, 0.0, 0.0, flags=pr.FLAG_PROFILE | pr.FLAG_PROFILE_END))
+    assert not session.driving and not _pings(link, session)      # the profile ended
+    session.start()
+    session.on_reply(pr.Reply('start_profile', 'busy', 2))
+    assert not session.driving                                     # refused: not running
+    session.start()
+    session.on_sample(pr.Sample(3, 0.03, 3.8, 6.0, flags=pr.FLAG_PROFILE))   # over speed
+    assert not session.driving and link.sent[-1] == pr.Stop()
+    assert session.values()['keepalive_pings'] == 1
+    off = Session(FakeLink(), Limits(), 'paper_steps', 9.0, keepalive=0.0)
+    off.start()
+    assert off.driving and not _pings(off.link, off)               # pings switched off
+
+
+def test_session_pings_under_a_non_zero_external_command_and_closes_at_zero_volts():
+    link = FakeLink()
+    session = Session(link, Limits(max_voltage=10.0, command_timeout=0.5), 'external')
+    session.command(2.0)
+    assert session.driving and len(_pings(link, session)) == 1
+    session.command(0.0)
+    assert not session.driving
+    session.command(3.0)
+    session.close()
+    assert link.sent[-1] == pr.Stop() and not session.driving
+    session.command(4.0)                                           # dropped: closed
+    assert link.sent[-1] == pr.Stop()
+    with pytest.raises(MotorIdError, match='shutting down'):
+        session.start()

@@ -95,6 +95,47 @@ def test_command_replies():
         card.handle(pr.Reply('stop'))
 
 
+def test_watchdog_stops_a_profile_when_the_host_goes_silent():
+    """Pings keep paper_steps running; 0.5 s of silence at 3.8 V stops it at 0 V (no 7 V
+    at 16 s) and the stream stays one exact simulation across the stop."""
+    plant = Plant(PAPER_MOTOR, 'voltage', MEMORY_EFFECTS)
+    card = VirtualCard(plant, period=0.01, horizon=128, watchdog=0.5)
+    out = card.samples(10)
+    card.handle(pr.StartProfile('paper_steps', 9.0, 0, 40.0))
+    while card.seq < 410:                      # the host pings every 100 ms up to 4.1 s
+        out += card.samples(10)
+        card.handle(pr.Ping(card.seq))
+    last_ping = card.t_us
+    out += card.samples(1800)                  # to 22 s: silence
+    c, sim = _resimulate(out, plant)
+    trip = card.last_trip
+    assert card.watchdog_trips == 1 and trip.silence == pytest.approx(0.5, abs=1e-9)
+    assert trip.last_command_us == last_ping and trip.t_us == last_ping + 500_000
+    k = trip.seq
+    assert np.all(c['voltage'][310:k] == np.float32(3.8)) and np.all(c['voltage'][k:] == 0)
+    assert np.all(c['flags'][11:k] & pr.FLAG_PROFILE)
+    assert not np.any(c['flags'][k:] & (pr.FLAG_PROFILE | pr.FLAG_PROFILE_END))
+    np.testing.assert_allclose(c['speed'], sim['speed'][0], rtol=0, atol=1e-9)
+    assert c['speed'][k] > 5.0 and abs(c['speed'][-1]) < 0.05 * c['speed'][k]   # stopped
+
+
+def test_watchdog_stops_a_held_voltage_and_rearms_on_the_next_command():
+    card = VirtualCard(period=0.01, watchdog=0.2)
+    card.samples(3)
+    card.handle(pr.SetVoltage(5.0), t_us=card.t_us - 5000)    # 5 ms before the next sample
+    v = _columns(card.samples(30))['voltage']
+    assert v.tolist() == [5.0] * 20 + [0.0] * 10               # 0 V from 195 ms on
+    assert card.last_trip.silence == pytest.approx(0.205)
+    card.handle(pr.SetVoltage(-2.0))
+    v = _columns(card.samples(25))['voltage']
+    assert v.tolist() == [-2.0] * 20 + [0.0] * 5 and card.watchdog_trips == 2
+    card.handle(pr.Stop())
+    card.samples(100)                                          # idle: nothing to stop
+    card.handle(pr.StartProfile('bipolar_steps', 3.0, 0, 0.1))
+    card.samples(100)                                          # ended before 0.2 s
+    assert card.watchdog_trips == 2 and card.truth()['watchdog'] == 0.2
+
+
 def test_noise_is_seeded_and_sized():
     def run(seed):
         card = VirtualCard(speed_noise=0.05, current_noise=0.01, random_state=seed)
@@ -219,6 +260,36 @@ def test_pty_profile_matches_simulate_batch():
     assert c['speed'].max() > 10.0
 
 
+def test_pty_watchdog_counts_wall_seconds_and_stops_the_profile():
+    """At 4x real time a 0.25 s (wall) watchdog is 1 s of card time: the host pings
+    every 50 ms into the 3.8 V step, then goes silent; 0 V follows 1 s (card) later."""
+    with CardSimulator(period=0.01, speedup=4.0, watchdog=0.25, random_state=0) as sim:
+        port = open_transport(sim.path, timeout=0.02)
+        parser, samples = FrameParser(), []
+        try:
+            port.write(pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 40.0)))
+            pinged, end = 0.0, time.monotonic() + 60.0
+            while not samples or samples[-1].t_card < 4.0:      # ping into the 3.8 V step
+                assert time.monotonic() < end, 'the simulated card did not deliver in time'
+                samples += [x for x in parser.feed(read_available(port, 65536))
+                            if isinstance(x, pr.Sample)]
+                if time.monotonic() - pinged > 0.05:
+                    port.write(pr.encode_command(pr.Ping(len(samples))))
+                    pinged = time.monotonic()
+            items = _read_until(port, parser, lambda it: sim.card.watchdog_trips and any(
+                isinstance(x, pr.Sample) and x.seq > sim.card.last_trip.seq + 100
+                for x in it))
+        finally:
+            port.close()
+        trip = sim.card.last_trip
+    samples += [x for x in items if isinstance(x, pr.Sample)]
+    assert sim.card.watchdog_trips == 1
+    assert 1.0 <= trip.silence <= 1.0 + 0.01 + 1e-9            # card time, to a period
+    v = {x.seq: x.voltage for x in samples}
+    assert v[trip.seq - 1] == np.float32(3.8) and v[trip.seq] == 0.0
+    assert all(v[q] == 0.0 for q in v if q >= trip.seq)
+
+
 def test_pty_faults_reach_the_parser():
     faults = FaultConfig(garbage=0.02, drop=0.01, bad_crc=0.01, duplicate=0.01, reorder=0.01)
     with CardSimulator(speedup=0, faults=faults, random_state=5) as sim:
@@ -295,7 +366,7 @@ def _cli(*args):
                             env=env, cwd=REPO)
 
 
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_cli_prints_the_path_and_stops_cleanly(tmp_path, sig):
     link = tmp_path / 'card'
     truth = tmp_path / 'truth.json'

@@ -2,6 +2,7 @@
 
 import os
 import re
+import signal
 import time
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -12,7 +13,10 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 import yaml
 
+from motor_id.card import protocol as pr
 from motor_id.card.profile import profile_samples
+from motor_id.card.stream import FrameParser
+from motor_id.card.transport import open_transport, read_available
 from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.nodes import messages
 from motor_id.nodes.driver import PARAMETERS
@@ -149,6 +153,44 @@ def test_external_commands_best_effort_clamped_and_watchdog(client, launch, tmp_
     assert wait_until(lambda: follows(2.0, 2.0), 10.0, interval=0.1)
     assert wait_until(lambda: status(diags).get('limit_state') == 'armed', 5.0)
     stop_cleanly(drv)
+
+
+def test_card_stops_the_profile_when_the_driver_is_killed(client, launch, tmp_path):
+    """SIGKILL of the driver 3.8 V into paper_steps (card at 4x real time, its watchdog
+    0.5 s of wall clock = 2 s of card time): the pings stop, the card is at 0 V within
+    its watchdog time of the last one, and stays there: no 7 V at 16 s, no 9 V at 28 s."""
+    link = tmp_path / 'card'
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    card = launch('card', card_args(link, '--speedup', '4', '--watchdog', '0.5'))
+    drv = launch('driver', driver_args(f'device:={link}', 'publish_channels:=false',
+                                       'excitation:=paper_steps'))
+    drv.wait_for('device .* open')
+    assert client.call(Trigger, '/driver/start').success
+    assert wait_until(lambda: np.sum(rows_of(samples)[:, 2] == np.float32(3.8)) > 100, 60.0), \
+        drv.output()
+    t_seen = rows_of(samples)[-1, 1]            # card time the driver was still alive at
+    killed_at = time.monotonic()
+    os.kill(drv.pid, signal.SIGKILL)
+    assert drv.finish(30.0) == -signal.SIGKILL
+    m = card.wait_for(r'watchdog: no command for ([\d.]+) s of card time: 0 V from seq (\d+) '
+                      r'at card time ([\d.]+) s \(monotonic clock ([\d.]+) s\)', 60.0,
+                      stream='stdout')
+    silence, trip_seq, t_trip = float(m[1]), int(m[2]), float(m[3])
+    assert 2.0 <= silence <= 2.0 + 0.01 + 1e-3                    # the watchdog, to a period
+    assert t_seen < t_trip                                       # the driver's death tripped it
+    print(f'0 V at the card {float(m[4]) - killed_at:.3f} s (wall) after SIGKILL')
+    port = open_transport(str(link), timeout=0.05)               # the card, heard directly
+    parser, after = FrameParser(), []
+    try:
+        end = time.monotonic() + 60.0
+        while not after or after[-1].t_card < 30.0:              # past the 7 V and 9 V steps
+            assert time.monotonic() < end, 'the card stopped streaming'
+            after += [x for x in parser.feed(read_available(port, 65536))
+                      if isinstance(x, pr.Sample) and x.seq >= trip_seq]
+    finally:
+        port.close()
+    assert all(x.voltage == 0.0 and not x.flags & FLAG_PROFILE for x in after)
+    assert card.stdout().count('watchdog:') == 1
 
 
 def test_profile_beyond_max_voltage_is_refused_at_start(launch):

@@ -311,10 +311,11 @@ def test_byte_stream_splits_like_python_command_parser(host):
 # the card
 
 
-def _card_script(rng, max_input, micros0, n_samples, period=0.01):
+def _card_script(rng, max_input, micros0, n_samples, period=0.01, watchdog=0.0):
     """Commands and ticks for the C card plus the VirtualCard's expected bytes."""
-    card = VirtualCard(period=period, max_input=max_input, random_state=0)
-    lines, expected = [f'init {round(period * 1e6)} {max_input!r} 0 1 {micros0}'], ['ok']
+    card = VirtualCard(period=period, max_input=max_input, watchdog=watchdog, random_state=0)
+    lines = [f'init {round(period * 1e6)} {max_input!r} {round(watchdog * 1e6)} 1 {micros0}']
+    expected = ['ok']
     while card.seq < n_samples:
         if card.seq and rng.random() < 0.15:
             frame = pr.encode_command(_card_command(rng, max_input))
@@ -322,7 +323,8 @@ def _card_script(rng, max_input, micros0, n_samples, period=0.01):
             t_cmd = card.t_us - card.period_us + int(rng.integers(1, 100))
             lines.append(f'rx {(micros0 + t_cmd) % U32} {frame.hex()}')
             # the simulated card, too, handles the command as decoded from the wire
-            expected.append(pr.encode_reply(card.handle(pr.parse_command(frame))).hex())
+            expected.append(pr.encode_reply(card.handle(pr.parse_command(frame),
+                                                         t_cmd)).hex())
         t_us = card.t_us
         sample = card.step()
         if t_us:
@@ -331,7 +333,7 @@ def _card_script(rng, max_input, micros0, n_samples, period=0.01):
         lines.append(f'tick {(micros0 + t_us) % U32} {f32(sample.speed)} '
                      f'{f32(sample.current)}')
         expected.append(f'{t_us} {pr.encode_sample(sample).hex()} {f32(sample.voltage):08x}')
-    return lines, expected
+    return lines, expected, card
 
 
 def _card_command(rng, max_input):
@@ -352,13 +354,17 @@ def _card_command(rng, max_input):
     return pr.Ping(int(rng.integers(0, U32)))
 
 
-@pytest.mark.parametrize('max_input', [100.0, 12.0])
-def test_card_matches_virtual_card_byte_for_byte(host, max_input):
-    """Replies and sample frames equal the simulated card's (voltage limit included)."""
+@pytest.mark.parametrize('max_input,watchdog', [(100.0, 0.0), (12.0, 0.0), (12.0, 0.05)])
+def test_card_matches_virtual_card_byte_for_byte(host, max_input, watchdog):
+    """Replies and sample frames equal the simulated card's (voltage limit and watchdog
+    included: with 50 ms, commands ~70 ms apart on average leave gaps that trip it)."""
     rng = np.random.default_rng(7)
-    lines, expected = _card_script(rng, max_input, U32 - 7_000_000, 3000)
-    out = run(host, lines)
-    assert out == expected
+    lines, expected, card = _card_script(rng, max_input, U32 - 7_000_000, 3000,
+                                         watchdog=watchdog)
+    out = run(host, lines + ['stat'])
+    assert out[:-1] == expected
+    assert int(out[-1].split()[-1]) == card.watchdog_trips
+    assert (card.watchdog_trips > 20) == bool(watchdog)
     replies = [pr.parse_frame(bytes.fromhex(e)) for e, line in zip(expected, lines, strict=False)
                if line.startswith('rx')]
     statuses = {r.status for r in replies}
@@ -489,16 +495,52 @@ def test_watchdog_takes_a_sample_latched_before_the_last_command(host):
     assert out[-1].split()[-1] == '0'
 
 
-def test_watchdog_spares_profiles_and_can_be_switched_off(host):
+def _profile_with_pings(host, last_ping_us, watchdog_us=500_000, until_us=20_000_000):
+    """paper_steps at 9 V for 40 s, a ping every 100 ms up to ``last_ping_us``, then
+    silence (the driver was killed): the C card's samples and its statistics."""
+    profile = pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 40.0)).hex()
+    lines = [f'init 10000 12 {watchdog_us} 0 0', 'tick 0 0 0', f'rx 1 {profile}']
+    pings = range(100_000, last_ping_us + 1, 100_000)
+    events = [(t, f'rx {t} {pr.encode_command(pr.Ping(t)).hex()}') for t in pings]
+    events += [(t, f'tick {t} 0 0') for t in range(10_000, until_us + 1, 10_000)]
+    lines += [line for _, line in sorted(events, key=lambda e: (e[0], e[1][0] == 't'))]
+    out = run(host, lines + ['stat'])
+    samples = [pr.parse_frame(bytes.fromhex(a.split()[1])) for a in out[:-1]
+               if len(a.split()) == 3]
+    return samples, out[-1].split()
+
+
+def test_watchdog_stops_a_profile_when_the_host_goes_silent(host):
+    """The driver dies 3.5 s into paper_steps (3.8 V): the card is at 0 V within the
+    0.5 s watchdog and stays there (no 7 V at 16 s); its pings kept it running before."""
+    samples, stat = _profile_with_pings(host, last_ping_us=3_500_000)
+    t = np.array([s.t_card for s in samples])
+    v = np.array([s.voltage for s in samples])
+    zero = np.flatnonzero((t > 3.5) & (v == 0.0))[0]
+    assert np.all(v[(t > 3.005) & (t < t[zero])] == np.float32(3.8))  # pinged: running
+    delay = t[zero] - 3.5
+    assert 0.5 - 0.010 < delay <= 0.5 + 1e-9          # within the watchdog, to a period
+    assert np.all(v[zero:] == 0.0) and t[-1] >= 20.0   # never 7 V (16 s) or 9 V (28 s)
+    assert not samples[zero].flags & pr.FLAG_PROFILE   # the profile is abandoned
+    assert stat[-1] == '1'                             # one watchdog trip
+
+
+def test_pings_keep_a_profile_running_past_the_watchdog(host):
+    samples, stat = _profile_with_pings(host, last_ping_us=20_000_000)
+    v = {round(s.t_card, 2): s.voltage for s in samples}   # profile time: t - 10 ms
+    assert (v[3.0], v[3.01], v[16.01], v[20.0]) == (0.0, np.float32(3.8), np.float32(7.0),
+                                                    np.float32(7.0))
+    assert stat[-1] == '0'
+
+
+def test_watchdog_can_be_switched_off(host):
     profile = pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 4.0)).hex()
     set5 = pr.encode_command(pr.SetVoltage(5.0)).hex()
     ticks = [f'tick {k * 10000} 0 0' for k in range(1, 402)]
-    guarded = run(host, ['init 10000 12 50000 0 0', 'tick 0 0 0', f'rx 1 {profile}',
-                         *ticks, 'stat'])
-    v = _voltages(guarded)
+    off = run(host, ['init 10000 12 0 0 0', 'tick 0 0 0', f'rx 1 {profile}', *ticks, 'stat'])
+    v = _voltages(off)
     assert v[301] == np.float32(3.8) and v[400] == np.float32(3.8)   # 4 s, no command
-    assert v[401] == 0.0
-    assert guarded[-1].split()[-1] == '0'
+    assert v[401] == 0.0 and off[-1].split()[-1] == '0'
     off = run(host, ['init 10000 12 0 0 0', 'tick 0 0 0', f'rx 1 {set5}', *ticks, 'stat'])
     assert _voltages(off)[1:] == [5.0] * 401
     assert off[-1].split()[-1] == '0'

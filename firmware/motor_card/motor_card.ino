@@ -31,7 +31,8 @@ const bool WITH_CURRENT = true;         // false: no current sensor, frames carr
 const uint32_t BAUD = 115200;           // a 34-byte frame takes 3 ms: period >= 5 ms here
 const uint32_t PERIOD_US = 10000;       // initial sample period [us] (host: set_period)
 const double V_LIMIT = 12.0;            // largest |voltage| / |amplitude| accepted [V]
-const uint32_t WATCHDOG_US = 500000;    // 0 V after 0.5 s without a command (0: off)
+const uint32_t WATCHDOG_US = 500000;    // 0 V after 0.5 s without a command, profiles too
+                                        // (the driver pings; 0: off, never on a motor)
 const uint32_t TICK_US = 100;           // sampling timer tick [us]: periods are multiples
 
 const float TWO_PI_F = 6.28318530718f;

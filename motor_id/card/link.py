@@ -9,13 +9,21 @@ each kind of fault once per outage, and counts everything for diagnostics.
 
 from collections import Counter
 from collections.abc import Callable
+import math
 import threading
 import time
 from typing import Any
 
 import serial
 
-from motor_id.card.protocol import Command, encode_command, MAX_FRAME, OVERHEAD, Reply, Sample
+from motor_id.card.protocol import (
+    Command,
+    encode_command,
+    MAX_FRAME,
+    OVERHEAD,
+    Reply,
+    Sample,
+)
 from motor_id.card.sequence import SequenceTracker
 from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
@@ -105,6 +113,8 @@ class CardLink:
         ``duplicate_frames``, ``late_frames``, ``card_reset``, ``reply_<status>``, ...
     parser : FrameParser
     tracker : SequenceTracker
+    last_sent : float
+        :func:`time.monotonic` when the last command went out (-inf: none yet).
     capacity_warning : str
         ``''`` until the first sample, then ``'ok'``, ``'not checked'`` (no
         ``sample_period``) or, when the line cannot carry the sample rate, the warning
@@ -148,6 +158,7 @@ class CardLink:
         self._bytes_since_frame = 0
         self._batch: list[Sample] = []
         self._flush_at = time.monotonic()
+        self.last_sent = -math.inf
 
     # ------------------------------------------------------------ faults and logging
     def fault(self, kind: str, text: str, level: str = 'warning') -> None:
@@ -219,6 +230,7 @@ class CardLink:
             if self._port is None:
                 raise TransportError(f'device {self.url} is not open')
             write_all(self._port, data)
+            self.last_sent = time.monotonic()
         self.counts['commands_sent'] += 1
 
     def close(self) -> None:

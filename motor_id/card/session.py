@@ -5,15 +5,23 @@
 the card answers ``unsupported``), forwards external voltage commands, and runs every
 sample and command through a :class:`~motor_id.card.supervisor.Supervisor`. It talks
 to the card through a :class:`~motor_id.card.link.CardLink` (``send``, ``fault``).
+
+While anything drives the motor (a profile on the card or played here, a non-zero
+external command) :meth:`Session.keep_alive` pings the card whenever no command went
+out for ``keepalive`` seconds: the card's watchdog stops the motor when the pings stop,
+so a driver that dies (SIGKILL, a crash, a pulled cable) leaves the motor at 0 V even
+while the card plays a profile on its own.
 """
 
 from dataclasses import replace
+import time
 from typing import Any
 
 from motor_id.card.link import CardLink, LogFn
 from motor_id.card.profile import profile_samples
 from motor_id.card.protocol import (
     Command,
+    Ping,
     Reply,
     Sample,
     SetPeriod,
@@ -25,8 +33,16 @@ from motor_id.card.supervisor import Limits, Supervisor
 from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import MotorIdError
 
+
+class SessionClosedError(MotorIdError):
+    """The session has ended (the driver shuts down): nothing starts any more."""
+
 EXTERNAL = 'external'
 """The excitation name for "forward external voltage commands"."""
+
+KEEPALIVE = 0.1
+"""Default longest silence towards a driving card [s]: a fifth of the firmware's 0.5 s
+watchdog, so that a busy host thread still keeps it fed."""
 
 
 class HostProfile:
@@ -105,6 +121,8 @@ class Session:
         Start the profile when the device first opens.
     log : callable
         ``log(level, text)`` for events that are always logged (trips, mode changes).
+    keepalive : float
+        Longest silence towards the card while it drives the motor [s]; 0: no pings.
 
     Attributes
     ----------
@@ -113,11 +131,16 @@ class Session:
         False once the card answered ``unsupported`` to a profile.
     host_profile : HostProfile or None
         The profile the host is playing now.
+    card_profile_running : bool
+        A profile was started on the card and has not ended, been stopped or refused.
+    pings : int
+        Keep-alive pings sent.
     """
 
     def __init__(self, link: CardLink, limits: Limits, excitation: str, amplitude: float = 9.0,
                  seed: int = 0, duration: float = 40.0, period: float = 0.01,
-                 autostart: bool = False, log: LogFn | None = None) -> None:
+                 autostart: bool = False, log: LogFn | None = None,
+                 keepalive: float = KEEPALIVE) -> None:
         self.link = link
         self.external = excitation == EXTERNAL
         if not self.external:
@@ -133,6 +156,20 @@ class Session:
         self.host_profile: HostProfile | None = None
         self._pending: StartProfile | None = None
         self._started = False
+        self.keepalive = float(keepalive)
+        self.card_profile_running = False
+        self.pings = 0
+        self._commanded = 0.0
+        self._closed = False
+
+    @property
+    def driving(self) -> bool:
+        """Whether a profile or a non-zero command may be driving the motor now."""
+        if self._closed or self.supervisor.trip is not None:
+            return False
+        if self.external:
+            return self._commanded != 0.0 and not self.supervisor.watchdog_holding
+        return self.card_profile_running or self.host_profile is not None
 
     # ------------------------------------------------------------ the polling thread
     def on_open(self) -> None:
@@ -150,9 +187,12 @@ class Session:
         value = None
         if host is not None:
             sample, value = host.on_sample(sample)
+        if host is None and sample.flags & FLAG_PROFILE_END:
+            self.card_profile_running = False
         sample, trip = self.supervisor.on_sample(sample)
         if trip is not None:
             self.host_profile = None
+            self.card_profile_running = False
             self._log('error', f'stopped the excitation: {trip.describe()}; the card holds '
                       '0 V until ~/start or ~/reset')
         elif value is not None and host is self.host_profile:
@@ -168,11 +208,26 @@ class Session:
         if reply.command != 'start_profile' or pending is None:
             return
         self._pending = None
+        if reply.status != 'ok':
+            self.card_profile_running = False
         if reply.status == 'unsupported':
             self.card_profiles = False
             self._log('info', f'the card has no built-in profiles: the driver plays '
                       f'{pending.name} as set-voltage commands every {self.period:g} s')
             self._play_on_host(pending)
+
+    def keep_alive(self) -> None:
+        """Ping the card if it drives the motor and no command went out for
+        ``keepalive`` s (call it often: the driver's reader thread does after each read)."""
+        if not (self.keepalive and self.driving) or \
+                time.monotonic() - self.link.last_sent < self.keepalive:
+            return
+        try:
+            self.link.send(Ping(self.pings % 2 ** 32))
+        except MotorIdError as exc:
+            self.link.fault('ping_failed', f'keep-alive ping not sent: {exc}')
+            return
+        self.pings += 1
 
     def check_watchdog(self) -> None:
         """Hold 0 V when external commands stopped (logged once)."""
@@ -194,6 +249,8 @@ class Session:
         MotorIdError
             The command could not be sent (device absent).
         """
+        if self._closed:
+            raise SessionClosedError('the driver is shutting down')
         self.supervisor.reset()
         cmd = self.profile
         if self.external or cmd is None:
@@ -205,6 +262,7 @@ class Session:
             return f'started {cmd.name} (played by the driver)'
         self.host_profile = None
         self._pending = cmd
+        self.card_profile_running = True
         self.link.send(cmd)
         return f'started {cmd.name}'
 
@@ -212,7 +270,18 @@ class Session:
         """Stop any profile; the card holds 0 V (MotorIdError if it cannot be sent)."""
         self.host_profile = None
         self._pending = None
+        self.card_profile_running = False
+        self._commanded = 0.0
         self.link.send(Stop())
+
+    def close(self) -> None:
+        """The end: 0 V now (a :class:`Stop`, if the device is open), and nothing but
+        zeros afterwards (starts are refused, commands and host profiles dropped)."""
+        self._closed = True
+        try:
+            self.stop()
+        except MotorIdError:
+            pass   # the device is not open: the card's watchdog stops it
 
     def reset(self) -> str:
         """Re-arm the limits and hold 0 V; return what was cleared, for people."""
@@ -234,6 +303,7 @@ class Session:
         if value != voltage:
             self.link.fault('command_clamped', f'voltage command {voltage:g} V clamped to '
                             f'{value:g} V (max_voltage)')
+        self._commanded = value
         self._send(SetVoltage(value))
 
     # ------------------------------------------------------------ helpers
@@ -242,6 +312,8 @@ class Session:
                                         self.period)
 
     def _send(self, command: Command) -> None:
+        if self._closed:
+            return
         try:
             self.link.send(command)
         except MotorIdError as exc:
@@ -252,4 +324,6 @@ class Session:
         values = self.supervisor.values()
         values['profile_source'] = 'card' if self.card_profiles else 'driver'
         values['host_profile_running'] = self.host_profile is not None
+        values['card_profile_running'] = self.card_profile_running
+        values['keepalive_pings'] = self.pings
         return values

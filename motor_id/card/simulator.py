@@ -48,6 +48,13 @@ class CardSimulator:
         disconnects. An existing regular file there is never replaced.
     random_state : int, Generator or None
         Seeds the noise and the faults (independent streams).
+    profiles : bool
+        As :class:`VirtualCard`.
+    watchdog : float
+        Wall-clock seconds without a command (a ``Ping`` will do) after which a held
+        voltage or a running profile drops to 0 V, as on the firmware; the card counts
+        ``watchdog * speedup`` card seconds. 0: off; always off as fast as possible
+        (``speedup`` 0), where card time has no relation to the host's.
 
     Attributes
     ----------
@@ -76,14 +83,19 @@ class CardSimulator:
                  current_noise: float = 0.0, method: str = 'zoh',
                  faults: FaultConfig | None = None, link: str | None = None,
                  random_state: int | np.random.Generator | None = None,
-                 profiles: bool = True) -> None:
+                 profiles: bool = True, watchdog: float = 0.0) -> None:
         if not speedup >= 0:
             raise ConfigError(f'speedup must be >= 0 (0: as fast as possible), got {speedup}')
+        if not (math.isfinite(watchdog) and watchdog >= 0):
+            raise ConfigError(f'watchdog must be a finite time >= 0 s (0: off), got '
+                              f'{watchdog}')
         card_rng, fault_rng = np.random.default_rng(random_state).spawn(2)
-        self.card = VirtualCard(plant, period, with_current, speed_noise, current_noise,
-                                method, profiles=profiles, random_state=card_rng)
         self.speedup = float(speedup)
         self.asap = self.speedup == 0 or math.isinf(self.speedup)
+        self.watchdog = 0.0 if self.asap else float(watchdog)
+        self.card = VirtualCard(plant, period, with_current, speed_noise, current_noise,
+                                method, profiles=profiles, watchdog=self.watchdog * self.speedup,
+                                random_state=card_rng)
         self.faults = faults or FaultConfig()
         self.link = os.path.abspath(link) if link else None
         self._injector = FaultInjector(self.faults, fault_rng)
@@ -97,6 +109,7 @@ class CardSimulator:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
+        self._wall0 = self._t0 = 0.0   # set when serving starts: wall and card time then
 
     # -- pty ----------------------------------------------------------------------------
 
@@ -125,9 +138,16 @@ class CardSimulator:
         """True while the serving thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
+    def wall_time(self, t_card: float) -> float | None:
+        """The :func:`time.monotonic` instant card time ``t_card`` [s] was (or will be)
+        due; None before serving starts or as fast as possible."""
+        if self.asap or self._thread is None:
+            return None
+        return self._wall0 + (t_card - self._t0) / self.speedup
+
     def truth(self) -> dict[str, Any]:
         """The card's true plant and settings plus the fault configuration (JSON-ready)."""
-        return {**self.card.truth(), 'speedup': self.speedup,
+        return {**self.card.truth(), 'speedup': self.speedup, 'watchdog': self.watchdog,
                 'faults': asdict(self.faults), 'device': self.path}
 
     def _open_pty(self) -> None:
@@ -257,9 +277,13 @@ class CardSimulator:
             data = os.read(self._master, 4096)
         except (BlockingIOError, InterruptedError):
             return
+        t_us = None
+        if not self.asap:   # the card time now: the watchdog counts from it
+            now = self._t0 + (time.monotonic() - self._wall0) * self.speedup
+            t_us = min(round(now * 1e6), self.card.t_us)
         for item in self._commands.feed(data):
             if isinstance(item, ProtocolError):
                 self._stats['bad_commands'] += 1
                 continue
-            self._pending += encode_reply(self.card.handle(item))
+            self._pending += encode_reply(self.card.handle(item, t_us))
             self._stats['replies'] += 1

@@ -21,9 +21,20 @@ the history per command and per ``horizon`` samples. After ``max_history`` sampl
 history is cut: the simulation restarts from the exact state vector at that point, but
 the internal states of input delay, sensor lag and resistance drift (and the resonant
 load speed) restart there too (documented approximation; 200000 samples by default).
+
+The command watchdog
+--------------------
+With ``watchdog`` > 0 the card stops the motor when the host goes silent, as the
+firmware does (``firmware/motor_card.h``): while it holds a commanded voltage or plays a
+profile, a sample taken ``watchdog`` card seconds or more after the last command of any
+kind (a ``Ping`` will do) is at 0 V, the profile is abandoned and the card is idle until
+the next command. The plan is made without the watchdog; when it fires the card
+re-plans from that sample on, exactly as after a ``Stop``, so a host that pings costs
+nothing.
 """
 
 from collections.abc import Callable
+from dataclasses import dataclass
 import math
 from typing import Any
 
@@ -48,6 +59,24 @@ from motor_id.simulate import simulate_batch
 
 MIN_PERIOD = 1e-4
 MAX_PERIOD = 10.0
+
+_IDLE, _EXTERNAL, _PROFILE = 'idle', 'external', 'profile'
+"""What drives the card's output: nothing (0 V), a held command, a profile."""
+
+
+@dataclass(frozen=True)
+class WatchdogTrip:
+    """The watchdog stopped the motor: from sample ``seq`` at card time ``t_us`` [us] on,
+    0 V; the last command had come at card time ``last_command_us`` [us]."""
+
+    seq: int
+    t_us: int
+    last_command_us: int
+
+    @property
+    def silence(self) -> float:
+        """Card seconds without a command before the stop."""
+        return (self.t_us - self.last_command_us) / 1e6
 
 
 def _check_period(period: float) -> int:
@@ -82,6 +111,9 @@ class VirtualCard:
     profiles : bool
         False: a card without built-in profiles, answering ``unsupported`` to every
         ``StartProfile`` (the host then streams the profile as ``SetVoltage`` commands).
+    watchdog : float
+        Card seconds without a command after which a held voltage or a running profile
+        drops to 0 V (see the module notes); 0: no watchdog.
     random_state : int, Generator or None
         Seeds the measurement noise.
 
@@ -93,12 +125,20 @@ class VirtualCard:
     The applied voltage is rounded to float32 first, so the reported value is the
     applied one exactly. Commands act from the next sample; a reply's ``value`` is that
     sample's sequence number. The card starts at rest holding 0 V.
+
+    Attributes
+    ----------
+    watchdog_trips : int
+        Times the watchdog stopped the motor.
+    last_trip : WatchdogTrip or None
+        When it last did.
     """
 
     def __init__(self, plant: Plant | None = None, period: float = 0.01,
                  with_current: bool = True, speed_noise: float = 0.0,
                  current_noise: float = 0.0, method: str = 'zoh', max_input: float = 100.0,
                  horizon: int = 1024, max_history: int = 200_000, profiles: bool = True,
+                 watchdog: float = 0.0,
                  random_state: int | np.random.Generator | None = None) -> None:
         self.plant = Plant() if plant is None else plant
         if not isinstance(self.plant, Plant):
@@ -112,6 +152,14 @@ class VirtualCard:
             raise ConfigError(f'max_input must be > 0, got {max_input}')
         if int(horizon) < 2 or int(max_history) < int(horizon):
             raise ConfigError('horizon must be >= 2 and max_history >= horizon')
+        if not (math.isfinite(watchdog) and watchdog >= 0):
+            raise ConfigError(f'watchdog must be a finite time >= 0 s (0: off), got '
+                              f'{watchdog}')
+        self.watchdog_us = round(watchdog * 1e6)
+        self.watchdog_trips = 0
+        self.last_trip: WatchdogTrip | None = None
+        self._mode = _IDLE
+        self._last_command_us = 0
         self.period_us = _check_period(period)
         self.with_current = bool(with_current) and self.plant.input_kind == 'voltage'
         self.speed_noise = float(speed_noise)
@@ -156,9 +204,10 @@ class VirtualCard:
         """JSON-ready description of the simulated card: plant, noise, settings."""
         return {**self.plant.to_dict(), 'method': self.method,
                 'period': self.period, 'with_current': self.with_current,
-                'profiles': self.profiles,
+                'profiles': self.profiles, 'watchdog': self.watchdog_us / 1e6,
                 'speed_noise': self.speed_noise, 'current_noise': self.current_noise,
-                'units': {'speed_noise': 'rad/s', 'current_noise': 'A', 'period': 's'}}
+                'units': {'speed_noise': 'rad/s', 'current_noise': 'A', 'period': 's',
+                          'watchdog': 's'}}
 
     # -- planning -----------------------------------------------------------------------
 
@@ -206,6 +255,10 @@ class VirtualCard:
         -------
         motor_id.card.protocol.Sample
         """
+        if self._watchdog_due():
+            self._stop_motor()
+            self.watchdog_trips += 1
+            self.last_trip = WatchdogTrip(self.seq, self.t_us, self._last_command_us)
         if self._pos >= self._plan_t.size - 1:
             self._replan(extend=True)
         k = self._pos
@@ -230,12 +283,31 @@ class VirtualCard:
         """The next ``n`` samples as a list."""
         return [self.step() for _ in range(int(n))]
 
-    def handle(self, command: Command) -> Reply:
+    def _watchdog_due(self) -> bool:
+        """Has the host been silent for the watchdog time while the card drives?"""
+        if not self.watchdog_us or self._mode == _IDLE:
+            return False
+        if self._mode == _PROFILE and not self.profile_running:
+            return False
+        silent = self.t_us - self._last_command_us
+        return silent >= self.watchdog_us
+
+    def _stop_motor(self) -> None:
+        """0 V from the next sample on; nothing drives the card."""
+        self._profile = None
+        self._hold = 0.0
+        self._mode = _IDLE
+        self._replan()
+
+    def handle(self, command: Command, t_us: int | None = None) -> Reply:
         """Execute one command from the next sample on.
 
         Parameters
         ----------
         command : SetVoltage, StartProfile, Stop, SetPeriod or Ping
+        t_us : int, optional
+            Card time the command arrived [us] (the watchdog counts from it); default:
+            the time of the next sample.
 
         Returns
         -------
@@ -244,6 +316,7 @@ class VirtualCard:
         handler = self._HANDLERS.get(type(command))
         if handler is None:
             raise ConfigError(f'the card has no command {type(command).__name__}')
+        self._last_command_us = self.t_us if t_us is None else int(t_us)
         name, method = handler
         status, value = method(self, command)
         return Reply(name, status, value % 2 ** 32)
@@ -256,6 +329,7 @@ class VirtualCard:
             return 'bad_value', self.seq
         self._hold = float(np.float32(cmd.voltage))
         self._profile = None
+        self._mode = _EXTERNAL
         self._replan()
         return 'ok', self.seq
 
@@ -270,13 +344,12 @@ class VirtualCard:
         values = profile_samples(cmd.name, cmd.amplitude, cmd.seed, cmd.duration, self.period)
         self._profile = (values, self.seq)
         self._hold = 0.0
+        self._mode = _PROFILE
         self._replan()
         return 'ok', self.seq
 
     def _stop(self, cmd: Stop) -> tuple[str, int]:
-        self._profile = None
-        self._hold = 0.0
-        self._replan()
+        self._stop_motor()
         return 'ok', self.seq
 
     def _set_period(self, cmd: SetPeriod) -> tuple[str, int]:

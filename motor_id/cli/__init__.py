@@ -2,7 +2,9 @@
 
 Each subcommand has its own module in this package (parse, call the core, print); it exposes
 ``add_arguments(parser)`` and ``run(args) -> int``. Library errors (MotorIdError)
-become one line on stderr and exit code 2, never a traceback.
+become one line on stderr and exit code 2, never a traceback. SIGTERM and SIGHUP stop a
+command as Ctrl-C does (:func:`motor_id.lifeline.stop_signals_as_interrupt`): its
+``finally`` blocks run (children stopped, files closed), and it exits with 130.
 """
 
 import argparse
@@ -13,6 +15,7 @@ import sys
 
 from motor_id.blas import limit_threads
 from motor_id.errors import MotorIdError
+from motor_id.lifeline import stop_signals_as_interrupt
 
 COMMANDS = {
     'fit': ('motor_id.cli.fit', 'identify motor parameters from a CSV or MCAP recording'),
@@ -48,7 +51,8 @@ def main(argv=None):
         module.add_arguments(parser)
         args = parser.parse_args(argv[1:])
         try:
-            code = int(module.run(args) or 0)
+            with stop_signals_as_interrupt():
+                code = int(module.run(args) or 0)
             if from_console:
                 # the process ends next: leave the ~10^5 objects that exist now (numba's
                 # type system above all) to the OS instead of the interpreter's last

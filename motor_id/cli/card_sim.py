@@ -10,7 +10,11 @@ from motor_id.card.faults import FaultConfig
 from motor_id.card.simulator import CardSimulator
 from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.errors import ConfigError
+from motor_id.lifeline import STOP_SIGNALS
 from motor_id.model import DISCRETISATIONS
+
+WATCHDOG = 0.5
+"""Default host silence [s] that stops the simulated card: the firmware sketch's value."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -32,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-profiles', action='store_true',
                         help='a card without built-in profiles: answer "unsupported" to '
                              'start-profile commands (the driver then streams the profile)')
+    parser.add_argument('--watchdog', type=float, default=WATCHDOG, metavar='SECONDS',
+                        help='hold 0 V (a profile too) after this many wall-clock seconds '
+                             f'without a command, as the firmware does (default {WATCHDOG:g}; '
+                             'the driver pings); 0: off, as with --speedup 0')
     parser.add_argument('--period', type=float, default=0.01, help='sample period [s]')
     parser.add_argument('--speedup', type=float, default=1.0,
                         help='card seconds per wall second; 0 = as fast as read')
@@ -55,25 +63,28 @@ def simulator_from_args(args: argparse.Namespace) -> CardSimulator:
                           'back at the same path')
     return CardSimulator(plant, args.period, args.speedup, not args.no_current, speed_noise,
                          current_noise, args.method, faults, args.link, args.seed,
-                         profiles=not args.no_profiles)
+                         profiles=not args.no_profiles, watchdog=args.watchdog)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Serve the simulated card until SIGINT or SIGTERM; print the device path first."""
+    """Serve the simulated card until SIGINT, SIGTERM or SIGHUP; print the device path
+    first."""
     sim = simulator_from_args(args)
     done = threading.Event()
 
     def _handler(signum: int, frame: Any) -> None:
         done.set()
 
-    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, _handler) for s in STOP_SIGNALS}
     try:
         sim.start()
         if args.truth_out:
             with open(args.truth_out, 'w') as fh:
                 json.dump(sim.truth(), fh, indent=2)
         print(sim.path, flush=True)
-        while not done.wait(0.2):
+        trips = 0
+        while not done.wait(0.1):
+            trips = _report_trip(sim, trips)
             if not sim.running:
                 break
     finally:
@@ -83,3 +94,16 @@ def run(args: argparse.Namespace) -> int:
     if sim.error is not None:
         raise sim.error
     return 0
+
+
+def _report_trip(sim: CardSimulator, seen: int) -> int:
+    """Print a line for a new watchdog trip; return the trips reported."""
+    card = sim.card
+    trip = card.last_trip
+    if card.watchdog_trips == seen or trip is None:
+        return seen
+    wall = sim.wall_time(trip.t_us / 1e6)
+    print(f'watchdog: no command for {trip.silence:.3f} s of card time: 0 V from seq '
+          f'{trip.seq} at card time {trip.t_us / 1e6:.3f} s'
+          + ('' if wall is None else f' (monotonic clock {wall:.3f} s)'), flush=True)
+    return card.watchdog_trips

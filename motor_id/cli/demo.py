@@ -1,4 +1,10 @@
-"""`motor-id demo`: simulated card, driver and identifier as processes; bag, report, plots."""
+"""`motor-id demo`: simulated card, driver and identifier as processes; bag, report, plots.
+
+Ctrl-C, SIGTERM and SIGHUP stop it alike (exit 130): the driver, the identifier and the
+card are sent SIGINT together (the driver commands 0 V and closes the bag) and killed
+if they hang; killed itself (SIGKILL), the demo's children get SIGTERM from the kernel
+(:mod:`motor_id.lifeline`) and stop the same way.
+"""
 
 import argparse
 import json
@@ -106,10 +112,12 @@ def run(args: argparse.Namespace) -> int:
         if report is None:
             raise MotorIdError('no report arrived on /identifier/report')
         _say(f'identifier: {text.splitlines()[0]} ({latency:.2f} s from the call)')
-    finally:
-        if client is not None:
-            client.close()
-        kids.close()
+    finally:   # Ctrl-C, SIGTERM, SIGHUP and errors alike: the driver stops first (0 V)
+        try:
+            kids.close()
+        finally:
+            if client is not None:
+                client.close()
     report['truth'] = truth.to_dict()
     report['demo'] = {'bag': bag, 'domain_id': domain, 'speedup': float(speedup),
                       'service_latency_s': latency,

@@ -29,6 +29,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from motor_id.errors import ConfigError
+from motor_id.lifeline import STOP_SIGNALS
 from motor_id.nodes.rclshim import RCLError
 
 
@@ -301,7 +302,7 @@ def _ignore_handler(signum: int, frame: Any) -> None:
 
 
 class SignalWatcher:
-    """Turn SIGINT / SIGTERM into a clean end of spinning, with the context still valid.
+    """Turn SIGINT, SIGTERM and SIGHUP into a clean end of spinning, the context valid.
 
     rclpy's own handlers shut the context down inside the signal handler, so the node
     is then destroyed on a dead context, and ``Executor.shutdown`` from another thread
@@ -314,7 +315,7 @@ class SignalWatcher:
     shutting down ends the process at once (exit code 128 + signal number).
     """
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    SIGNALS = STOP_SIGNALS
 
     def __init__(self) -> None:
         self.received: int | None = None
@@ -326,12 +327,15 @@ class SignalWatcher:
         """Route the signals to the watcher (call in the main thread before ``rclpy.init``).
 
         A handler is installed even where the disposition was "ignore" (as a
-        non-interactive shell sets SIGINT for background jobs), so SIGINT always stops.
+        non-interactive shell sets SIGINT for background jobs), so SIGINT always stops;
+        SIGHUP ignored on entry (``nohup``) stays ignored.
         """
         self._read, self._write = socket.socketpair()
         self._write.setblocking(False)
         signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
         for sig in self.SIGNALS:
+            if sig == signal.SIGHUP and signal.getsignal(sig) is signal.SIG_IGN:
+                continue
             signal.signal(sig, _ignore_handler)
         threading.Thread(target=self._wait, name='signals', daemon=True).start()
 
@@ -360,7 +364,7 @@ def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
              args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it, and shut down quietly.
 
-    Ctrl-C and SIGTERM end with exit code 0 and no traceback (see
+    Ctrl-C, SIGTERM and SIGHUP end with exit code 0 and no traceback (see
     :class:`SignalWatcher`); a :class:`ConfigError` from the constructor is logged as one
     line and gives exit code 2.
 

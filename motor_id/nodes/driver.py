@@ -19,7 +19,7 @@ from std_srvs.srv import Trigger
 from motor_id.bag import BagWriter
 from motor_id.card.link import CardLink, SampleClock
 from motor_id.card.protocol import Sample, Stop
-from motor_id.card.session import EXTERNAL, Session
+from motor_id.card.session import EXTERNAL, KEEPALIVE, Session
 from motor_id.card.supervisor import Limits
 from motor_id.contracts import CHANNEL_COLUMNS, channel_units, INPUT_KINDS, JOINT_STATES_TOPIC
 from motor_id.errors import ConfigError, MotorIdError
@@ -54,6 +54,11 @@ PARAMETERS = (
               'until ~/start or ~/reset [A]; 0: off', low=0.0, high=1e5),
     ParamSpec('command_timeout_s', 0.5, 'external excitation: hold 0 V after this long '
               'without a voltage_command [s]; 0: off', low=0.0, high=3600.0),
+    ParamSpec('keepalive_period', KEEPALIVE, 'while a profile or a non-zero command drives '
+              'the motor, ping the card when no command went out for this long [s]: the '
+              "card's watchdog (0.5 s on the firmware sketch and card-sim) stops the motor "
+              'when the pings stop; keep it well below the watchdog; 0: no pings',
+              low=0.0, high=10.0),
     ParamSpec('input_kind', 'voltage', 'what the voltage column carries (bag metadata; '
               'joint_states effort is the torque for a torque card)',
               choices=INPUT_KINDS),
@@ -107,6 +112,8 @@ class DriverNode(Node):
         _check_settings(s)
         self.device = s['device']
         self._stop_event = threading.Event()
+        self._emit_lock = threading.Lock()
+        self._closed = False
         self._published = 0
         self._rate = (time.monotonic(), 0, 0.0)
         self.link = CardLink(self.device, s['baud'], s['read_timeout'],
@@ -120,7 +127,7 @@ class DriverNode(Node):
             self.link, Limits(s['max_voltage'], s['max_speed'], s['max_current'],
                               s['command_timeout_s']),
             s['excitation'], s['amplitude'], s['seed'], s['duration'], s['sample_period'],
-            s['autostart'], log=self._log)
+            s['autostart'], log=self._log, keepalive=s['keepalive_period'])
         self.clock = SampleClock()
         self.writer = self._open_writer(s['record_path']) if s['record_path'] else None
         self.samples_pub = self.create_publisher(Float64MultiArray, messages.SAMPLES_TOPIC,
@@ -201,6 +208,7 @@ class DriverNode(Node):
                 for batch in self.link.poll():
                     self._emit(batch)
                 self.session.check_watchdog()
+                self.session.keep_alive()
             except Exception as exc:  # noqa: BLE001 - the reader must outlive any bug
                 self.link.fault(f'internal_{type(exc).__name__}',
                                 f'reader thread error {type(exc).__name__}: {exc}; '
@@ -210,6 +218,11 @@ class DriverNode(Node):
             self._emit(batch)
 
     def _emit(self, batch: list[Sample]) -> None:
+        with self._emit_lock:
+            if not self._closed:   # after stop() the node may be destroyed: touch nothing
+                self._emit_unlocked(batch)
+
+    def _emit_unlocked(self, batch: list[Sample]) -> None:
         rows = np.array([(x.seq, x.t_card, x.voltage, x.speed, x.current, x.flags)
                          for x in batch], dtype=float)
         now_ns = self.get_clock().now().nanoseconds
@@ -320,11 +333,18 @@ class DriverNode(Node):
 
     # ------------------------------------------------------------ shutdown
     def stop(self) -> None:
-        """Stop the reader thread, hold the card at 0 V, close the port and the bag."""
+        """Command 0 V first, then stop the reader thread, close the port and the bag.
+
+        After it the node publishes nothing more (it may be destroyed), whether or not
+        the reader thread ended within its 5 s.
+        """
+        self.session.close()        # 0 V now, and nothing but zeros from here on
         self._stop_event.set()
         self._thread.join(5.0)
+        with self._emit_lock:
+            self._closed = True
         try:
-            self.link.send(Stop())
+            self.link.send(Stop())   # once more: the reader may have reopened the port
         except MotorIdError:
             pass
         self.link.close()

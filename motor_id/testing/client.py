@@ -9,6 +9,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
 from motor_id.errors import MotorIdError
+from motor_id.nodes.common import StopSignal
 from motor_id.testing.procs import use_ros_env
 
 
@@ -16,7 +17,9 @@ class RosClient:
     """An rclpy node bound to ``domain``, spun by a background executor.
 
     Every call waits on its own future, never by spinning in the caller's thread, so
-    the client can be used from any thread while callbacks keep running.
+    the client can be used from any thread while callbacks keep running. :meth:`close`
+    ends the spinning thread before it destroys anything (a spin running into a
+    destroyed node raises "cannot use Destroyable because destruction was requested").
 
     Parameters
     ----------
@@ -33,12 +36,14 @@ class RosClient:
         self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._stop = StopSignal()
+        self._stop.attach(self.node)
         self._thread = threading.Thread(target=self._spin, name=f'{name}-spin', daemon=True)
         self._thread.start()
 
     def _spin(self) -> None:
         try:
-            self.executor.spin()
+            self._stop.spin(self.executor)
         except ExternalShutdownException:
             pass
 
@@ -90,9 +95,20 @@ class RosClient:
         res = self.call(Trigger, name, timeout=timeout, wait_service=wait_service)
         return res.success, res.message
 
-    def close(self) -> None:
-        """Stop spinning, destroy the node and shut its context down."""
-        self.executor.shutdown(timeout_sec=1.0)
+    def close(self, timeout: float = 60.0) -> None:
+        """Stop spinning, then destroy the node and shut its context down.
+
+        Raises
+        ------
+        MotorIdError
+            The spinning thread did not end within ``timeout`` [s] (a callback hangs);
+            nothing is destroyed under it.
+        """
+        self._stop.set()
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise MotorIdError(f"the client's spin thread did not end in {timeout:g} s")
+        self._stop.detach()
+        self.executor.shutdown(timeout_sec=timeout)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
-        self._thread.join(5.0)

@@ -1,6 +1,13 @@
 """Node processes and their ROS environment, for the demo, the benchmarks and the tests.
 
 Imports no rclpy: a parent that only starts and stops nodes needs no ROS in itself.
+
+A :class:`Process` cannot outlive the process that started it: it runs in its own
+session and process group (ended as a whole by :meth:`Process.kill`), it is tied to its
+parent by the parent-death signal (:func:`motor_id.lifeline.tied`: SIGTERM, a clean
+stop, when the parent dies even of SIGKILL), and whatever is still running when the
+parent's interpreter exits is killed (``atexit``). :func:`live_groups` lists the
+process groups started here that still have a member, for a test run's last check.
 """
 
 import atexit
@@ -14,8 +21,11 @@ import time
 import zlib
 
 from motor_id.errors import MotorIdError
+from motor_id.lifeline import tied
 
 _LIVE: set['Process'] = set()
+_GROUPS: set[int] = set()
+"""Every process group started here (the children lead their own)."""
 
 
 @atexit.register
@@ -23,6 +33,27 @@ def _kill_leftovers() -> None:
     """Never leave node processes behind, even when the parent dies of an error."""
     for proc in list(_LIVE):
         proc.kill()
+        proc.release()
+
+
+def live_groups() -> list[int]:
+    """The process groups started by :class:`Process` that still have a member.
+
+    A group outlives its leader when the leader left a child behind; a leader that has
+    exited but was not waited for (a zombie) counts as a member too.
+    """
+    live = []
+    for pgid in sorted(_GROUPS):
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            _GROUPS.discard(pgid)
+            continue
+        except PermissionError:   # the number was reused by someone else's group
+            _GROUPS.discard(pgid)
+            continue
+        live.append(pgid)
+    return live
 
 
 def domain_id(name: str, low: int = 1, high: int = 101) -> int:
@@ -84,6 +115,9 @@ def wait_until(predicate: Callable[[], object], timeout: float = 20.0,
 class Process:
     """A child process in its own session, its stdout and stderr in files.
 
+    The child is tied to this process (:func:`motor_id.lifeline.tied`): it gets SIGTERM
+    when this process (precisely: the thread that starts it) ends.
+
     Parameters
     ----------
     args : list of str
@@ -105,9 +139,10 @@ class Process:
         self.err_path = os.path.join(str(logdir), f'{name}.err')
         self._out = open(self.out_path, 'wb')
         self._err = open(self.err_path, 'wb')
-        self.proc = subprocess.Popen(args, env=env, stdout=self._out, stderr=self._err,
+        self.proc = subprocess.Popen(tied(args), env=env, stdout=self._out, stderr=self._err,
                                      stdin=subprocess.DEVNULL, start_new_session=True)
         _LIVE.add(self)
+        _GROUPS.add(self.proc.pid)
 
     @property
     def pid(self) -> int:
@@ -166,38 +201,47 @@ class Process:
         """Wait for exit and return the code (raises ``subprocess.TimeoutExpired``)."""
         return self.proc.wait(timeout)
 
+    def send_signal(self, sig: int = signal.SIGINT) -> None:
+        """Send ``sig`` if the process still runs (do not wait)."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+
     def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int:
         """Send ``sig`` and return the exit code; after ``timeout`` [s] kill the group
         (then :attr:`killed` is true)."""
+        self.send_signal(sig)
+        return self.finish(timeout)
+
+    def finish(self, timeout: float = 15.0) -> int:
+        """Wait up to ``timeout`` [s] for the exit, then kill the group (:attr:`killed`
+        is then true); return the exit code."""
         if self.proc.poll() is None:
-            self.proc.send_signal(sig)
             try:
-                self.proc.wait(timeout)
+                self.proc.wait(max(timeout, 0.0))
             except subprocess.TimeoutExpired:
                 self.killed = True
-                self.kill()
+        self.kill()
         return self.proc.returncode
 
     def kill(self) -> None:
-        """Kill the process group."""
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            self.proc.wait(10)
+        """Kill the process group (the process and whatever it left behind in it)."""
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        self.proc.wait(10)
 
-    def close(self) -> None:
+    def close(self, timeout: float = 10.0) -> None:
         """End the process: SIGINT first, so that it leaves the ROS graph at once (a
         killed participant's endpoints linger in its peers until their lease expires and
-        would match the next run's publishers and clients); SIGKILL if it hangs."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                pass
-        self.kill()
+        would match the next run's publishers and clients); SIGKILL of its group after
+        ``timeout`` [s]."""
+        self.send_signal(signal.SIGINT)
+        self.finish(timeout)
+        self.release()
+
+    def release(self) -> None:
+        """Forget the ended process and close its log files."""
         _LIVE.discard(self)
         self._out.close()
         self._err.close()
@@ -225,7 +269,14 @@ class Processes(dict[str, Process]):
         """SIGINT the named processes in turn; return ``{name: exit code}``."""
         return {name: self[name].stop(timeout=timeout) for name in names}
 
-    def close(self) -> None:
-        """End every process (see :meth:`Process.close`)."""
-        for proc in self.values():
-            proc.close()
+    def close(self, timeout: float = 10.0) -> None:
+        """End every process: SIGINT to all, the last started first (a driver before the
+        card it drives); then wait for all together, up to ``timeout`` [s]; then SIGKILL
+        the process groups still there (see :meth:`Process.close`)."""
+        procs = list(self.values())[::-1]
+        for proc in procs:
+            proc.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for proc in procs:
+            proc.finish(deadline - time.monotonic())
+            proc.release()
