@@ -4,13 +4,23 @@
 
 Topic names of both nodes are relative (``samples``, ``voltage``, ``~/estimate``...), so
 a namespace keeps two motors apart; ``/diagnostics`` stays global.
+
+Both nodes are tied to the launch process (:mod:`motor_id.lifeline`, through each
+node's ``prefix``): whatever ends ``ros2 launch`` (Ctrl-C, SIGTERM, a SIGHUP when its
+terminal closes, SIGKILL), the nodes get SIGTERM and stop as on Ctrl-C (the driver
+commands 0 V and closes its recording) instead of running on, orphaned.
 """
+
+import os
+import shlex
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
+
+from motor_id.lifeline import launcher_prefix
 
 CONFIG = PathJoinSubstitution([FindPackageShare('motor_id'), 'config'])
 
@@ -22,6 +32,7 @@ def generate_launch_description():
     joint = LaunchConfiguration('joint')
     driver_params = LaunchConfiguration('driver_params')
     identifier_params = LaunchConfiguration('identifier_params')
+    tied = shlex.join(launcher_prefix(os.getpid()))   # this is the launch process
     return LaunchDescription([
         DeclareLaunchArgument('namespace', default_value='',
                               description='namespace of this motor (e.g. left)'),
@@ -38,9 +49,9 @@ def generate_launch_description():
                               default_value=PathJoinSubstitution([CONFIG, 'identifier.yaml']),
                               description='parameter file of the identifier'),
         Node(package='motor_id', executable='driver', name='driver', namespace=namespace,
-             parameters=[driver_params, {'device': device}], output='screen'),
+             parameters=[driver_params, {'device': device}], output='screen', prefix=tied),
         Node(package='motor_id', executable='identifier', name='identifier',
              namespace=namespace,
              parameters=[identifier_params, {'hardware_id': device, 'joint_name': joint}],
-             output='screen'),
+             output='screen', prefix=tied),
     ])

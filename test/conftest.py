@@ -4,6 +4,8 @@ Helpers live in :mod:`motor_id.testing` and are imported from there by name; thi
 only turns them into fixtures.
 """
 
+import os
+
 import pytest
 
 from motor_id.blas import limit_threads
@@ -16,6 +18,31 @@ def clean_dds_shm():
     """Start the run without Fast DDS shared-memory files left by killed processes."""
     from motor_id.nodes.shm import clean_stale_shm
     clean_stale_shm()
+
+
+@pytest.fixture(scope='session', autouse=True)
+def cpu_burners(request):
+    """``MOTOR_ID_BURN=1``: one busy process per core beside the run, so that the node and
+    process tests show whether they hold with every core busy (CONTRIBUTING.md). Under
+    xdist only the first worker starts them."""
+    from motor_id.testing.procs import start_burners
+    worker = os.environ.get('PYTEST_XDIST_WORKER', 'gw0')
+    burners = start_burners() if os.environ.get('MOTOR_ID_BURN', '0') not in ('', '0') \
+        and worker == 'gw0' else []
+    yield burners
+    for proc in burners:
+        proc.kill()
+        proc.wait()
+
+
+@pytest.fixture(scope='session', autouse=True)
+def nothing_left_running(cpu_burners):
+    """At the end of the run no process the tests started is still there (a leftover is
+    killed, and the run fails naming it)."""
+    yield
+    from motor_id.testing.procs import leftovers
+    left = leftovers(exclude={p.pid for p in cpu_burners})
+    assert not left, f'processes left running (now killed): {left}'
 
 
 @pytest.fixture(scope='session')

@@ -54,6 +54,8 @@ def test_launch_file_starts_installed_executables_in_the_namespace():
         overrides = [d for d in _kw(node, 'parameters').elts if isinstance(d, ast.Dict)]
         names = {k.value for d in overrides for k in d.keys}
         assert names and names <= {s.name for s in specs[exe]}, names
+    # tied to the launch process: the nodes stop when it ends, however it ends
+    assert all(_kw(n, 'prefix').id == 'tied' for n in nodes)
     # installed where FindPackageShare looks: share/motor_id/{launch,config}
     assert "'/launch', glob('launch/*.launch.py')" in setup_py
     assert "'/config', glob('config/*.yaml')" in setup_py
@@ -72,3 +74,19 @@ def test_parameter_files_the_launch_file_names_exist_and_fit_any_namespace():
     assert set(params['/**']['ros__parameters']) == {s.name for s in PARAMETERS}
     for name in files:
         assert os.path.isfile(os.path.join(REPO, 'config', name))
+
+
+def test_launch_prefix_ties_a_node_to_the_launch_process():
+    """The prefix the launch file gives its nodes, run as launch runs it (its words, then
+    the node's command): the node runs, and its parent must be the launch process."""
+    import shlex
+    import subprocess
+    import sys
+
+    from motor_id.lifeline import launcher_prefix
+    prefix = shlex.split(shlex.join(launcher_prefix(os.getpid())))
+    ok = subprocess.run(prefix + [sys.executable, '-c', 'print("node")'], capture_output=True,
+                        text=True, timeout=60)
+    assert ok.returncode == 0 and ok.stdout == 'node\n', ok.stderr
+    other = launcher_prefix(os.getppid())     # a prefix made by another process
+    assert subprocess.run(other + ['true'], timeout=60).returncode == 128 + 15

@@ -336,6 +336,23 @@ def test_identifier_params_file_loads(launch):
     stop_cleanly(proc)
 
 
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP])
+def test_driver_and_identifier_stop_as_on_ctrl_c(client, launch, tmp_path, sig):
+    """SIGTERM and SIGHUP end both nodes as Ctrl-C does: exit 0, no traceback, no use of a
+    destroyed entity (stop_cleanly), the driver's recording closed with what it read."""
+    link, bag = tmp_path / 'card', tmp_path / 'rec.mcap'
+    samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
+    launch('card', card_args(link, '--speedup', '5'))
+    drv = launch('driver', driver_args(f'device:={link}', 'excitation:=paper_steps',
+                                       'autostart:=true', f'record_path:={bag}'))
+    ident = launch('identifier', identifier_args('period_s:=0.5', 'min_samples:=100'))
+    assert wait_until(lambda: rows_of(samples).shape[0] > 300, 60.0), drv.output()
+    ident.wait_for('fitting', 60.0)     # the timer's fits run: a signal may meet one
+    stop_cleanly(ident, sig)
+    stop_cleanly(drv, sig)
+    assert len(read_recording(bag)) >= rows_of(samples).shape[0] - 20
+
+
 def test_identifier_sigint_during_fit_exits_cleanly(client, launch):
     proc = launch('identifier', identifier_args('generations:=100000'))
     publish(client, paper_rows())
@@ -378,7 +395,7 @@ def test_replay_rate_feeds_a_live_identifier(client, launch):
     stop_cleanly(proc)
 
 
-@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_replay_stops_cleanly_on_a_signal(client, launch, sig):
     got = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
     rep = launch('replay', replay_args(1))

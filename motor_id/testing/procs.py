@@ -11,7 +11,7 @@ process groups started here that still have a member, for a test run's last chec
 """
 
 import atexit
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 import os
 import re
 import signal
@@ -54,6 +54,59 @@ def live_groups() -> list[int]:
             continue
         live.append(pgid)
     return live
+
+
+def leftovers(exclude: Collection[int] = ()) -> list[str]:
+    """Kill what this process started and left running; describe it (``pid: command``).
+
+    Looks at this process's descendants (psutil, from the ``test`` extra) and at the
+    groups of :func:`live_groups`; zombies (ended, not yet reaped), the processes in
+    ``exclude`` and multiprocessing's own fork server and resource tracker do not count.
+    """
+    import psutil
+    found: dict[int, psutil.Process] = {}
+    candidates = psutil.Process().children(recursive=True)
+    groups = set(live_groups())
+    if groups:
+        candidates += [p for p in psutil.process_iter() if _pgid(p.pid) in groups]
+    for proc in candidates:
+        try:
+            cmd = ' '.join(proc.cmdline())
+            if proc.pid in exclude or proc.status() == psutil.STATUS_ZOMBIE or \
+                    ('multiprocessing' in cmd and ('forkserver' in cmd or
+                                                   'resource_tracker' in cmd)):
+                continue
+        except psutil.Error:
+            continue
+        found[proc.pid] = proc
+    described = []
+    for pid, proc in sorted(found.items()):
+        try:
+            described.append(f'{pid}: {" ".join(proc.cmdline())}')
+            proc.kill()
+        except psutil.Error:
+            pass
+    return described
+
+
+def _pgid(pid: int) -> int | None:
+    try:
+        return os.getpgid(pid)
+    except OSError:
+        return None
+
+
+def start_burners(count: int | None = None) -> list['subprocess.Popen[bytes]']:
+    """Busy-looping Python processes, one per core this process may use (or ``count``),
+    tied to this process: the load beside a test run (``MOTOR_ID_BURN=1``).
+
+    The caller kills them (they also die with this process).
+    """
+    cores = (len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity')
+             else os.cpu_count() or 1)
+    n = count or cores
+    return [subprocess.Popen(tied([sys.executable, '-c', 'while True: pass']),
+                             stdin=subprocess.DEVNULL) for _ in range(n)]
 
 
 def domain_id(name: str, low: int = 1, high: int = 101) -> int:

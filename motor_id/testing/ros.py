@@ -40,11 +40,12 @@ _SAMPLES_PUBLISHERS: 'weakref.WeakKeyDictionary[RosClient, Any]' = weakref.WeakK
 
 
 def stop_cleanly(proc: Process, sig: int | None = None) -> None:
-    """Stop ``proc`` with ``sig`` (SIGINT); assert exit code 0 and no traceback."""
+    """Stop ``proc`` with ``sig`` (SIGINT); assert exit code 0, no traceback and no use of
+    a destroyed ROS entity ("cannot use Destroyable": a shutdown race)."""
     code = proc.stop(signal.SIGINT if sig is None else sig)
     err = proc.stderr()
     assert not proc.killed, f'{proc.name} ignored the signal:\n{proc.output()}'
-    assert 'Traceback' not in err, err
+    assert 'Traceback' not in err and 'Destroyable' not in err, err
     assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
 
 

@@ -1,0 +1,139 @@
+"""Children that cannot outlive their parent; SIGTERM and SIGHUP as Ctrl-C; nothing left."""
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+
+import psutil
+import pytest
+
+from motor_id.lifeline import stop_signals_as_interrupt, tied
+from motor_id.testing.procs import leftovers, live_groups, Processes, wait_until
+from motor_id.testing.ros import REPO
+
+linux_only = pytest.mark.skipif(not sys.platform.startswith('linux'),
+                                reason='the parent-death signal is Linux only')
+
+
+def _gone(pid):
+    try:
+        return psutil.Process(pid).status() == psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return True
+
+
+@linux_only
+@pytest.mark.parametrize('how', [signal.SIGKILL, signal.SIGTERM])
+def test_a_tied_child_gets_sigterm_when_its_parent_dies(tmp_path, how):
+    """A parent starts a tied child that logs the signal it gets; the parent is killed
+    (no cleanup of its own at all with SIGKILL): the child hears SIGTERM and ends."""
+    log = tmp_path / 'child.log'
+    child = textwrap.dedent(f'''
+        import signal, sys, time
+        def bye(signum, frame):
+            open({str(log)!r}, 'w').write(signal.Signals(signum).name)
+            sys.exit(0)
+        signal.signal(signal.SIGTERM, bye)
+        print('ready', flush=True)
+        time.sleep(600)
+    ''')
+    parent = textwrap.dedent(f'''
+        import subprocess, sys, time
+        from motor_id.lifeline import tied
+        kid = subprocess.Popen(tied([sys.executable, '-c', {child!r}]), stdout=subprocess.PIPE)
+        assert kid.stdout.readline().strip() == b'ready'
+        print(kid.pid, flush=True)
+        time.sleep(600)
+    ''')
+    proc = subprocess.Popen([sys.executable, '-c', parent], stdout=subprocess.PIPE,
+                            env=dict(os.environ, PYTHONPATH=REPO))
+    try:
+        kid = int(proc.stdout.readline())
+        assert not _gone(kid)
+        proc.send_signal(how)
+        assert proc.wait(30) == -how
+        assert wait_until(lambda: _gone(kid), 30.0)
+        assert log.read_text() == 'SIGTERM'
+    finally:
+        proc.kill()
+        proc.wait()
+        if not _gone(kid):
+            os.kill(kid, signal.SIGKILL)
+
+
+@linux_only
+def test_a_tied_command_does_not_start_when_its_parent_is_already_gone(tmp_path):
+    """The launcher runs after the parent died (here: it names another parent): no exec."""
+    marker = tmp_path / 'ran'
+    args = tied(['touch', str(marker)])
+    pid_at = args.index(str(os.getpid()))
+    args[pid_at] = str(os.getpid() + 1)              # not this launcher's parent
+    assert subprocess.run(args, timeout=30).returncode == 128 + signal.SIGTERM
+    assert not marker.exists()
+    assert subprocess.run(tied(['touch', str(marker)]), timeout=30).returncode == 0
+    assert marker.exists()
+    missing = subprocess.run(tied(['no-such-command-here']), capture_output=True, text=True,
+                             timeout=30)
+    assert missing.returncode == 127 and 'cannot run' in missing.stderr
+
+
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP])
+def test_stop_signals_raise_keyboard_interrupt_then_the_handlers_come_back(sig):
+    before = signal.getsignal(sig)
+    with pytest.raises(KeyboardInterrupt, match=signal.Signals(sig).name):
+        with stop_signals_as_interrupt():
+            os.kill(os.getpid(), sig)
+            for _ in range(10 ** 6):      # the handler runs between bytecodes
+                pass
+    assert signal.getsignal(sig) is before
+
+
+def test_an_ignored_sighup_stays_ignored():
+    """``nohup`` ignores SIGHUP on purpose: a command keeps that."""
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with stop_signals_as_interrupt():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+            os.kill(os.getpid(), signal.SIGHUP)
+    finally:
+        signal.signal(signal.SIGHUP, previous)
+
+
+def test_processes_close_ends_every_child_and_whatever_they_left(tmp_path):
+    """One child stops on SIGINT, one ignores it (killed after the timeout), one leaves
+    a grandchild in its process group behind when it exits: after close, none is left."""
+    stubborn = 'import signal, time; signal.signal(signal.SIGINT, signal.SIG_IGN); ' \
+               'print("ready", flush=True); time.sleep(600)'
+    leaver = 'import subprocess, sys; subprocess.Popen(["sleep", "600"]); ' \
+             'print("ready", flush=True)'
+    kids = Processes(dict(os.environ), tmp_path)
+    py = sys.executable
+    quiet = kids.start('quiet', [py, '-c', 'import time; print("ready", flush=True); '
+                                 'time.sleep(600)'])
+    hard = kids.start('stubborn', [py, '-c', stubborn])
+    left = kids.start('leaver', [py, '-c', leaver])
+    for proc in (quiet, hard, left):
+        proc.wait_for('ready', 30.0)
+    assert left.wait(30.0) == 0
+    grandchild = [p for p in psutil.process_iter(['cmdline']) if p.info['cmdline'] ==
+                  ['sleep', '600'] and os.getpgid(p.pid) == left.pid]
+    assert len(grandchild) == 1 and left.pid in live_groups()
+    kids.close(timeout=2.0)
+    assert quiet.proc.returncode == -signal.SIGINT and not quiet.killed and hard.killed
+    assert _gone(grandchild[0].pid)
+    assert not {quiet.pid, hard.pid, left.pid} & set(live_groups())
+
+
+def test_leftovers_names_and_kills_a_forgotten_child():
+    proc = subprocess.Popen(['sleep', '600'])
+    try:
+        left = leftovers()
+        assert left == [f'{proc.pid}: sleep 600']
+        assert proc.wait(30) == -signal.SIGKILL
+        assert leftovers() == []
+    finally:
+        proc.kill()
+        proc.wait()
