@@ -30,7 +30,7 @@ def test_a_tied_child_gets_sigterm_when_its_parent_dies(tmp_path, how):
     """A parent starts a tied child that logs the signal it gets; the parent is killed
     (no cleanup of its own at all with SIGKILL): the child hears SIGTERM and ends."""
     log = tmp_path / 'child.log'
-    child = textwrap.dedent(f'''
+    child = textwrap.dedent(f"""
         import signal, sys, time
         def bye(signum, frame):
             open({str(log)!r}, 'w').write(signal.Signals(signum).name)
@@ -38,15 +38,15 @@ def test_a_tied_child_gets_sigterm_when_its_parent_dies(tmp_path, how):
         signal.signal(signal.SIGTERM, bye)
         print('ready', flush=True)
         time.sleep(600)
-    ''')
-    parent = textwrap.dedent(f'''
+    """)
+    parent = textwrap.dedent(f"""
         import subprocess, sys, time
         from motor_id.lifeline import tied
         kid = subprocess.Popen(tied([sys.executable, '-c', {child!r}]), stdout=subprocess.PIPE)
         assert kid.stdout.readline().strip() == b'ready'
         print(kid.pid, flush=True)
         time.sleep(600)
-    ''')
+    """)
     proc = subprocess.Popen([sys.executable, '-c', parent], stdout=subprocess.PIPE,
                             env=dict(os.environ, PYTHONPATH=REPO))
     try:
