@@ -30,7 +30,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from motor_id.errors import ConfigError
 from motor_id.lifeline import STOP_SIGNALS
-from motor_id.nodes.rclshim import RCLError
+from motor_id.nodes.rclshim import RCLError, wait_for_handed_out_callbacks
 
 
 @dataclass(frozen=True)
@@ -360,6 +360,18 @@ class SignalWatcher:
             os._exit(128 + again)
 
 
+def drain(executor: Executor, node: Node, timeout: float = 10.0) -> bool:
+    """After spinning: wait for the callbacks ``executor`` still has queued or running
+    (then shut it down and destroy its nodes); log what they raised and a timeout."""
+    done, errors = wait_for_handed_out_callbacks(executor, timeout)
+    log = node.get_logger()
+    if not done:
+        log.warning(f'callbacks still running {timeout:g} s after the stop')
+    for exc in errors:
+        log.error(f'a callback failed while stopping: {type(exc).__name__}: {exc}')
+    return done
+
+
 def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
              args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it, and shut down quietly.
@@ -414,6 +426,7 @@ def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
         finally:
             if hasattr(node, 'stop'):
                 node.stop()   # stops the node's own threads, waits for running callbacks
+            drain(executor, node)
             executor.shutdown(timeout_sec=5.0)
     except KeyboardInterrupt:
         pass

@@ -28,6 +28,7 @@ from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
 from motor_id.nodes.common import (
     declare_parameters,
+    drain,
     InFlight,
     ParamSpec,
     run_node,
@@ -410,6 +411,7 @@ class IdentifierNode(Node):
             self.get_logger().warning('a fit is still running at shutdown')
         self._fit_done.set()
         self._fit_thread.join(5.0)
+        drain(self._fit_executor, self)
         self._fit_done.detach()
         self._fit_executor.shutdown(timeout_sec=1.0)
         self.fit_node.destroy_node()
