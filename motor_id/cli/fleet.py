@@ -23,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'resistance, ...}} (docs/fleet.md)')
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='results: estimates.parquet, estimates.csv, failed.json, '
-                             'drift.json, report.html')
+                             'drift.json, siblings.json, report.html')
     parser.add_argument('--workers', type=int, metavar='N',
                         help='worker processes of the embedded cluster (default: cores)')
     parser.add_argument('--scheduler', metavar='ADDRESS',
@@ -80,12 +80,22 @@ def run(args: argparse.Namespace) -> int:
     if drifting:
         print(f'drifting ({len(drifting)}):')
         for d in drifting:
-            print(f'  {d["robot"]} {d["motor"]} {d["parameter"]}: {d["change"] * 100:+.1f} % '
-                  f'since {d["since"]} (z {d["z"]:.1f}; {d["baseline"]:.4g} -> '
-                  f'{d["latest"]:.4g} {d["unit"]})')
+            f = d.finding
+            print(f'  {d.robot} {d.motor} {d.parameter}: {(d.change or 0.0) * 100:+.1f} % '
+                  f'since {d.since} (z {d.z or 0.0:.1f}; {f.baseline:.4g} -> '
+                  f'{f.latest:.4g} {d.unit})')
     else:
         print('no drift detected')
-    for name in ('estimates', 'csv', 'drift', 'report'):
+    odd = res.odd()
+    if odd:
+        print(f"outside their siblings' spread ({len(odd)}):")
+        for s in odd:
+            g = s.finding
+            print(f'  {s.robot} {s.motor} {s.parameter}: {g.level:.4g} {s.unit}, '
+                  f"{(g.deviation or 0.0) * 100:+.1f} % from {g.siblings} siblings' "
+                  f'{g.reference:.4g} (spread {(g.spread or 0.0) * 100:.1f} %, score '
+                  f'{g.score:.1f})')
+    for name in ('estimates', 'csv', 'drift', 'siblings', 'report'):
         if name in res.files:
             print(f'wrote {res.files[name]}')
     return 1 if res.failed and not res.done else 0

@@ -1,37 +1,46 @@
-"""Drift in a parameter's history: a CUSUM on predictive scores from the motor's own baseline.
+"""Drift in a parameter's history: a change-point test over the whole history at each recording.
 
 The rule (:class:`DriftRule`), per robot, motor and parameter, on the estimates in time
-order (undetermined ones left out), in logs, so that every change is relative. It is a
-self-starting CUSUM (Hawkins 1987) with the estimates' error bars folded in:
+order (undetermined ones left out), in logs, so that every change is relative. Each
+estimate ``y_i`` has its own error bar ``s_i`` (the fit's relative standard error) and
+the motor scatters from day to day by ``tau`` beyond it
+(:mod:`motor_id.fleet.scatter`: pooled over the motor and its siblings, robust to the
+changes themselves), so ``var(y_i) = tau^2 + s_i^2`` while nothing changes.
 
-1. **Baseline.** A regime's first ``min_base`` estimates start its baseline untested;
-   every later estimate joins it (unless it scores beyond ``outlier``: a gross error),
-   but only ``guard`` estimates after its own test, so that the first estimates after a
-   change cannot hide it. The baseline's mean m and sample std S give the motor's own
-   day-to-day scatter ``tau^2 = max(S^2 - mean(s_b^2), floor^2)``: the scatter of the
-   values less what the estimates' own error bars (s_b, relative std of each fit)
-   already explain.
-2. **Score.** Each later estimate y with error bar s gets the predictive t statistic
-   ``t = (y - m) / sqrt(tau^2 + s^2 + (tau^2 + mean(s_b^2)) / n)``, Student-t with
-   n - 1 degrees of freedom when nothing changed (n baseline estimates), mapped to the
-   normal score z with the same tail probability (a short baseline pays for its own
-   uncertainty) and clipped to +-``cap``.
-3. **Decision.** A two-sided CUSUM, ``C+ = max(0, C+ + z - k)``, ``C- = max(0, C- - z -
-   k)``, flags a change when either exceeds ``h``. With ``cap - k < h`` one estimate,
-   however far off, never flags alone: a bad recording is not a drift.
-4. **Change point.** Between the estimate where the flagging sum last left zero and the
-   flagged one, the split that best separates the means before and after (least
-   squares); the regime restarts there, so a second change is found too.
+1. **Every split.** For each split of the history into the estimates before and from
+   recording k on, the weighted two-sample statistic ``T_k = (m_after - m_before) /
+   sqrt(1/W_before + 1/W_after)`` (weighted means, weights ``1 / (tau^2 + s_i^2)``,
+   W their sums): N(0, 1) at every k while nothing changed. The largest ``|T_k|`` is
+   the likelihood-ratio statistic of one change at an unknown recording against none;
+   the k that reaches it dates the change.
+2. **Threshold.** ``|T|`` becomes the normal score with the same tail probability
+   under Student t with the scatter's degrees of freedom (a scatter from few
+   differences pays for its uncertainty), and the history drifts when that score
+   exceeds ``threshold``. A constant threshold holds the false-alarm rate per
+   recording about constant over the history's length (the max over more splits of
+   a longer history is offset by its splits being more alike; measured by simulation
+   in benchmarks/fleet_drift.py, which also gives the false alarms per motor-year of
+   the default).
+3. **Persistence.** The test runs from the 3rd recording on. The recordings after a
+   change must be at least 2 (one recording, however far off, is never a drift), the
+   first regime may be one recording (a change at the 2nd recording is found). An
+   estimate off from both neighbours by more than ``outlier`` standard deviations of a
+   difference, in the same direction, is a gross error left out (``outliers``); the
+   latest estimate, off from the one before by as much, waits for the next recording.
+4. **More changes.** Binary segmentation: each side of a change is tested again with
+   the same threshold, so a later second change (or an earlier one) is found too.
+   Changes in the same direction with at most ``ramp_gap`` recordings between them are
+   one ramp: ``since`` its first recording after the change began, ``until`` the
+   first at the new level.
 
-``change`` is the median of the estimates since the last change point over the baseline
-mean, minus 1. The false-alarm rate of the defaults, measured on the fleet generator
-(:mod:`motor_id.testing.fleet_gen`, R_m +-2 % from day to day), is in docs/fleet.md.
+``since`` is the first recording after the change; ``flagged_at`` is the first
+recording at which the test (on the data known then) flagged it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, replace
 import math
 from typing import Any
 
@@ -39,6 +48,170 @@ import numpy as np
 from numpy.typing import NDArray
 
 from motor_id.errors import ConfigError
+from motor_id.fleet.scatter import Scatter, ScatterPool
+
+MIN_RECORDINGS = 3
+"""Recordings before the test runs: 1 before a change and 2 after it."""
+RAMP_SEARCH = 10
+"""A ramp's onset and end are searched this many recordings around the change points."""
+RAMP_CHI2 = 9.0
+"""A ramp is reported instead of a step when it fits better by this much (weighted sum
+of squares, in variances: about p = 0.003 for one more parameter)."""
+
+
+@dataclass(frozen=True)
+class Series:
+    """One parameter's history prepared for the test: kept estimates only.
+
+    Attributes
+    ----------
+    times : tuple
+        Time of each kept estimate.
+    y : ndarray
+        Log of each kept estimate.
+    rel : ndarray
+        Its relative standard error (0 when unknown).
+    index : ndarray of int
+        Position of each kept estimate in the history given.
+    held : bool
+        Every estimate the same with no error bar: held at one value, not estimated.
+    """
+
+    times: tuple[Any, ...]
+    y: NDArray[np.float64]
+    rel: NDArray[np.float64]
+    index: NDArray[np.intp]
+    held: bool = False
+
+
+def series(times: Sequence[Any], values: Sequence[float | None],
+           stds: Sequence[float | None] | None = None) -> Series:
+    """Keep the finite positive estimates of a history, in logs.
+
+    Parameters
+    ----------
+    times : sequence
+        Time of each estimate, in order (sortable; ISO text of one format or datetimes).
+    values : array_like
+        Estimates (> 0; None or NaN: left out).
+    stds : array_like, optional
+        Their standard errors (None or NaN: 0).
+    """
+    x = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+    s = np.zeros_like(x) if stds is None else np.array(
+        [np.nan if v is None else float(v) for v in stds], dtype=float)
+    keep = np.flatnonzero(np.isfinite(x) & (x > 0))
+    rel = np.nan_to_num(s[keep] / x[keep], nan=0.0, posinf=0.0)
+    held = bool(keep.size) and bool(np.all(x[keep] == x[keep[0]])) and \
+        not bool(np.any(rel > 0))
+    return Series(times=tuple(times[int(i)] for i in keep), y=np.log(x[keep]), rel=rel,
+                  index=keep, held=held)
+
+
+@dataclass(frozen=True)
+class ChangePoint:
+    """One change found in a history.
+
+    Attributes
+    ----------
+    index : int
+        Position (in the history given) of the first recording after the change.
+    since : str or None
+        Its time.
+    until_index : int
+        First recording at the new level (``index`` for a step).
+    until : str or None
+        Its time.
+    kind : {'step', 'ramp'}
+    flagged_index : int
+        First recording at which the test flagged this change.
+    flagged_at : str or None
+        Its time.
+    before, after : float
+        Level before and after (weighted geometric means of the recordings between the
+        neighbouring changes).
+    change : float
+        ``after / before - 1``.
+    z : float
+        ``log(after / before)`` in day-to-day scatters.
+    score : float
+        The test's normal score for this change on the whole history.
+    """
+
+    index: int
+    since: str | None
+    until_index: int
+    until: str | None
+    kind: str
+    flagged_index: int
+    flagged_at: str | None
+    before: float
+    after: float
+    change: float
+    z: float
+    score: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class DriftFinding:
+    """What :meth:`DriftRule.scan` found in one history.
+
+    Attributes
+    ----------
+    detected : bool
+    n : int
+        Estimates used.
+    change : float or None
+        Relative change of the latest regime over the level before it (detected), or of
+        the latest estimate over the history's level.
+    since : str or None
+        First recording after the last change.
+    z : float or None
+        ``change`` (in logs) in day-to-day scatters.
+    baseline, latest : float or None
+        Level before the last change and after it (or the history's level and the latest
+        estimate).
+    level, level_std : float or None
+        The latest regime's level and its relative standard error.
+    scatter, dof : float or None
+        The day-to-day scatter tau (relative) the test used and its degrees of freedom.
+    score : float or None
+        The test's normal score on the whole history (largest over the splits).
+    threshold : float
+    change_points : tuple of ChangePoint
+    outliers : tuple of int
+        Positions left out as gross errors (or the latest, waiting for the next).
+    reason : str or None
+        Why nothing could be tested.
+    """
+
+    detected: bool
+    n: int = 0
+    change: float | None = None
+    since: str | None = None
+    z: float | None = None
+    baseline: float | None = None
+    latest: float | None = None
+    level: float | None = None
+    level_std: float | None = None
+    scatter: float | None = None
+    dof: float | None = None
+    score: float | None = None
+    threshold: float = 0.0
+    change_points: tuple[ChangePoint, ...] = ()
+    outliers: tuple[int, ...] = ()
+    reason: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready."""
+        d = asdict(self)
+        d['change_points'] = [c.to_dict() for c in self.change_points]
+        d['outliers'] = list(self.outliers)
+        return d
 
 
 @dataclass(frozen=True)
@@ -47,39 +220,36 @@ class DriftRule:
 
     Attributes
     ----------
-    min_base : int
-        Estimates that start a regime's baseline untested (at least 3).
-    guard : int
-        An estimate joins the baseline this many tests after its own.
-    k : float
-        CUSUM allowance per estimate, in normal scores.
-    h : float
-        CUSUM decision threshold.
-    cap : float
-        Largest score one estimate can contribute.
+    threshold : float
+        Normal score beyond which a history drifts (the default holds false alarms to
+        under 1 per 100 motor-years of daily recordings: docs/fleet.md).
     floor : float
         Smallest relative day-to-day scatter assumed (0.002: 0.2 %).
     outlier : float
-        An estimate scoring beyond this does not join the baseline.
+        An estimate this many standard deviations of a difference off from both
+        neighbours, the same way, is a gross error left out.
+    ramp_gap : int
+        Changes in the same direction with at most this many recordings between them
+        are one ramp.
+    sibling_threshold : float
+        Normal score beyond which a motor is reported against its siblings
+        (:mod:`motor_id.fleet.siblings`).
     """
 
-    min_base: int = 5
-    guard: int = 2
-    k: float = 1.0
-    h: float = 7.0
-    cap: float = 6.0
+    threshold: float = 5.3
     floor: float = 0.002
-    outlier: float = 5.0
+    outlier: float = 4.0
+    ramp_gap: int = 3
+    sibling_threshold: float = 4.0
 
     def __post_init__(self) -> None:
-        for name, low in (('min_base', 3), ('guard', 0)):
+        v = self.ramp_gap
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ConfigError(f'drift: ramp_gap must be a whole number >= 0, got {v!r}')
+        for name in ('threshold', 'floor', 'outlier', 'sibling_threshold'):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < low:
-                raise ConfigError(f'drift: {name} must be a whole number >= {low}, '
-                                  f'got {v!r}')
-        for name in ('k', 'h', 'cap', 'floor', 'outlier'):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                           and v > 0):
                 raise ConfigError(f'drift: {name} must be a number > 0, got {v!r}')
 
     @classmethod
@@ -97,180 +267,302 @@ class DriftRule:
         """The settings, for the outputs."""
         return asdict(self)
 
+    def pool(self, histories: Sequence[Series]) -> ScatterPool:
+        """The scatter pooled over histories of one parameter (a motor and its siblings)."""
+        return ScatterPool([(h.times, h.y, h.rel) for h in histories], self.floor)
+
     def scan(self, times: Sequence[Any], values: Sequence[float | None],
-             stds: Sequence[float | None] | None = None) -> DriftFinding:
-        """Run the rule over one history.
+             stds: Sequence[float | None] | None = None,
+             pool: ScatterPool | None = None) -> DriftFinding:
+        """Test one history (at its latest recording).
 
         Parameters
         ----------
-        times : sequence
-            Time of each estimate (any sortable value; ISO strings or datetimes), in order.
-        values : array_like
-            Estimates (> 0; None or NaN: left out).
-        stds : array_like, optional
-            Their standard errors (None or NaN: 0).
+        times, values, stds : see :func:`series`
+        pool : ScatterPool, optional
+            The scatter pooled over this history and its siblings' (default: this
+            history's own).
 
         Returns
         -------
         DriftFinding
         """
-        times = list(times)
-        x = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
-        s = np.zeros_like(x) if stds is None else np.array(
-            [np.nan if v is None else float(v) for v in stds], dtype=float)
-        keep = np.flatnonzero(np.isfinite(x) & (x > 0))
-        if keep.size and np.all(x[keep] == x[keep[0]]) and \
-                not np.any(np.nan_to_num(s[keep]) > 0):
-            return DriftFinding(detected=False, n=int(keep.size),
-                                reason='held at one value (not estimated)',
-                                baseline=float(x[keep[0]]), latest=float(x[keep[-1]]),
-                                change=0.0)
-        t_kept = [times[i] for i in keep]
-        y = np.log(x[keep])
-        rel = np.nan_to_num(s[keep] / x[keep], nan=0.0, posinf=0.0)
-        return self._scan(t_kept, y, rel, keep)
+        return self.scan_series(series(times, values, stds), pool)
 
-    def _scan(self, times: list[Any], y: NDArray[np.float64], rel: NDArray[np.float64],
-              index: NDArray[np.intp]) -> DriftFinding:
-        from scipy import stats
-        n = y.size
-        finding = DriftFinding(detected=False, n=int(n), scores=[None] * n)
-        if n < self.min_base + self.guard + 1:
-            finding.reason = (f'{n} estimate(s); the rule needs '
-                              f'{self.min_base + self.guard + 1}')
-            if n:
-                finding.baseline = float(np.exp(np.mean(y)))
-                finding.latest = float(np.exp(y[-1]))
-                finding.change = finding.latest / finding.baseline - 1.0
-            return finding
-        members: list[int] = []   # the regime's estimates that count as in control
-        c_pos = c_neg = 0.0
-        start_pos = start_neg = 0
-        for j in range(n):
-            if len(members) < self.min_base + self.guard:
-                members.append(j)
+    def scan_series(self, h: Series, pool: ScatterPool | None = None) -> DriftFinding:
+        """:meth:`scan` of a prepared history."""
+        n = int(h.y.size)
+        if h.held:
+            x = float(np.exp(h.y[0]))
+            return DriftFinding(detected=False, n=n, reason='held at one value (not '
+                                'estimated)', baseline=x, latest=x, change=0.0,
+                                threshold=self.threshold)
+        sc = (pool or self.pool([h])).at(h.times[-1] if n else None)
+        if n < MIN_RECORDINGS or sc.dof <= 0:
+            return _untested(h, sc, self.threshold, f'{n} estimate(s); the test needs '
+                             f'{MIN_RECORDINGS}')
+        used = _screen(h.y, h.rel, sc.tau, self.outlier)
+        return _segment(self, h, used, sc, pool)
+
+    def alarms(self, h: Series, pool: ScatterPool | None = None) -> NDArray[np.float64]:
+        """The test's normal score at each recording, on the data known then.
+
+        Parameters
+        ----------
+        h : Series
+        pool : ScatterPool, optional
+
+        Returns
+        -------
+        ndarray
+            One score per kept estimate: the score of the test run when it arrived (NaN
+            before the 3rd); the history drifts from the first above ``threshold``.
+        """
+        pool = pool or self.pool([h])
+        n = int(h.y.size)
+        out = np.full(n, np.nan)
+        looks = np.arange(MIN_RECORDINGS - 1, n)
+        scs = [pool.at(h.times[last]) for last in looks]
+        tau = np.array([sc.tau for sc in scs])
+        dof = np.array([sc.dof for sc in scs])
+        for lo in range(0, looks.size, 256):      # blocks of looks: n x n arrays
+            sl = slice(lo, lo + 256)
+            out[looks[sl]] = _look_scores(h.y, h.rel, looks[sl], tau[sl], dof[sl],
+                                          self.outlier)
+        return out
+
+
+def _look_scores(y: NDArray[np.float64], rel: NDArray[np.float64], looks: NDArray[np.intp],
+                 tau: NDArray[np.float64], dof: NDArray[np.float64], outlier: float
+                 ) -> NDArray[np.float64]:
+    """The first stage's normal score at each look (row), all splits at once: what
+    :func:`_screen` and :func:`_best_split` give on each prefix ``y[:look + 1]``."""
+    from scipy import special
+    n = int(looks.max()) + 1
+    y, rel = y[:n], rel[:n]
+    t2 = (tau * tau)[:, None]
+    inside = np.arange(n)[None, :] <= looks[:, None]
+    d = np.diff(y)[None, :] / np.sqrt(2 * t2 + (rel[1:] ** 2 + rel[:-1] ** 2)[None, :])
+    keep = inside.copy()
+    up = (d[:, :-1] > outlier) & (d[:, 1:] < -outlier)
+    down = (d[:, :-1] < -outlier) & (d[:, 1:] > outlier)
+    interior = np.arange(1, n - 1)[None, :] < looks[:, None]
+    keep[:, 1:-1] &= ~((up | down) & interior)
+    rows = np.arange(looks.size)
+    last_d = d[rows, looks - 1]
+    keep[rows, looks] &= ~((np.abs(last_d) > outlier) & keep[rows, looks - 1])
+    w = np.where(keep, 1.0 / (t2 + (rel ** 2)[None, :]), 0.0)
+    cw, cs, cn = np.cumsum(w, 1), np.cumsum(w * y[None, :], 1), np.cumsum(keep, 1)
+    tot_w, tot_s, tot_n = cw[rows, looks][:, None], cs[rows, looks][:, None], \
+        cn[rows, looks][:, None]
+    # split before position k (1..n-1): the kept estimates before k, and from k on
+    wb, sb, nb = cw[:, :-1], cs[:, :-1], cn[:, :-1]
+    wa, sa, na = tot_w - wb, tot_s - sb, tot_n - nb
+    ok = keep[:, 1:] & (nb >= 1) & (na >= 2)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        t = (sa / wa - sb / wb) / np.sqrt(1.0 / wa + 1.0 / wb)
+    t = np.where(ok, np.abs(t), -np.inf)
+    best = t.max(axis=1)
+    p = np.where(np.isfinite(best), special.stdtr(dof, -np.maximum(best, 0.0)), np.nan)
+    score = -special.ndtri(np.maximum(p, 1e-300))
+    return np.where((dof > 0) & np.isfinite(best), score, np.nan)
+
+
+def normal_score(t: float, dof: float) -> float:
+    """The normal score with the tail probability of ``|t|`` under Student t (``dof``)."""
+    from scipy import special
+    p = float(special.stdtr(dof, -abs(t))) if math.isfinite(dof) else \
+        float(special.ndtr(-abs(t)))
+    return float(-special.ndtri(max(p, 1e-300)))
+
+
+def _untested(h: Series, sc: Scatter, threshold: float, reason: str) -> DriftFinding:
+    n = int(h.y.size)
+    if not n:
+        return DriftFinding(detected=False, n=0, reason=reason, threshold=threshold)
+    w = 1.0 / (sc.tau ** 2 + h.rel ** 2)
+    m = float(np.sum(w * h.y) / np.sum(w))
+    base, last = math.exp(m), math.exp(float(h.y[-1]))
+    return DriftFinding(detected=False, n=n, reason=reason, baseline=base, latest=last,
+                        change=last / base - 1.0, level=base,
+                        level_std=float(1.0 / math.sqrt(np.sum(w))), scatter=sc.tau,
+                        dof=sc.dof, threshold=threshold)
+
+
+def _screen(y: NDArray[np.float64], rel: NDArray[np.float64], tau: float,
+            outlier: float) -> NDArray[np.intp]:
+    """Positions kept by the test: not a gross error between agreeing neighbours, and
+    the latest not waiting for the next recording."""
+    n = y.size
+    keep = np.ones(n, dtype=bool)
+    if n < 2:
+        return np.flatnonzero(keep)
+    d = np.diff(y) / np.sqrt(2 * tau * tau + rel[1:] ** 2 + rel[:-1] ** 2)
+    if n >= 3:
+        up = (d[:-1] > outlier) & (d[1:] < -outlier)
+        down = (d[:-1] < -outlier) & (d[1:] > outlier)
+        keep[1:-1] = ~(up | down)
+    if abs(d[-1]) > outlier and keep[-2]:
+        keep[-1] = False
+    return np.flatnonzero(keep)
+
+
+def _split_stats(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int,
+                 first: bool) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """The splits k allowed in ``y[a:b]`` and their ``T_k``."""
+    lo = 1 if first else 2
+    ks = np.arange(a + lo, b - 1)
+    if ks.size == 0:
+        return ks, np.zeros(0)
+    cw = np.cumsum(w[a:b])
+    cs = np.cumsum(w[a:b] * y[a:b])
+    wb, sb = cw[ks - a - 1], cs[ks - a - 1]
+    wa, sa = cw[-1] - wb, cs[-1] - sb
+    return ks, (sa / wa - sb / wb) / np.sqrt(1.0 / wa + 1.0 / wb)
+
+
+def _best_split(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int,
+                first: bool) -> tuple[int, float] | None:
+    ks, t = _split_stats(y, w, a, b, first)
+    if not ks.size:
+        return None
+    j = int(np.argmax(np.abs(t)))
+    return int(ks[j]), float(t[j])
+
+
+def _binseg(y: NDArray[np.float64], w: NDArray[np.float64], dof: float, threshold: float
+            ) -> tuple[list[tuple[int, float]], float | None]:
+    """Change points (position in ``y``, score) by binary segmentation; and the first
+    stage's score."""
+    found: list[tuple[int, float]] = []
+    first_score: float | None = None
+    todo = [(0, int(y.size))]
+    while todo:
+        a, b = todo.pop()
+        best = _best_split(y, w, a, b, first=a == 0)
+        if best is None:
+            continue
+        score = normal_score(best[1], dof)
+        if a == 0 and b == y.size:
+            first_score = score
+        if score > threshold:
+            found.append((best[0], score))
+            todo += [(a, best[0]), (best[0], b)]
+    return sorted(found), first_score
+
+
+def _level(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int
+           ) -> tuple[float, float]:
+    """Weighted mean of ``y[a:b]`` and its standard error."""
+    ww = w[a:b]
+    return float(np.sum(ww * y[a:b]) / np.sum(ww)), float(1.0 / math.sqrt(np.sum(ww)))
+
+
+def _groups(cps: list[tuple[int, float]], y: NDArray[np.float64], w: NDArray[np.float64],
+            gap: int) -> list[list[tuple[int, float]]]:
+    """Change points in the same direction with at most ``gap`` recordings between them."""
+    bounds = [0] + [c for c, _ in cps] + [int(y.size)]
+    means = [_level(y, w, bounds[j], bounds[j + 1])[0] for j in range(len(bounds) - 1)]
+    out: list[list[tuple[int, float]]] = []
+    for j, cp in enumerate(cps):
+        sign = means[j + 1] > means[j]
+        if out and cp[0] - out[-1][-1][0] <= gap and \
+                (means[j] > means[j - 1]) == sign:
+            out[-1].append(cp)
+        else:
+            out.append([cp])
+    return out
+
+
+def _shape(y: NDArray[np.float64], w: NDArray[np.float64], a: int, first: int, last: int,
+           b: int) -> tuple[int, int]:
+    """Onset and end of a change between the regimes ``a..first`` and ``last..b``: a
+    step at ``first`` (onset = end), or the ramp (level, a straight line from the onset,
+    level from the end on) that fits the estimates better by more than ``RAMP_CHI2``."""
+    seg_y, seg_w = y[a:b], w[a:b]
+    i = np.arange(a, b)
+    best_step = best_ramp = (math.inf, first, first)
+    for o in range(max(a + 1, first - RAMP_SEARCH), first + 1):
+        for e in range(max(last, o), min(b - 1, last + RAMP_SEARCH) + 1):
+            x = np.clip((i - o + 1) / (e - o + 1), 0.0, 1.0)
+            sw, sx, sxx = seg_w.sum(), (seg_w * x).sum(), (seg_w * x * x).sum()
+            sy, sxy = (seg_w * seg_y).sum(), (seg_w * x * seg_y).sum()
+            det = sw * sxx - sx * sx
+            if det <= 0:
                 continue
-            m, tau2, sb2, nb = self._baseline(y, rel, members[:len(members) - self.guard])
-            scale = math.sqrt(tau2 + rel[j] ** 2 + (tau2 + sb2) / nb)
-            t = (y[j] - m) / scale
-            p = stats.t.sf(abs(t), nb - 1)
-            z = math.copysign(float(stats.norm.isf(max(p, 1e-300))), t) if t else 0.0
-            z = max(-self.cap, min(self.cap, z))
-            finding.scores[j] = z
-            if c_pos == 0.0:
-                start_pos = j
-            if c_neg == 0.0:
-                start_neg = j
-            c_pos = max(0.0, c_pos + z - self.k)
-            c_neg = max(0.0, c_neg - z - self.k)
-            if c_pos > self.h or c_neg > self.h:
-                c = _split(y, members[:len(members) - self.guard],
-                           start_pos if c_pos > self.h else start_neg, j)
-                finding.change_points.append({
-                    'index': int(index[c]), 'since': _iso(times[c]),
-                    'flagged_index': int(index[j]), 'flagged_at': _iso(times[j]),
-                    'before': float(np.exp(m)), 'scatter': float(math.sqrt(tau2)),
-                    '_pos': c})
-                members = list(range(c, j + 1))
-                c_pos = c_neg = 0.0
-                continue
-            if abs(z) < self.outlier:
-                members.append(j)
-        return self._finish(finding, y, rel, members)
-
-    def _baseline(self, y: NDArray[np.float64], rel: NDArray[np.float64], base: list[int]
-                  ) -> tuple[float, float, float, int]:
-        """(mean, tau^2, mean s_b^2, n) of the baseline points."""
-        yb = y[base]
-        nb = len(base)
-        sb2 = float(np.mean(rel[base] ** 2))
-        var = float(np.var(yb, ddof=1))
-        tau2 = max(var - sb2, self.floor ** 2)
-        return float(np.mean(yb)), tau2, sb2, nb
-
-    def _finish(self, finding: DriftFinding, y: NDArray[np.float64], rel: NDArray[np.float64],
-                members: list[int]) -> DriftFinding:
-        f = finding
-        cps = f.change_points
-        for a, cp in enumerate(cps):
-            lo = cp.pop('_pos')
-            hi = cps[a + 1]['_pos'] if a + 1 < len(cps) else y.size
-            after = float(np.exp(np.median(y[lo:hi])))
-            cp['after'] = after
-            cp['change'] = after / cp['before'] - 1.0
-            cp['z'] = math.log(after / cp['before']) / max(cp['scatter'], 1e-12)
-        if cps:
-            last = cps[-1]
-            f.detected = True
-            f.baseline, f.latest = last['before'], last['after']
-            f.change, f.since, f.z = last['change'], last['since'], last['z']
-            return f
-        m = self._baseline(y, rel, members)[0]
-        f.baseline = float(np.exp(m))
-        f.latest = float(np.exp(y[-1]))
-        f.change = f.latest / f.baseline - 1.0
-        f.z = f.scores[-1] if f.scores[-1] is not None else 0.0
-        return f
+            slope = (sw * sxy - sx * sy) / det
+            icpt = (sy - slope * sx) / sw
+            sse = float(np.sum(seg_w * (seg_y - icpt - slope * x) ** 2))
+            if e == o and sse < best_step[0]:
+                best_step = (sse, o, e)
+            elif e > o and sse < best_ramp[0]:
+                best_ramp = (sse, o, e)
+    if best_step[0] - best_ramp[0] > RAMP_CHI2:
+        return best_ramp[1], best_ramp[2]
+    if last > first:          # steps in one direction a few recordings apart: a ramp
+        return first, last
+    return best_step[1], best_step[2]
 
 
-@dataclass
-class DriftFinding:
-    """What :meth:`DriftRule.scan` found in one history.
-
-    Attributes
-    ----------
-    detected : bool
-    change : float
-        Relative change of the latest regime over its baseline (or of the latest estimate
-        over the baseline when nothing was detected).
-    since : str or None
-        ISO time of the last change point.
-    z : float
-        The change in units of the baseline's day-to-day scatter (detected), or the
-        latest estimate's score.
-    baseline, latest : float
-        Level before the change and after it (or the latest estimate).
-    change_points : list of dict
-        Every change found: ``index`` (into the history given), ``since``,
-        ``flagged_index``, ``flagged_at``, ``before``, ``after``, ``change``, ``z``.
-    scores : list
-        The clipped normal score of each estimate kept (None: baseline, untested).
-    n : int
-        Estimates used.
-    reason : str or None
-        Why nothing could be tested.
-    """
-
-    detected: bool
-    n: int = 0
-    change: float | None = None
-    since: str | None = None
-    z: float | None = None
-    baseline: float | None = None
-    latest: float | None = None
-    change_points: list[dict[str, Any]] = field(default_factory=list)
-    scores: list[float | None] = field(default_factory=list)
-    reason: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (``scores`` left out)."""
-        d = asdict(self)
-        d.pop('scores')
-        return d
+def _segment(rule: DriftRule, h: Series, used: NDArray[np.intp], sc: Scatter,
+             pool: ScatterPool | None) -> DriftFinding:
+    """Binary segmentation of the kept estimates, changes grouped, shaped and dated."""
+    y, rel = h.y[used], h.rel[used]
+    n = int(y.size)
+    w = 1.0 / (sc.tau ** 2 + rel ** 2)
+    cps, first_score = _binseg(y, w, sc.dof, rule.threshold)
+    groups = _groups(cps, y, w, rule.ramp_gap)
+    times = [h.times[i] for i in used]
+    pos = [int(h.index[i]) for i in used]
+    firsts = [0] + [g[0][0] for g in groups] + [n]
+    lasts = [0] + [g[-1][0] for g in groups] + [n]
+    shapes = [(0, 0)] + [_shape(y, w, lasts[j], g[0][0], g[-1][0], firsts[j + 2])
+                         for j, g in enumerate(groups)] + [(n, n)]
+    changes = []
+    pool = pool or rule.pool([h])
+    for j, g in enumerate(groups):
+        onset, end = shapes[j + 1]
+        before = _level(y, w, shapes[j][1], onset)[0]
+        after = _level(y, w, end, shapes[j + 2][0])[0]
+        flag = _flagged(rule, h, used, lasts[j], min(onset, g[0][0]), firsts[j + 2], pool)
+        changes.append(ChangePoint(
+            index=pos[onset], since=_iso(times[onset]), until_index=pos[end],
+            until=_iso(times[end]), kind='ramp' if end > onset else 'step',
+            flagged_index=pos[flag], flagged_at=_iso(times[flag]),
+            before=math.exp(before), after=math.exp(after),
+            change=math.exp(after - before) - 1.0, z=(after - before) / sc.tau,
+            score=max(s for _, s in g)))
+    level, level_se = _level(y, w, shapes[-2][1], n)
+    outliers = tuple(int(h.index[i]) for i in np.setdiff1d(np.arange(h.y.size), used))
+    base = DriftFinding(detected=False, n=int(h.y.size), level=math.exp(level),
+                        level_std=level_se, scatter=sc.tau, dof=sc.dof, score=first_score,
+                        threshold=rule.threshold, change_points=tuple(changes),
+                        outliers=outliers)
+    if changes:
+        last = changes[-1]
+        return replace(base, detected=True, change=last.change, since=last.since, z=last.z,
+                       baseline=last.before, latest=last.after)
+    m = _level(y, w, 0, n)[0]
+    latest = float(h.y[-1])
+    return replace(base, change=math.exp(latest - m) - 1.0, z=(latest - m) / sc.tau,
+                   baseline=math.exp(m), latest=math.exp(latest))
 
 
-def _split(y: NDArray[np.float64], base: list[int], start: int, end: int) -> int:
-    """The change point in ``start..end``: the split that best separates the means of the
-    estimates before it (with the baseline) and from it on (least squares)."""
-    best, best_stat = start, -1.0
-    for c in range(start, end + 1):
-        before = np.concatenate([y[base], y[start:c]])
-        after = y[c:end + 1]
-        stat = abs(after.mean() - before.mean()) * math.sqrt(
-            before.size * after.size / (before.size + after.size))
-        if stat > best_stat:
-            best, best_stat = c, stat
-    return best
+def _flagged(rule: DriftRule, h: Series, used: NDArray[np.intp], a: int, c: int, b: int,
+             pool: ScatterPool) -> int:
+    """Position (in ``used``) of the first recording at which the test on the regime
+    ``a..`` flagged the change at ``c`` (the next change at ``b`` bounds it)."""
+    y, rel = h.y[used], h.rel[used]
+    for last in range(c + 1, int(y.size)):
+        sc = pool.at(h.times[used[last]])
+        if sc.dof <= 0:
+            continue
+        end = min(last + 1, b)
+        w = 1.0 / (sc.tau ** 2 + rel[a:end] ** 2)
+        best = _best_split(y[a:end], w, 0, end - a, first=a == 0)
+        if best is not None and normal_score(best[1], sc.dof) > rule.threshold:
+            return last
+    return int(y.size) - 1
 
 
 def _iso(t: object) -> str | None:

@@ -15,7 +15,7 @@ from typing import Any
 
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
-from motor_id.fleet.history import drift_table
+from motor_id.fleet.history import drift_table, DriftRow
 from motor_id.model import PARAM_NAMES
 
 
@@ -95,13 +95,14 @@ class EstimateHistory:
                 out.append(row)
         return out
 
-    def check(self) -> list[dict[str, Any]]:
-        """Drift rows (:func:`motor_id.fleet.history.drift_table`) of this history."""
+    def check(self) -> list[DriftRow]:
+        """Drift rows (:func:`motor_id.fleet.history.drift_table`) of this history (its
+        own day-to-day scatter: a live motor has no siblings here)."""
         return drift_table(self.rows(), self.rule)
 
 
-def drift_message(rows: Iterable[dict[str, Any]]) -> str:
+def drift_message(rows: Iterable[DriftRow]) -> str:
     """One line naming every drifting parameter and its change ('' when none)."""
-    parts = [f'{d["parameter"]} {d["change"] * 100:+.1f} % since {d["since"]} '
-             f'(z {d["z"]:.1f})' for d in rows if d['detected']]
+    parts = [f'{d.parameter} {(d.change or 0.0) * 100:+.1f} % since {d.since} '
+             f'(z {d.z or 0.0:.1f})' for d in rows if d.detected]
     return ('drift: ' + '; '.join(parts)) if parts else ''

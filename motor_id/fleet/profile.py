@@ -14,7 +14,9 @@ A YAML file::
 A motor takes the keys of ``motor-id fit --profile`` (input, speed, current, joint,
 effort_is, align, input_kind, shift) plus ``resistance`` [Ohm] (required for a voltage
 plant), ``resistance_tolerance`` [%], ``fix`` and ``bounds`` (mappings as ``--fix`` /
-``--bounds`` take them).
+``--bounds`` take them) and ``type`` (motors of one type are siblings: they share the
+drift test's day-to-day scatter and are held against each other; default: the motors
+of the same name on the other robots).
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 
 MOTOR_KEYS = tuple(k for k in PROFILE_KEYS if k != 'columns') + (
-    'resistance', 'resistance_tolerance', 'fix', 'bounds')
+    'resistance', 'resistance_tolerance', 'fix', 'bounds', 'type')
 FIT_KEYS = ('method', 'seed', 'population', 'generations', 'tie')
 TOP_KEYS = ('motors', 'defaults', 'fit', 'drift')
 
@@ -58,10 +60,18 @@ class MotorSpec:
     resistance_tolerance: float = 10.0
     fix: dict[str, Any] = field(default_factory=dict)
     bounds: dict[str, Any] = field(default_factory=dict)
+    type: str | None = None
 
     def mapping(self) -> TopicMapping:
         """The bag mapping of :mod:`motor_id.data.rosbag`."""
-        return mapping_settings(asdict(self), f'motor {self.name}')[0]
+        d = asdict(self)
+        d.pop('type')
+        return mapping_settings(d, f'motor {self.name}')[0]
+
+    @property
+    def group(self) -> str:
+        """The siblings' key: ``type`` when given, else the motor's name."""
+        return self.type or self.name
 
 
 @dataclass(frozen=True)
@@ -83,10 +93,16 @@ class FleetProfile:
     fit: FitSettings
     drift: DriftRule
 
+    def groups(self) -> dict[str, str]:
+        """Motor name -> siblings' key (:attr:`MotorSpec.group`)."""
+        return {m.name: m.group for m in self.motors}
+
     def settings_hash(self, motor: MotorSpec, analyze: bool) -> str:
         """A short hash of everything that decides a motor's result (a changed profile
-        fits the recordings again)."""
-        text = json.dumps({'motor': asdict(motor), 'fit': asdict(self.fit),
+        fits the recordings again); ``type`` is left out (it decides no fit)."""
+        spec = asdict(motor)
+        spec.pop('type')           # siblings' key: decides no fit
+        text = json.dumps({'motor': spec, 'fit': asdict(self.fit),
                            'analyze': bool(analyze)}, sort_keys=True, default=str)
         return hashlib.sha1(text.encode()).hexdigest()[:12]
 
@@ -144,6 +160,9 @@ def _motor(name: str, d: dict[str, Any], where: str) -> MotorSpec:
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))
                               or not math.isfinite(v) or v <= 0):
             raise ConfigError(f'{where}: {key} must be a number > 0, got {v!r}')
+    if d.get('type') is not None and not (isinstance(d['type'], str) and d['type']):
+        raise ConfigError(f'{where}: type must be a name (motors with the same type are '
+                          f'siblings), got {d["type"]!r}')
     for key in ('fix', 'bounds'):
         if not isinstance(d.get(key) or {}, dict):
             raise ConfigError(f'{where}: {key} must be a mapping NAME: VALUE')

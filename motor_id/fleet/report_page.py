@@ -3,15 +3,23 @@ and the failed tasks, in one self-contained file (inline SVG and CSS; nothing fe
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 import datetime as dt
 import html
 import math
 import os
-from typing import Any
 
 from motor_id.fleet.drift import DriftRule
-from motor_id.fleet.history import histories, Row, UNITS
+from motor_id.fleet.history import (
+    DriftRow,
+    FleetFindings,
+    histories,
+    Point,
+    Row,
+    SiblingRow,
+    UNITS,
+)
 from motor_id.model import PARAM_NAMES
 
 GLANCE = ('K_T', 'R_m', 'B')
@@ -62,24 +70,46 @@ def _epoch(iso: object) -> float:
     return dt.datetime.fromisoformat(str(iso).replace('Z', '+00:00')).timestamp()
 
 
-def motor_status(drift_rows: Iterable[Row], failures: Iterable[Row]
-                 ) -> dict[tuple[str, str], dict[str, Any]]:
-    """Per (robot, motor): the worst drift row (or None) and the failure count."""
-    out: dict[tuple[str, str], dict[str, Any]] = {}
-    for d in drift_rows:
-        key = (d['robot'], d['motor'])
-        cur = out.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
-        if d['detected']:
-            cur['drifts'].append(d)
-            if cur['worst'] is None or abs(d['z'] or 0) > abs(cur['worst']['z'] or 0):
-                cur['worst'] = d
+@dataclass
+class _Status:
+    """One motor on the page: its drifting rows, its rows outside the siblings' spread,
+    its failed tasks."""
+
+    drifts: list[DriftRow] = field(default_factory=list)
+    odd: list[SiblingRow] = field(default_factory=list)
+    failed: int = 0
+
+    @property
+    def worst(self) -> DriftRow | None:
+        return max(self.drifts, key=lambda d: abs(d.z or 0.0)) if self.drifts else None
+
+    def rank(self) -> tuple[int, float]:
+        w = self.worst
+        if w is not None:
+            return 0, -abs(w.z or 0.0)
+        if self.odd:
+            return 1, -max(abs(s.finding.score or 0.0) for s in self.odd)
+        return (2 if self.failed else 3), 0.0
+
+
+def motor_status(found: FleetFindings, failures: Iterable[Row]
+                 ) -> dict[tuple[str, str], _Status]:
+    """Per (robot, motor): drifting rows, rows against the siblings, failure count."""
+    out: dict[tuple[str, str], _Status] = {}
+    for d in found.drift:
+        cur = out.setdefault((d.robot, d.motor), _Status())
+        if d.detected:
+            cur.drifts.append(d)
+    for s in found.siblings:
+        cur = out.setdefault((s.robot, s.motor), _Status())
+        if s.outlier:
+            cur.odd.append(s)
     for f in failures:
-        out.setdefault((f['robot'], f['motor']),
-                       {'worst': None, 'failed': 0, 'drifts': []})['failed'] += 1
+        out.setdefault((f['robot'], f['motor']), _Status()).failed += 1
     return out
 
 
-def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
+def render(rows: list[Row], failures: list[Row], found: FleetFindings,
            rule: DriftRule | None = None, title: str = 'motor_id fleet report') -> str:
     """The report as one HTML text.
 
@@ -88,26 +118,22 @@ def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
     rows : list of dict
         Result rows, sorted by robot, motor, time.
     failures : list of dict
-    drift_rows : list of dict
-        :func:`motor_id.fleet.history.drift_table`.
+    found : FleetFindings
+        :func:`motor_id.fleet.history.fleet_findings`.
     rule : DriftRule, optional
         Printed with the report.
     """
-    status = motor_status(drift_rows, failures)
+    status = motor_status(found, failures)
     hist = histories(rows)
     counts: dict[tuple[str, str], list[Row]] = {}
     for r in rows:
         counts.setdefault((r['robot'], r['motor']), []).append(r)
     for key in counts:
-        status.setdefault(key, {'worst': None, 'failed': 0, 'drifts': []})
-
-    def rank(key: tuple[str, str]) -> tuple[int, float, tuple[str, str]]:
-        s = status[key]
-        w = s['worst']
-        return (0 if w else 1 if s['failed'] else 2, -abs(w['z'] or 0) if w else 0, key)
-    order = sorted(status, key=rank)
+        status.setdefault(key, _Status())
+    order = sorted(status, key=lambda k: (*status[k].rank(), k))
     n_rec = len({r['recording'] for r in rows} | {f['recording'] for f in failures})
-    drifting = sum(1 for k in order if status[k]['worst'])
+    drifting = sum(1 for k in order if status[k].drifts)
+    odd = sum(1 for k in order if status[k].odd)
     out = ['<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
            f'<title>{_e(title)}</title><style>{_CSS}</style></head><body>',
            f'<h1>{_e(title)}</h1>',
@@ -116,56 +142,96 @@ def render(rows: list[Row], failures: list[Row], drift_rows: list[Row],
            f'<span id="n-motors">{len(order)} motors</span>'
            f'<span id="n-drifting" class="{"bad" if drifting else "ok"}">{drifting} drifting'
            '</span>'
+           f'<span id="n-odd" class="{"bad" if odd else "ok"}">{odd} outside their '
+           "siblings' spread</span>"
            f'<span id="n-failed" class="{"warn" if failures else "ok"}">{len(failures)} '
            'failed tasks</span></p>',
            '<h2 id="glance">The fleet at a glance (worst first)</h2>',
            _glance_table(order, status, counts),
+           '<h2 id="siblings">Against their siblings</h2>',
+           _siblings_table(found),
            '<h2 id="motors">Per motor: parameter histories</h2>',
-           "<p>Each point is one recording's estimate with its +-2 std error bar; the grey "
-           'line is the baseline level, the red line a detected change point and the level '
-           'after it. Inadequate fits and undetermined parameters are left out.</p>']
+           "<p>Each point is one recording's estimate with its +-2 std error bar (hollow: "
+           'left out as a gross error); the grey line is the level before a change; a red '
+           'line marks a step at its first recording after the change, a red band a ramp '
+           'from its first changed recording to the first at the new level, and the red '
+           "dashed line the level after it; the green band is the siblings' level +-2 "
+           'spreads. Inadequate fits and undetermined parameters are left out.</p>']
+    sib = {(s.robot, s.motor, s.parameter): s for s in found.siblings}
     for key in order:
-        out.append(_motor_section(key, status[key], hist.get(key, {}), drift_rows))
+        out.append(_motor_section(key, status[key], hist.get(key, {}), found.drift, sib))
     out.append(_failures_table(failures))
     if rule is not None:
-        out.append('<h2 id="rule">Drift rule</h2><p>Self-starting two-sided CUSUM on '
-                   'predictive normal scores (docs/fleet.md): '
+        out.append('<h2 id="rule">Drift rule</h2><p>A change-point test over the whole '
+                   'history at each recording: the largest weighted two-sample statistic '
+                   'over every split, against the day-to-day scatter pooled over the '
+                   'siblings, binary segmentation for more changes (docs/fleet.md): '
                    + ', '.join(f'{_e(k)} = {_e(v)}' for k, v in rule.to_dict().items())
                    + '</p>')
     out.append(f'<script>{_JS}</script></body></html>')
     return '\n'.join(out)
 
 
-def _glance_table(order: list[tuple[str, str]],
-                  status: dict[tuple[str, str], dict[str, Any]],
+def _glance_table(order: list[tuple[str, str]], status: dict[tuple[str, str], _Status],
                   counts: dict[tuple[str, str], list[Row]]) -> str:
-    head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', *GLANCE,
-            'recordings', 'last recording', 'failed')
+    head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', 'siblings',
+            *GLANCE, 'recordings', 'last recording', 'failed')
     out = ['<table id="glance-table" class="sortable"><thead><tr>'
            + ''.join(f'<th>{h}</th>' for h in head) + '</tr></thead><tbody>']
     for key in order:
         s = status[key]
-        w = s['worst']
+        w = s.worst
         rows = counts.get(key, [])
         last = rows[-1] if rows else {}
-        cls = 'drift' if w else 'fail' if s['failed'] else ''
+        cls = 'drift' if w or s.odd else 'fail' if s.failed else ''
         state = ('<span class="badge bad">DRIFT</span>' if w else
-                 '<span class="badge warn">failures</span>' if s['failed'] else
+                 '<span class="badge bad">ODD</span>' if s.odd else
+                 '<span class="badge warn">failures</span>' if s.failed else
                  '<span class="badge ok">ok</span>')
-        params = ', '.join(d['parameter'] for d in s['drifts'])
+        params = ', '.join(d.parameter for d in s.drifts)
+        odd = ', '.join(f'{o.parameter} {_pct(o.finding.deviation)}' for o in s.odd)
         latest = ''.join(
             f'<td class="num">{_g(last.get(p))}</td>' for p in GLANCE)
-        anchor = _anchor(key)
         out.append(
             f'<tr class="{cls}" data-robot="{_e(key[0])}" data-motor="{_e(key[1])}">'
-            f'<td>{_e(key[0])}</td><td><a href="#{anchor}">{_e(key[1])}</a></td>'
+            f'<td>{_e(key[0])}</td><td><a href="#{_anchor(key)}">{_e(key[1])}</a></td>'
             f'<td>{state}</td><td>{_e(params)}</td>'
-            f'<td class="num" data-v="{w["change"] if w else 0}">{_pct(w["change"]) if w else ""}'
-            f'</td><td>{_e(w["since"]) if w else ""}</td>'
-            f'<td class="num">{_g(w["z"], ".1f") if w else ""}</td>{latest}'
+            f'<td class="num" data-v="{w.change if w else 0}">'
+            f'{_pct(w.change) if w else ""}</td><td>{_e(w.since) if w else ""}</td>'
+            f'<td class="num">{_g(w.z, ".1f") if w else ""}</td><td>{_e(odd)}</td>{latest}'
             f'<td class="num">{len(rows)}</td>'
             f'<td>{_e((last.get("start_time") or "")[:10])}</td>'
-            f'<td class="num">{s["failed"]}</td></tr>')
+            f'<td class="num">{s.failed}</td></tr>')
+    out.append('</tbody></table>')
+    return ''.join(out)
+
+
+def _siblings_table(found: FleetFindings) -> str:
+    """The motors outside their siblings' spread, and how many could be compared."""
+    compared = [s for s in found.siblings if s.finding.reason is None]
+    groups = sorted({s.group for s in compared})
+    out = [f"<p>Each motor's current level against the same motor on the other robots "
+           f'(the same name or <code>type:</code>; the motor left out of its own '
+           f'reference): {len(compared)} of {len(found.siblings)} motor parameters '
+           f'compared in {len(groups)} group(s) of 4 or more.</p>']
+    odd = found.odd()
+    if not odd:
+        out.append('<p id="siblings-none">None outside their siblings\' spread.</p>')
+        return ''.join(out)
+    out.append('<table id="siblings-table" class="sortable"><thead><tr><th>robot</th>'
+               '<th>motor</th><th>parameter</th><th>level</th><th>siblings</th>'
+               '<th>reference</th><th>spread</th><th>deviation</th><th>score</th>'
+               '</tr></thead><tbody>')
+    for s in odd:
+        f = s.finding
+        out.append(f'<tr class="drift" data-robot="{_e(s.robot)}" data-motor="{_e(s.motor)}">'
+                   f'<td>{_e(s.robot)}</td><td><a href="#{_anchor((s.robot, s.motor))}">'
+                   f'{_e(s.motor)}</a></td><td>{_e(s.parameter)}</td>'
+                   f'<td class="num">{_g(f.level)} +- {_pct(f.level_std)[1:]}</td>'
+                   f'<td class="num">{f.siblings}</td><td class="num">{_g(f.reference)} '
+                   f'{_e(s.unit)}</td><td class="num">{_pct(f.spread)[1:]}</td>'
+                   f'<td class="num">{_pct(f.deviation)}</td>'
+                   f'<td class="num">{_g(f.score, ".1f")}</td></tr>')
     out.append('</tbody></table>')
     return ''.join(out)
 
@@ -174,18 +240,19 @@ def _anchor(key: tuple[str, str]) -> str:
     return 'm-' + ''.join(c if c.isalnum() else '-' for c in f'{key[0]}-{key[1]}')
 
 
-def _motor_section(key: tuple[str, str], status: dict[str, Any],
-                   per: dict[str, list[tuple[Any, ...]]], drift_rows: list[Row]) -> str:
-    rows = {d['parameter']: d for d in drift_rows
-            if (d['robot'], d['motor']) == key}
+def _motor_section(key: tuple[str, str], status: _Status, per: dict[str, list[Point]],
+                   drift: Sequence[DriftRow], sib: dict[tuple[str, str, str], SiblingRow]
+                   ) -> str:
+    rows = {d.parameter: d for d in drift if (d.robot, d.motor) == key}
     title = f'{key[0]} / {key[1]}'
-    open_attr = ' open' if status['worst'] else ''
+    open_attr = ' open' if status.drifts or status.odd else ''
     out = [f'<section id="{_anchor(key)}" class="motor"><details{open_attr}><summary>'
            f'<b>{_e(title)}</b> ']
-    if status['drifts']:
-        out.append('<span class="bad">' + _e('; '.join(
-            f'{d["parameter"]} {_pct(d["change"])} since {d["since"]}'
-            for d in status['drifts'])) + '</span>')
+    notes = [f'{d.parameter} {_pct(d.change)} since {d.since}' for d in status.drifts]
+    notes += [f'{o.parameter} {_pct(o.finding.deviation)} from its siblings'
+              for o in status.odd]
+    if notes:
+        out.append('<span class="bad">' + _e('; '.join(notes)) + '</span>')
     else:
         out.append('<span class="ok">no drift</span>')
     out.append('</summary><div class="plots">')
@@ -193,22 +260,28 @@ def _motor_section(key: tuple[str, str], status: dict[str, Any],
         h = per.get(p) or []
         if not h:
             continue
-        d = rows.get(p)
-        out.append(_plot(p, h, d))
+        out.append(_plot(p, h, rows.get(p), sib.get((key[0], key[1], p))))
     out.append('</div></details></section>')
     return ''.join(out)
 
 
-def _plot(param: str, hist: list[tuple[Any, ...]], d: Row | None, width: int = 360,
-          height: int = 150) -> str:
-    """One parameter's history as inline SVG: points with +-2 std bars, baseline, change."""
+def _plot(param: str, hist: list[Point], d: DriftRow | None, sib: SiblingRow | None,
+          width: int = 360, height: int = 150) -> str:
+    """One parameter's history as inline SVG: points with +-2 std bars, the levels, each
+    change where it is, the siblings' band."""
     ml, mr, mt, mb = 62, 8, 8, 22
     t = [_epoch(x[0]) for x in hist]
     v: list[float] = [x[1] for x in hist]
     s: list[float] = [x[2] or 0.0 for x in hist]
+    f = d.finding if d is not None else None
     lo = min(a - 2 * b for a, b in zip(v, s, strict=True))
     hi = max(a + 2 * b for a, b in zip(v, s, strict=True))
-    for extra in (d or {}).get('baseline'), (d or {}).get('latest'):
+    band = None
+    g = sib.finding if sib is not None else None
+    if g is not None and g.reference is not None and g.spread is not None:
+        band = (g.reference * math.exp(-2 * g.spread), g.reference * math.exp(2 * g.spread))
+    shown = band if band is not None and sib is not None and sib.outlier else None
+    for extra in ((f.baseline, f.latest) if f else ()) + (shown or ()):
         if extra is not None:
             lo, hi = min(lo, extra), max(hi, extra)
     pad = (hi - lo) * 0.08 or abs(hi) * 0.01 or 1.0
@@ -221,11 +294,21 @@ def _plot(param: str, hist: list[tuple[Any, ...]], d: Row | None, width: int = 3
 
     def y_px(y: float) -> float:
         return mt + (hi - y) / (hi - lo) * (height - mt - mb)
-    parts = [f'<svg width="{width}" height="{height}" '
-             f'viewBox="0 0 {width} {height}" role="img" data-parameter="{_e(param)}" '
-             f'data-points="{len(v)}">']
-    parts.append(f'<line x1="{ml}" y1="{height - mb}" x2="{width - mr}" y2="{height - mb}" '
-                 'stroke="#999"/>')
+
+    def x_at(i: int) -> float:
+        """Midway between recording i and the one before: where a change at i is."""
+        return x_px((t[i] + t[max(i - 1, 0)]) / 2)
+    parts = [f'<svg width="{width}" height="{height}" viewBox="0 0 {width} {height}" '
+             f'role="img" data-parameter="{_e(param)}" data-points="{len(v)}">',
+             f'<line x1="{ml}" y1="{height - mb}" x2="{width - mr}" y2="{height - mb}" '
+             'stroke="#999"/>']
+    if band is not None:       # drawn within the plot (the range set by the motor's own)
+        top = min(max(y_px(band[1]), mt), height - mb)
+        bottom = min(max(y_px(band[0]), mt), height - mb)
+        if bottom > top:
+            parts.append(f'<rect class="siblings" x="{ml}" y="{top:.1f}" '
+                         f'width="{width - ml - mr}" height="{bottom - top:.1f}" '
+                         'fill="#2e7d32" fill-opacity="0.10"/>')
     for y in (lo + pad, (lo + hi) / 2, hi - pad):
         parts.append(f'<text x="{ml - 4}" y="{y_px(y) + 4:.1f}" font-size="10" '
                      f'text-anchor="end">{_g(y, ".4g")}</text>')
@@ -233,32 +316,51 @@ def _plot(param: str, hist: list[tuple[Any, ...]], d: Row | None, width: int = 3
                  f'{_e(str(hist[0][0])[:10])}</text>')
     parts.append(f'<text x="{width - mr}" y="{height - 6}" font-size="10" '
                  f'text-anchor="end">{_e(str(hist[-1][0])[:10])}</text>')
-    cps = (d or {}).get('change_points') or []
-    if d and d.get('baseline') is not None:
-        x_end = x_px(_epoch(cps[-1]['since'])) if cps else width - mr
-        parts.append(f'<line x1="{ml}" y1="{y_px(d["baseline"]):.1f}" x2="{x_end:.1f}" '
-                     f'y2="{y_px(d["baseline"]):.1f}" stroke="#888" stroke-dasharray="4 3"/>')
-    for cp in cps:
-        xc = x_px(_epoch(cp['since']))
-        parts.append(f'<line class="change-point" x1="{xc:.1f}" y1="{mt}" x2="{xc:.1f}" '
+    cps = f.change_points if f is not None else ()
+    if f is not None and f.baseline is not None:
+        x_end = x_at(cps[-1].index) if cps else width - mr
+        parts.append(f'<line x1="{ml}" y1="{y_px(f.baseline):.1f}" x2="{x_end:.1f}" '
+                     f'y2="{y_px(f.baseline):.1f}" stroke="#888" stroke-dasharray="4 3"/>')
+    for j, cp in enumerate(cps):
+        x0, x1 = x_at(cp.index), x_at(cp.until_index)
+        x_next = x_at(cps[j + 1].index) if j + 1 < len(cps) else width - mr
+        if cp.kind == 'ramp':
+            parts.append(f'<rect class="change-point ramp" x="{x0:.1f}" y="{mt}" '
+                         f'width="{max(x1 - x0, 1.5):.1f}" height="{height - mt - mb}" '
+                         'fill="#c62828" fill-opacity="0.15"/>')
+        parts.append(f'<line class="change-point" x1="{x0:.1f}" y1="{mt}" x2="{x0:.1f}" '
                      f'y2="{height - mb}" stroke="#c62828" stroke-width="1.5"/>')
-        parts.append(f'<line x1="{xc:.1f}" y1="{y_px(cp["after"]):.1f}" x2="{width - mr}" '
-                     f'y2="{y_px(cp["after"]):.1f}" stroke="#c62828" stroke-dasharray="4 3"/>')
-    for a, b, x in zip(v, s, t, strict=True):
+        parts.append(f'<text x="{x0 + 2:.1f}" y="{mt + 9}" font-size="9" fill="#c62828">'
+                     f'{_e((cp.since or "")[5:10])}</text>')
+        parts.append(f'<line x1="{x1:.1f}" y1="{y_px(cp.after):.1f}" x2="{x_next:.1f}" '
+                     f'y2="{y_px(cp.after):.1f}" stroke="#c62828" stroke-dasharray="4 3"/>')
+    left_out = set(d.outliers) if d is not None else set()
+    for a, b, x, point in zip(v, s, t, hist, strict=True):
         xx = x_px(x)
         if b:
             parts.append(f'<line x1="{xx:.1f}" y1="{y_px(a - 2 * b):.1f}" x2="{xx:.1f}" '
                          f'y2="{y_px(a + 2 * b):.1f}" stroke="#1565c0"/>')
-        parts.append(f'<circle cx="{xx:.1f}" cy="{y_px(a):.1f}" r="2.5" fill="#1565c0"/>')
+        fill = 'fill="#fff" stroke="#1565c0" class="outlier"' if point[0] in left_out \
+            else 'fill="#1565c0"'
+        parts.append(f'<circle cx="{xx:.1f}" cy="{y_px(a):.1f}" r="2.5" {fill}/>')
     parts.append('</svg>')
-    unit = UNITS.get(param, '')
-    cap = f'{param} [{unit}]'
-    if d and d['detected']:
-        cap += (f': <span class="bad">{_pct(d["change"])} since {_e(d["since"])} '
-                f'(z {_g(d["z"], ".1f")})</span>')
-    elif d and d.get('reason'):
-        cap += f': {_e(d["reason"])}'
-    return f'<figure>{"".join(parts)}<figcaption>{cap}</figcaption></figure>'
+    return f'<figure>{"".join(parts)}<figcaption>{_caption(param, d, sib)}</figcaption></figure>'
+
+
+def _caption(param: str, d: DriftRow | None, sib: SiblingRow | None) -> str:
+    cap = f'{param} [{UNITS.get(param, "")}]'
+    if d is not None and d.detected:
+        cps = d.finding.change_points
+        cap += ': <span class="bad">' + _e('; '.join(
+            f'{c.kind} {_pct(c.change)} since {(c.since or "")[:10]}'
+            + (f' to {(c.until or "")[:10]}' if c.kind == 'ramp' else '')
+            + f' (flagged {(c.flagged_at or "")[:10]})' for c in cps)) + '</span>'
+    elif d is not None and d.finding.reason:
+        cap += f': {_e(d.finding.reason)}'
+    if sib is not None and sib.outlier:
+        cap += (f' <span class="bad">{_pct(sib.finding.deviation)} from its '
+                f'{sib.finding.siblings} siblings</span>')
+    return cap
 
 
 def _failures_table(failures: list[Row]) -> str:
@@ -278,9 +380,9 @@ def _failures_table(failures: list[Row]) -> str:
 
 
 def write_report(path: str | os.PathLike[str], rows: list[Row], failures: list[Row],
-                 drift_rows: list[Row], rule: DriftRule | None = None) -> None:
+                 found: FleetFindings, rule: DriftRule | None = None) -> None:
     """Write :func:`render`'s page to ``path``."""
-    text = render(rows, failures, drift_rows, rule)
+    text = render(rows, failures, found, rule)
     tmp = f'{path}.tmp'
     with open(tmp, 'w', encoding='utf-8') as fh:
         fh.write(text)

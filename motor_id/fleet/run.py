@@ -1,4 +1,5 @@
-"""A fleet run from recordings to estimates, drift.json and report.html: the one path."""
+"""A fleet run from recordings to estimates, drift.json, siblings.json and report.html: the
+one path."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from typing import Any
 
 from motor_id.fleet.discover import find_recordings, RecordingRef
 from motor_id.fleet.engine import DaskEngine
-from motor_id.fleet.history import drift_table
+from motor_id.fleet.history import DriftRow, fleet_findings, SiblingRow
 from motor_id.fleet.profile import FleetProfile
 from motor_id.fleet.store import ResultStore
 from motor_id.fleet.task import run_task, Task
@@ -21,19 +22,24 @@ Progress = Callable[[int, int, int, 'dict[str, Any] | None'], None]
 
 @dataclass
 class FleetRun:
-    """What a run did: counts, the time it took, the drift rows, the files written."""
+    """What a run did: counts, the time it took, the findings, the files written."""
 
     tasks: int = 0
     skipped: int = 0
     done: int = 0
     failed: int = 0
     seconds: float = 0.0
-    drift: list[dict[str, Any]] = field(default_factory=list)
+    drift: tuple[DriftRow, ...] = ()
+    siblings: tuple[SiblingRow, ...] = ()
     files: dict[str, str] = field(default_factory=dict)
 
-    def drifting(self) -> list[dict[str, Any]]:
+    def drifting(self) -> list[DriftRow]:
         """The drift rows that flagged a change."""
-        return [d for d in self.drift if d['detected']]
+        return [d for d in self.drift if d.detected]
+
+    def odd(self) -> list[SiblingRow]:
+        """The motors outside their siblings' spread."""
+        return [s for s in self.siblings if s.outlier]
 
 
 def plan(recordings: Sequence[RecordingRef], profile: FleetProfile,
@@ -85,15 +91,19 @@ def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
         if todo:
             _execute(todo, store, run, workers, scheduler, progress, engine)
     store.flush(force=True)
-    run.drift = drift_table(store.rows.values(), profile.drift)
-    with open(store.out / 'drift.json', 'w', encoding='utf-8') as fh:
-        json.dump(run.drift, fh, indent=1)
+    found = fleet_findings(store.rows.values(), profile.drift, profile.groups())
+    run.drift, run.siblings = found.drift, found.siblings
     run.files = {'estimates': str(store.parquet_path), 'csv': str(store.csv_path),
-                 'failed': str(store.failed_path), 'drift': str(store.out / 'drift.json')}
+                 'failed': str(store.failed_path)}
+    for name, rows in (('drift', found.drift), ('siblings', found.siblings)):
+        path = store.out / f'{name}.json'
+        with open(path, 'w', encoding='utf-8') as fh:
+            json.dump([r.to_dict() for r in rows], fh, indent=1)
+        run.files[name] = str(path)
     if report:
         from motor_id.fleet.report_page import write_report
         path = store.out / 'report.html'
-        write_report(path, store.sorted_rows(), list(store.failures.values()), run.drift,
+        write_report(path, store.sorted_rows(), list(store.failures.values()), found,
                      profile.drift)
         run.files['report'] = str(path)
     run.seconds = time.perf_counter() - started

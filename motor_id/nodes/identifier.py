@@ -22,6 +22,7 @@ from motor_id.contracts import INPUT_KINDS, units_of
 from motor_id.data.align import ALIGN_RULES
 from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
+from motor_id.fleet.history import DriftRow
 from motor_id.fleet.live import drift_message, EstimateHistory
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
@@ -187,7 +188,7 @@ class IdentifierNode(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, messages.DIAGNOSTICS_TOPIC,
                                               messages.DIAGNOSTICS_QOS)
         self._history: EstimateHistory | None = None
-        self._drift: list[dict[str, Any]] = []
+        self._drift: list[DriftRow] = []
         if self.settings['history_file']:
             self._history = EstimateHistory(self.settings['history_file'],
                                             robot=self.hardware_id, motor=self.get_name())
@@ -277,12 +278,12 @@ class IdentifierNode(Node):
             values.update(self.topic_input.counts())
         level = messages.OK if snap_rows else messages.WARN
         text = self._last
-        drifting = [d for d in self._drift if d['detected']]
+        drifting = [d for d in self._drift if d.detected]
         if drifting:
             level, text = messages.WARN, drift_message(drifting) + '; ' + text
             for d in drifting:
-                values[f'drift.{d["parameter"]}.change'] = f'{d["change"]:.4f}'
-                values[f'drift.{d["parameter"]}.since'] = d['since']
+                values[f'drift.{d.parameter}.change'] = f'{d.change or 0.0:.4f}'
+                values[f'drift.{d.parameter}.since'] = d.since
         st = messages.status('motor_id: identifier', level, text, values,
                              self.hardware_id)
         self._publish(self.diag_pub,
@@ -389,9 +390,9 @@ class IdentifierNode(Node):
         except MotorIdError as exc:
             self.get_logger().warning(f'drift check: {exc}')
             return
-        was = {d['parameter'] for d in self._drift if d['detected']}
+        was = {d.parameter for d in self._drift if d.detected}
         self._drift = rows
-        new = [d for d in rows if d['detected'] and d['parameter'] not in was]
+        new = [d for d in rows if d.detected and d.parameter not in was]
         if new:
             self.get_logger().warning(drift_message(new))
 

@@ -130,6 +130,8 @@ class FleetSpec:
     layout : {'folder', 'file'}
         A rosbag2 folder per recording, or a bare ``.mcap`` file (``mcap`` only).
     seed : int
+    motor_type : str or None
+        Written as every motor's ``type:`` in the profile (all motors siblings).
     """
 
     robots: int = 3
@@ -151,6 +153,7 @@ class FleetSpec:
     storage: str = 'mcap'
     layout: str = 'folder'
     seed: int = 0
+    motor_type: str | None = None
 
     def robot_names(self) -> list[str]:
         """``robot_00``, ``robot_01``, ..."""
@@ -288,6 +291,8 @@ def fleet_profile(spec: FleetSpec) -> dict[str, Any]:
         motors[m] = {'input': f'/{m}_cmd', 'speed': '/joint_states:velocity',
                      'current': '/joint_states:effort', 'joint': m, 'effort_is': 'current',
                      'resistance': round(spec.nominal.R_m, 6)}
+        if spec.motor_type:
+            motors[m]['type'] = spec.motor_type
     return {'motors': motors}
 
 
@@ -441,69 +446,92 @@ def write_robot_bag(path: str | os.PathLike[str], start_ns: int, period: float,
 
 
 # --------------------------------------------------------------------------- scoring
-def drift_benchmark_spec(quick: bool = False, seed: int = 17) -> FleetSpec:
-    """A fleet with one drift at the issue's smallest sizes per kind, and clean robots.
-
-    K_T -8 %, R_m +10 % and B +50 %, each as a step and as a 4-day ramp (``quick``: the
-    steps only), on a seeded day in the second half; 2 motors per robot; the robots past
-    the drifting ones are clean.
-    """
-    days = 14 if quick else 20
-    kinds = [('K_T', -0.08, 'step'), ('K_T', -0.08, 'ramp'), ('R_m', 0.10, 'step'),
-             ('R_m', 0.10, 'ramp'), ('B', 0.50, 'step'), ('B', 0.50, 'ramp')]
-    if quick:
-        kinds = kinds[::2]
+def drift_benchmark_spec(seed: int = 17, robots: int = 4) -> FleetSpec:
+    """A held-out fleet as the drift targets state them: ``robots`` x 2 wheels x 10-12
+    daily recordings (R_m +-2 % from day to day), with K_T -8 % (step), B +60 % (5-day
+    ramp) and R_m +12 % (step) on three distinct wheels from days drawn in 1..6 (the
+    2nd to the 7th recording); the other wheels clean. The seed draws the days, the
+    wheels and the fleet."""
     rng = np.random.default_rng(seed)
-    drifts = []
-    for k, (param, size, kind) in enumerate(kinds):
-        onset = int(rng.integers(days // 2, days - 5 if kind == 'ramp' else days - 3))
-        drifts.append(Drift(f'robot_{k:02d}', 'wheel_left' if k % 2 == 0 else 'wheel_right',
-                            param, size, onset, kind, ramp_days=4))
-    return FleetSpec(robots=len(kinds) + (2 if quick else 4), days=days,
-                     drifts=tuple(drifts), seed=seed + 6)
+    days = int(rng.integers(10, 13))
+    kinds = (('K_T', -0.08, 'step'), ('B', 0.60, 'ramp'), ('R_m', 0.12, 'step'))
+    wheels = [(f'robot_{r:02d}', m) for r in range(robots)
+              for m in ('wheel_left', 'wheel_right')]
+    picked = rng.choice(len(wheels), size=len(kinds), replace=False)
+    drifts = tuple(Drift(wheels[j][0], wheels[j][1], param, size, int(rng.integers(1, 7)),
+                         kind, ramp_days=5)
+                   for j, (param, size, kind) in zip(picked, kinds, strict=True))
+    return FleetSpec(robots=robots, days=days, drifts=drifts, seed=seed + 6)
 
 
-def score_detection(spec: FleetSpec, drift_rows: Iterable[Mapping[str, Any]]
+def random_drifts(spec: FleetSpec, rng: np.random.Generator, count: int,
+                  parameters: Sequence[tuple[str, float]] = (('K_T', -0.08), ('R_m', 0.12),
+                                                             ('B', 0.6)),
+                  first: int = 1, last: int | None = None, ramp_share: float = 0.5
+                  ) -> tuple[Drift, ...]:
+    """``count`` drifts on distinct motors, each on a parameter and size drawn from
+    ``parameters`` (the sign kept, the size scaled by 0.8-1.2), a step or a 5-day ramp,
+    from a day drawn uniformly in ``first..last`` (default: the days leaving 3 after)."""
+    last = spec.days - 3 if last is None else last
+    motors = [(r, m) for r in spec.robot_names() for m in spec.motors]
+    picked = rng.choice(len(motors), size=count, replace=False)
+    out = []
+    for j in picked:
+        param, size = parameters[int(rng.integers(len(parameters)))]
+        kind = 'ramp' if rng.random() < ramp_share else 'step'
+        out.append(Drift(motors[j][0], motors[j][1], param,
+                         float(size * rng.uniform(0.8, 1.2)),
+                         int(rng.integers(first, last + 1)), kind, ramp_days=5))
+    return tuple(out)
+
+
+def score_detection(spec: FleetSpec, drift_rows: Iterable[Any]
                     ) -> tuple[list[dict[str, Any]], list[str], int]:
-    """How the drift rows (drift.json) match the generated drifts.
+    """How the drift rows (:class:`motor_id.fleet.history.DriftRow`) match the drifts.
 
     Returns
     -------
     rows : list of dict
         Per drift: ``motor``, ``drift``, ``onset``, ``flagged``, ``change``, ``since``,
-        ``delay`` (recordings from the drift at full size to the flag, that recording
-        counting 1), ``delay_from_start``, ``other_flags`` (other parameters of that
-        motor flagged; K_b is K_T's twin in SI units and not counted).
+        ``dated`` (recordings from the onset to ``since``: 0 is right), ``detect``
+        (recordings from the onset to the first flag, the onset recording counting 1),
+        ``delay`` (the same from the day the drift reached full size), ``other_flags``
+        (other parameters of that motor flagged; K_b is K_T's twin in SI units and not
+        counted).
     false : list of str
         Parameters flagged on motors without a drift.
     clean_series : int
         Histories of motors without a drift.
     """
-    by: dict[tuple[str, str], dict[str, Mapping[str, Any]]] = {}
+    by: dict[tuple[str, str], dict[str, Any]] = {}
     for d in drift_rows:
-        by.setdefault((d['robot'], d['motor']), {})[d['parameter']] = d
+        by.setdefault((d.robot, d.motor), {})[d.parameter] = d
     start = dt.date.fromisoformat(spec.start)
+
+    def day(iso: str | None) -> int | None:
+        return None if iso is None else (dt.date.fromisoformat(iso[:10]) - start).days
     rows: list[dict[str, Any]] = []
     for dr in spec.drifts:
         per = by.get((dr.robot, dr.motor), {})
-        d = per.get(dr.parameter, {})
-        flagged_day = None
-        if d.get('detected'):
-            flagged = dt.date.fromisoformat(d['change_points'][0]['flagged_at'][:10])
-            flagged_day = (flagged - start).days
-        others = sorted(p for p, x in per.items() if x['detected'] and p != dr.parameter
+        d = per.get(dr.parameter)
+        cp = None
+        if d is not None and d.detected:     # the change nearest the onset
+            cp = min(d.finding.change_points, key=lambda c: abs(day(c.since) - dr.onset))
+        others = sorted(p for p, x in per.items() if x.detected and p != dr.parameter
                         and not (dr.parameter == 'K_T' and p == 'K_b'))
+        flagged = None if cp is None else day(cp.flagged_at)
         rows.append({
             'motor': f'{dr.robot}/{dr.motor}',
             'drift': f'{dr.parameter} {dr.size * 100:+.0f} % {dr.kind}',
             'onset': (start + dt.timedelta(days=dr.onset)).isoformat(),
-            'flagged': bool(d.get('detected')), 'change': d.get('change'),
-            'since': d.get('since'),
-            'delay': None if flagged_day is None else flagged_day - dr.full_day() + 1,
-            'delay_from_start': None if flagged_day is None else flagged_day - dr.onset + 1,
+            'flagged': cp is not None, 'change': None if cp is None else cp.change,
+            'since': None if cp is None else (cp.since or '')[:10],
+            'dated': None if cp is None else day(cp.since) - dr.onset,
+            'detect': None if flagged is None else flagged - dr.onset + 1,
+            'delay': None if flagged is None else flagged - dr.full_day() + 1,
             'other_flags': ', '.join(others) or '-'})
     drifting = {(dr.robot, dr.motor) for dr in spec.drifts}
     false = sorted(f'{k[0]}/{k[1]} {p}' for k, per in by.items() if k not in drifting
-                   for p, x in per.items() if x['detected'])
+                   for p, x in per.items() if x.detected)
     clean_series = sum(len(per) for k, per in by.items() if k not in drifting)
     return rows, false, clean_series
