@@ -22,8 +22,10 @@ robots of its fleet).
    one recording of the onset; ramps: -1..+4).
 2. **False alarms.** Clean fleets of 4 robots x 2 wheels, a year of daily recordings;
    a motor-year is a false alarm when any of its parameters (J, K_T, B, L_m, R_m; K_b is
-   K_T's twin) is flagged at any recording of the year. Also single motors with no
-   siblings (the identifier node's live history).
+   K_T's twin) is flagged at any recording of the year. Siblings by name (3 each), by one
+   ``type:`` (7 each; a robot's two wheels share its temperature, so their differences
+   are not independent), and single motors with no siblings (the identifier node's live
+   history).
 """
 
 import argparse
@@ -94,9 +96,10 @@ def detection(rule, reps, siblings, seed=1):
     return rows
 
 
-def false_alarms(rule, fleets, robots, days=365, seed=2):
+def false_alarms(rule, fleets, robots, days=365, seed=2, by_type=False):
     """Motor-years flagged on clean generated fleets (``robots`` x 2 wheels each;
-    ``robots`` 1: single motors, no siblings)."""
+    ``robots`` 1: single motors, no siblings; ``by_type``: both wheels of every robot
+    siblings, as with one ``type:``, though a robot's two wheels share its temperature)."""
     from motor_id.testing.fleet_gen import FleetSpec, motor_truths
     rng = np.random.default_rng(seed)
     motor_years = flagged = param_years = param_flags = 0
@@ -106,8 +109,8 @@ def false_alarms(rule, fleets, robots, days=365, seed=2):
         truths = motor_truths(spec, rng)
         hit_motor = dict.fromkeys(truths, False)
         for param in FIT_ERROR:
-            for wheel in spec.motors:
-                keys = [k for k in sorted(truths) if k[1] == wheel]
+            for wheel in (('all',) if by_type else spec.motors):
+                keys = [k for k in sorted(truths) if by_type or k[1] == wheel]
                 hist = [_history(rule, truths[k], param, rng) for k in keys]
                 pool = rule.pool(hist)
                 for k, h in zip(keys, hist, strict=True):
@@ -120,6 +123,32 @@ def false_alarms(rule, fleets, robots, days=365, seed=2):
         flagged += sum(hit_motor.values())
     return {'motor_years': motor_years * days / 365, 'flagged': flagged,
             'param_years': param_years, 'param_flags': param_flags, 'per_param': per_param}
+
+
+def siblings(rule, groups, sizes=(4, 8, 10, 20), offs=(0.25, 0.5, 0.8), seed=4):
+    """Motors odd among their siblings: the share of clean motor parameters reported,
+    and of motors off by ``offs`` from the first day, per group size (the generator's
+    5 % unit spread, each level with a 0.5 % standard error)."""
+    from motor_id.fleet.siblings import compare_siblings
+    rng = np.random.default_rng(seed)
+    rows = []
+    for n in sizes:
+        clean = hits = 0
+        found = dict.fromkeys(offs, 0)
+        for _ in range(groups):
+            lv = np.exp(rng.normal(0, 0.05, n) + rng.normal(0, 0.005, n))
+            res = compare_siblings([(float(v), 0.005) for v in lv], rule.sibling_threshold)
+            clean += n
+            hits += sum(f.outlier for f in res)
+            for off in offs:
+                odd = lv.copy()
+                odd[0] *= 1 + off
+                res = compare_siblings([(float(v), 0.005) for v in odd],
+                                       rule.sibling_threshold)
+                found[off] += res[0].outlier
+        rows.append({'motors': n, 'false': hits / clean,
+                     **{f'off{int(o * 100)}': found[o] / groups for o in offs}})
+    return rows
 
 
 def _upper95(k, n):
@@ -145,12 +174,17 @@ def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
     n_fleet = max(1, (motor_years or (40 if quick else 800)) // 8)
     say(f'false alarms: {n_fleet} clean fleets x 8 wheels x 365 days ...')
     fa = false_alarms(rule, n_fleet, 4)
+    say(f'false alarms: {n_fleet // 2} clean fleets x 8 wheels of one type x 365 days ...')
+    fa8 = false_alarms(rule, max(1, n_fleet // 2), 4, seed=3, by_type=True)
     n_single = max(1, n_fleet // 2)
     say(f'false alarms: {n_single} x 2 single motors (no siblings) x 365 days ...')
     fa1 = false_alarms(rule, n_single, 1)
     t_fa = time.perf_counter() - t0 - t_det
+    sib = siblings(rule, 200 if quick else 4000)
     fa_rows = []
-    for what, f in (('4-robot fleets (3 siblings)', fa), ('single motors (no siblings)', fa1)):
+    for what, f in (('4-robot fleets (3 siblings)', fa),
+                    ('4-robot fleets, one type (7 siblings)', fa8),
+                    ('single motors (no siblings)', fa1)):
         fa_rows.append({'what': what, 'motor_years': f['motor_years'], 'flagged': f['flagged'],
                         'per100': 100 * f['flagged'] / f['motor_years'],
                         'upper95': 100 * _upper95(f['flagged'], f['motor_years']),
@@ -170,6 +204,14 @@ def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
                                ('param_flags', 'parameter-years flagged', 'd'),
                                ('params', 'by parameter', 's')],
                    'rows': fa_rows})
+    tables.append({'title': f'against the siblings (sibling_threshold {rule.sibling_threshold}; '
+                            'unit spread 5 %): share of clean motor parameters reported, '
+                            'and of a motor off from its first day by +25/50/80 %',
+                   'columns': [('motors', 'motors in the group', 'd'),
+                               ('false', 'clean reported', '.2e'),
+                               ('off25', '+25 %', '.0%'), ('off50', '+50 %', '.0%'),
+                               ('off80', '+80 %', '.0%')],
+                   'rows': sib})
     rate = fa_rows[0]['per100']
     big = [r for n, rows in det.items() for r in rows if '12' in r['change'] or 'B' in
            r['change']]

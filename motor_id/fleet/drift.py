@@ -240,7 +240,7 @@ class DriftRule:
     floor: float = 0.002
     outlier: float = 4.0
     ramp_gap: int = 3
-    sibling_threshold: float = 4.0
+    sibling_threshold: float = 3.5
 
     def __post_init__(self) -> None:
         v = self.ramp_gap

@@ -508,8 +508,8 @@ def score_detection(spec: FleetSpec, drift_rows: Iterable[Any]
         by.setdefault((d.robot, d.motor), {})[d.parameter] = d
     start = dt.date.fromisoformat(spec.start)
 
-    def day(iso: str | None) -> int | None:
-        return None if iso is None else (dt.date.fromisoformat(iso[:10]) - start).days
+    def day(iso: str | None) -> int:
+        return (dt.date.fromisoformat((iso or spec.start)[:10]) - start).days
     rows: list[dict[str, Any]] = []
     for dr in spec.drifts:
         per = by.get((dr.robot, dr.motor), {})
