@@ -108,7 +108,8 @@ def compare_siblings(levels: Sequence[tuple[float | None, float | None]],
         m = float(np.mean(others))
         spread = float(np.std(others, ddof=1))
         scale = math.sqrt(spread ** 2 * (1 + 1 / k) + se ** 2)
-        t = (logs[j] - m) / scale if scale > 0 else math.copysign(math.inf, logs[j] - m)
+        diff = logs[j] - m
+        t = diff / scale if scale > 0 else (math.copysign(math.inf, diff) if diff else 0.0)
         score = normal_score(t, k - 1) if math.isfinite(t) else 37.0
         out.append(SiblingFinding(
             outlier=score > threshold, siblings=k, threshold=threshold, level=value,
