@@ -117,8 +117,9 @@ def test_the_analysis_report_carries_the_chosen_models_feedforward_block():
                             ('speed',), simulation={'chosen': 'coulomb_friction',
                                                     'estimates': {'combinations': combos}})
     ff = rep.to_dict()['controller']['feedforward']
-    assert ff['kV'] == {'value': 0.0175, 'std': 1e-4}
+    assert ff['kV'] == {'value': 0.0175, 'std': 1e-4, 'unit': 'V s/rad'}
     assert ff['kA']['value'] is None and ff['kA']['std'] is None
+    assert ff['kA']['unit'] == 'V s^2/rad'
     assert ff['kA']['particular_value'] == 1e-5 and ff['kA']['interval'] == [-1.9e-4, 2.1e-4]
     assert 'controller' not in dataclasses.replace(rep, simulation=None).to_dict()
 
