@@ -38,6 +38,7 @@ setup(
             'driver = motor_id.nodes.driver:main',
             'identifier = motor_id.nodes.identifier:main',
             'sim-robot = motor_id.testing.sim_robot:main',
+            'experiment = motor_id.nodes.experiment:main',
         ],
     },
 )

@@ -13,7 +13,7 @@ from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.experiment.coast import CoastModel, OnlineModel, predict_coast
 from motor_id.experiment.guard import Guard, limit_command, StateSample
-from motor_id.experiment.plan import build_plan, STEP_FRACTION
+from motor_id.experiment.plan import arrange, build_plan, STEP_FRACTION
 from motor_id.experiment.session import EXPERIMENT, ExperimentSession, RECORDING
 from motor_id.experiment.settings import ExperimentSettings, Travel
 
@@ -125,9 +125,19 @@ def test_sysid_plan_ramps_and_steps_each_way_within_the_limit():
     assert all(t.rest_before for t in plan.tests)
 
 
-def test_an_elevators_way_down_follows_its_way_up():
-    plan = build_plan('sysid', 12.0, mechanism='elevator')
-    assert [t.rest_before for t in plan.tests] == [True, False, True, False]
+def test_a_test_toward_the_edge_the_joint_rests_at_follows_the_one_away_from_it():
+    plan = build_plan('sysid', 12.0)
+    assert arrange(plan, True, True) == plan == arrange(plan, False, False)
+    up = arrange(plan, room_low=False, room_high=True)   # an elevator on its bottom
+    assert [(t.name, t.rest_before) for t in up.tests] == [
+        ('quasistatic-forward', True), ('quasistatic-reverse', False),
+        ('dynamic-forward', True), ('dynamic-reverse', False)]
+    down = arrange(plan, room_low=True, room_high=False)
+    assert [(t.name, t.rest_before) for t in down.tests] == [
+        ('quasistatic-reverse', True), ('quasistatic-forward', False),
+        ('dynamic-reverse', True), ('dynamic-forward', False)]
+    prbs = build_plan('prbs', 12.0)
+    assert arrange(prbs, False, True) == prbs
 
 
 @pytest.mark.parametrize('kind', ['prbs', 'multisine'])
@@ -262,6 +272,21 @@ def test_an_arm_never_passes_its_travel(tmp_path, offset, lo, hi):
                          for t in moved)
 
 
+def test_an_arm_hanging_near_its_low_stop_goes_down_from_up_there(tmp_path):
+    # room toward LO from the rest: none; each test toward LO follows one toward HI
+    j = arm(0.35)
+    rest = j.x
+    j.stop_low = rest - 0.45
+    st = settings(tmp_path, 'arm', travel=Travel(rest - 0.4, rest + 3.3), time_scale=0.5)
+    sess, xs, _ = run_loop(j, st)
+    log = sess.guard.log
+    assert log.stop_reason == 'complete', log.to_dict()
+    assert rest - 0.4 <= xs.min() and xs.max() <= rest + 3.3
+    assert [(t.direction, t.samples > 0) for t in log.tests] == [(1, True), (-1, True)] * 2
+    down = [t for t in log.tests if t.direction < 0]
+    assert all(t.position_high - t.position_low > 1.0 for t in down)
+
+
 def test_an_arm_with_little_damping_still_stays_inside(tmp_path):
     # a torque-like drive: the back-EMF brakes little, the arm swings far when released
     j = arm(0.2)
@@ -328,7 +353,7 @@ def test_the_recording_reads_as_runs_with_position_and_the_log_is_written(tmp_pa
     np.testing.assert_allclose(back.position, rec.position, rtol=0, atol=0)
     np.testing.assert_allclose(back.input, [r.command for r in sess.rows], rtol=0, atol=0)
     assert back.current is None   # no -R: speed only
-    assert back.meta['segment_names'] == [t.name for t in sess.plan.tests]
+    assert back.meta['segment_names'] == [t.name for t in sess.guard.plan.tests]
     log = json.loads((out / EXPERIMENT).read_text())
     assert log['stop_reason'] == 'complete' and log['complete']
     assert [t['end_reason'] for t in log['tests']] == ['complete'] * 4
@@ -357,3 +382,18 @@ def test_messages_as_sent_and_received_are_in_the_bag_for_rosbags(tmp_path):
                for c, _, raw in reader.messages()}
     assert list(got['/joint_states'].position) == [0.5]
     assert list(got['/ctrl/commands'].data) == [2.0]
+
+
+def test_the_input_is_the_command_sent_before_the_next_sample(tmp_path):
+    from motor_id.experiment.session import Row
+    sess = ExperimentSession(settings(tmp_path))
+    t = 100.0 + 0.01 * np.arange(30)
+    sess.rows = [Row(tk, 9.0, 0.0, 0.0, math.nan, 0) for tk in t]   # decided: 9 everywhere
+    # sent 14 ms after each sample (later than the next one), value = sample number
+    sess.sent = [(tk + 0.014, float(k)) for k, tk in enumerate(t)]
+    rec = sess.recording()
+    # over [t_k, t_k+1) the command in force is the one sent before t_k+1: sample k-1's
+    np.testing.assert_array_equal(rec.input[1:], np.arange(29.0))
+    assert rec.input[0] == 0.0   # nothing sent before: 0
+    sess.sent = []
+    np.testing.assert_array_equal(sess.recording().input, 9.0)

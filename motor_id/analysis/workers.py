@@ -127,8 +127,12 @@ def longest_first(pool: multiprocessing.pool.Pool, fn: Callable[[Any], Any],
 
 
 def _worker_start() -> None:
-    """A worker leaves Ctrl-C to the caller, which stops the pool (no worker traceback)."""
+    """A worker leaves Ctrl-C to the caller, which stops the pool (no worker traceback);
+    SIGTERM and SIGHUP (the pool's terminate, a caller that made them raise
+    KeyboardInterrupt) end it at once."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _fit(job: tuple[dict[str, Any], FitTask]) -> ModelScore:

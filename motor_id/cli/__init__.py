@@ -28,6 +28,8 @@ COMMANDS = {
     'bag': ('motor_id.cli.bag', 'inspect or recover an MCAP recording'),
     'demo': ('motor_id.cli.demo', 'simulated card + driver + identifier, end to end'),
     'fleet': ('motor_id.cli.fleet', 'every motor of every recording on Dask: histories, drift'),
+    'experiment': ('motor_id.cli.experiment',
+                   'identify a joint of a live ROS 2 robot through its controller, safely'),
 }
 
 

@@ -29,7 +29,7 @@ import statistics
 
 from motor_id.experiment.coast import Coast, OnlineModel, predict_coast
 from motor_id.experiment.log import RunLog, TestLog
-from motor_id.experiment.plan import Plan, TestSpec
+from motor_id.experiment.plan import arrange, Plan, TestSpec
 from motor_id.experiment.settings import ExperimentSettings
 
 MARGIN = 0.05
@@ -101,11 +101,8 @@ class Guard:
         self._t0: float | None = None
         self._last: StateSample | None = None
         self._last_rx: float | None = None
-        self._min_lag = math.inf
-        self._periods: list[float] = []
-        self._lags: list[float] = []
+        self.stats = StreamStats()
         self._baseline: list[StateSample] = []
-        self._speeds: list[float] = []
         self._settled_since: float | None = None
         self._peak_speed = 0.0
         self.rest_position = math.nan
@@ -159,10 +156,10 @@ class Guard:
         if self._last is not None and not s.t > self._last.t:
             self.log.ignored_samples += 1
             return None
-        if self.settings.watchdog < s.lag - self._min_lag:
+        late = self.stats.lateness(s)
+        if late > self.settings.watchdog:
             return self.stop(f'stale state: joint {self.settings.joint} stamped '
-                             f'{s.lag - self._min_lag:.2f} s later than usual', safety=True)
-        self._min_lag = min(self._min_lag, s.lag)
+                             f'{late:.2f} s later than usual', safety=True)
         self._account(s)
         if self.phase != 'baseline' and not self._inside_travel(s.position):
             return self.stop(f'position {s.position:.4g} outside the travel '
@@ -178,12 +175,9 @@ class Guard:
         if self._t0 is None:
             self._t0 = s.t
         if last is not None:
-            self._periods.append(s.t - last.t)
             if self.model is not None:
                 self.model.add(s.t, s.position, s.velocity, self.command)
-        self._lags.append(s.lag)
-        self._speeds.append(s.velocity)
-        del self._periods[:-200], self._lags[:-200], self._speeds[:-SPEED_MEAN]
+        self.stats.add(s, last)
         self._last = s
         self._last_rx = s.received
         if self.phase == 'test':
@@ -214,6 +208,11 @@ class Guard:
             return self.stop(f'the joint rests at {self.rest_position:.4g}, outside the '
                              f'travel {travel.text()}: give a window that holds it',
                              safety=True)
+        if travel is not None:
+            lo, hi = self.window()
+            room = ROOM * travel.width
+            self.plan = arrange(self.plan, self.rest_position - lo >= room,
+                                hi - self.rest_position >= room)
         return self._next_test(s)
 
     def _on_rest(self, s: StateSample) -> float:
@@ -287,12 +286,8 @@ class Guard:
 
     # ------------------------------------------------------------------ travel
     def latency(self) -> float:
-        """Seconds a command may take to act: the state's latency, two sample periods
-        (and half the speed mean's), and :data:`EXTRA_LATENCY`."""
-        period = statistics.median(self._periods) if self._periods else 0.01
-        lag = max(0.0, statistics.median(self._lags) - min(self._min_lag, 0.0)) \
-            if self._lags else 0.0
-        return lag + (2.0 + SPEED_MEAN / 2.0) * period + EXTRA_LATENCY
+        """Seconds a command may take to act (:meth:`StreamStats.latency`)."""
+        return self.stats.latency()
 
     def window(self) -> tuple[float, float]:
         """Where the coast may go: the travel less the margin, widened to hold the rest
@@ -338,12 +333,8 @@ class Guard:
         return c
 
     def speed(self) -> float:
-        """The speed a coast starts from: the mean of the last :data:`SPEED_MEAN`
-        samples, less two noise levels of it (0 inside that band)."""
-        if not self._speeds:
-            return 0.0
-        w = statistics.fmean(self._speeds)
-        return _deadband(w, 2.0 * self.noise_speed)
+        """The speed a coast starts from (:meth:`StreamStats.speed`)."""
+        return self.stats.speed(self.noise_speed)
 
     def _travel_reason(self, s: StateSample) -> str | None:
         if self.settings.travel is None:
@@ -373,6 +364,63 @@ class Guard:
             self.log.clamped += 1
         self.command = limited
         return limited
+
+    @property
+    def min_lag(self) -> float:
+        """The smallest receive time - stamp seen [s] (0 before any sample)."""
+        return self.stats.min_lag
+
+    def timing(self) -> dict[str, float]:
+        """Median sample period and state latency, and the latency allowed for [s]."""
+        return self.stats.timing()
+
+
+class StreamStats:
+    """The state stream's timing and recent speeds: sample period, latency (receive
+    time - stamp) and its smallest value, the last few speeds."""
+
+    def __init__(self) -> None:
+        self._min_lag = math.inf
+        self._periods: list[float] = []
+        self._lags: list[float] = []
+        self._speeds: list[float] = []
+
+    def lateness(self, s: StateSample) -> float:
+        """How much later than the smallest lag so far ``s`` is stamped [s]."""
+        late = s.lag - self._min_lag if math.isfinite(self._min_lag) else 0.0
+        self._min_lag = min(self._min_lag, s.lag)
+        return late
+
+    def add(self, s: StateSample, last: StateSample | None) -> None:
+        """Account a fresh sample (``last``: the one before it)."""
+        if last is not None:
+            self._periods.append(s.t - last.t)
+        self._lags.append(s.lag)
+        self._speeds.append(s.velocity)
+        del self._periods[:-200], self._lags[:-200], self._speeds[:-SPEED_MEAN]
+
+    @property
+    def min_lag(self) -> float:
+        """The smallest receive time - stamp seen [s] (0 before any sample)."""
+        return self._min_lag if math.isfinite(self._min_lag) else 0.0
+
+    def period(self) -> float:
+        """Median sample period [s] (0.01 before two samples)."""
+        return statistics.median(self._periods) if self._periods else 0.01
+
+    def latency(self) -> float:
+        """Seconds a command may take to act: the state's latency, two sample periods
+        (and half the speed mean's), and :data:`EXTRA_LATENCY`."""
+        lag = max(0.0, statistics.median(self._lags) - min(self.min_lag, 0.0)) \
+            if self._lags else 0.0
+        return lag + (2.0 + SPEED_MEAN / 2.0) * self.period() + EXTRA_LATENCY
+
+    def speed(self, noise: float) -> float:
+        """The speed a coast starts from: the mean of the last :data:`SPEED_MEAN`
+        samples, less two noise levels (0 inside that band)."""
+        if not self._speeds:
+            return 0.0
+        return _deadband(statistics.fmean(self._speeds), 2.0 * noise)
 
     def timing(self) -> dict[str, float]:
         """Median sample period and state latency, and the latency allowed for [s]."""

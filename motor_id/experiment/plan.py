@@ -8,7 +8,7 @@ travel window, the speed limit). Every command a test gives is within ``max_comm
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import math
 
 import numpy as np
@@ -122,8 +122,8 @@ class Plan:
         return sum(t.duration for t in self.tests)
 
 
-def build_plan(kind: str, max_command: float, mechanism: str = 'simple',
-               time_scale: float = 1.0, seed: int = 0) -> Plan:
+def build_plan(kind: str, max_command: float, time_scale: float = 1.0,
+               seed: int = 0) -> Plan:
     """The plan ``kind`` sized from the command limit.
 
     Parameters
@@ -135,9 +135,6 @@ def build_plan(kind: str, max_command: float, mechanism: str = 'simple',
         :data:`STEP_FRACTION` of the limit, each its own seed.
     max_command : float
         [V, or N m / N]
-    mechanism : {'simple', 'arm', 'elevator'}
-        An elevator rests on its bottom: each way down follows its way up at once
-        (``rest_before`` False), the rest after it is the fall back to the bottom.
     time_scale : float
         Multiplies every duration (a ramp keeps its end value: it gets steeper).
     seed : int
@@ -151,22 +148,50 @@ def build_plan(kind: str, max_command: float, mechanism: str = 'simple',
     if not (math.isfinite(max_command) and max_command > 0):
         raise ConfigError(f'max command must be > 0, got {max_command}')
     s = float(time_scale)
-    chained = mechanism == 'elevator'
     step = STEP_FRACTION * max_command
     tests: tuple[TestSpec, ...]
     if kind == 'sysid':
         tests = (
             TestSpec('quasistatic-forward', 'ramp', 1, max_command, RAMP_SECONDS * s),
-            TestSpec('quasistatic-reverse', 'ramp', -1, max_command, RAMP_SECONDS * s,
-                     rest_before=not chained),
+            TestSpec('quasistatic-reverse', 'ramp', -1, max_command, RAMP_SECONDS * s),
             TestSpec('dynamic-forward', 'step', 1, step, STEP_SECONDS * s),
-            TestSpec('dynamic-reverse', 'step', -1, step, STEP_SECONDS * s,
-                     rest_before=not chained))
+            TestSpec('dynamic-reverse', 'step', -1, step, STEP_SECONDS * s))
     else:
         tests = tuple(_segment(kind, k, step, SEGMENT_SECONDS * s, seed + k)
                       for k in range(SEGMENTS))
     return Plan(kind, tests, rest_min=max(0.3, 1.0 * s), rest_max=max(2.0, 6.0 * s),
                 settle_time=max(0.2, 0.4 * s))
+
+
+def arrange(plan: Plan, room_low: bool, room_high: bool) -> Plan:
+    """The plan ordered for where the joint rests.
+
+    A joint resting at one edge of its travel (an elevator on its bottom, an arm hanging
+    near a stop) cannot start a test toward that edge: each such test follows the test
+    away from it at once (``rest_before`` False), from where that one ended, and is put
+    after it. With room both ways (or neither) the plan is unchanged.
+
+    Parameters
+    ----------
+    plan : Plan
+    room_low, room_high : bool
+        Whether a test toward LO (HI) can start from the rest position.
+    """
+    if room_low == room_high:
+        return plan
+    blocked = -1 if not room_low else 1
+    tests = list(plan.tests)
+    k = 0
+    while k < len(tests) - 1:
+        a, b = tests[k], tests[k + 1]
+        if {a.direction, b.direction} == {1, -1} and a.kind == b.kind:
+            first, second = (a, b) if b.direction == blocked else (b, a)
+            tests[k:k + 2] = [replace(first, rest_before=True),
+                              replace(second, rest_before=False)]
+            k += 2
+        else:
+            k += 1
+    return replace(plan, tests=tuple(tests))
 
 
 def _segment(kind: str, k: int, amplitude: float, duration: float, seed: int) -> TestSpec:

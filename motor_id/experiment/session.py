@@ -19,6 +19,7 @@ import numpy as np
 
 from motor_id.bag.writer import BagWriter, write_recording_into
 from motor_id.contracts import channel_units
+from motor_id.data.align import held_command_index
 from motor_id.errors import BagError, ConfigError
 from motor_id.experiment.guard import Guard, StateSample
 from motor_id.experiment.plan import build_plan, Plan
@@ -55,10 +56,10 @@ class ExperimentSession:
 
     def __init__(self, settings: ExperimentSettings, plan: Plan | None = None) -> None:
         self.settings = settings
-        self.plan = plan or build_plan(settings.plan, settings.max_command,
-                                       settings.mechanism, settings.time_scale, settings.seed)
-        self.guard = Guard(settings, self.plan)
+        self.guard = Guard(settings, plan or build_plan(
+            settings.plan, settings.max_command, settings.time_scale, settings.seed))
         self.rows: list[Row] = []
+        self.sent: list[tuple[float, float]] = []
         self.bag: BagWriter | None = None
         self.out = Path(settings.out)
         self._first_ns: int | None = None
@@ -82,6 +83,10 @@ class ExperimentSession:
             self.bag.write_serialized(topic, msgtype, data, int(log_time_ns))
         except BagError:
             pass   # closed at the end while a late message came in
+
+    def note_sent(self, t: float, value: float) -> None:
+        """A command left at time ``t`` [s, the clock of the receive times]."""
+        self.sent.append((float(t), float(value)))
 
     def start(self, now: float) -> float:
         """Start the plan; the first command (0)."""
@@ -114,12 +119,26 @@ class ExperimentSession:
             if len(starts) > 1 else None
         meta: dict[str, Any] = {
             'source': str(self.out / RECORDING), 'joint': s.joint,
-            'mechanism': s.mechanism, 'experiment': self.plan.name,
+            'mechanism': s.mechanism, 'experiment': self.guard.plan.name,
             'units': channel_units(s.input_kind, s.linear, position=True),
             'segment_names': self._run_names(len(starts))}
-        return Recording(t - t[0], np.array([r.command for r in self.rows]),
+        return Recording(t - t[0], self._inputs(t),
                          np.array([r.velocity for r in self.rows]), current, s.input_kind,
                          meta, segments, np.array([r.position for r in self.rows]))
+
+    def _inputs(self, t: np.ndarray) -> np.ndarray:
+        """The input over each sample's interval: the last command sent before the next
+        sample was measured (as it left, so that a late decision counts as late), or,
+        without send times, the command decided on the sample."""
+        decided = np.array([r.command for r in self.rows])
+        if not self.sent:
+            return decided
+        lag = self.guard.min_lag   # a robot on another clock: stamps offset by about it
+        t_sent = np.array([ts for ts, _ in self.sent]) - (lag if abs(lag) > 0.5 else 0.0)
+        values = np.array([v for _, v in self.sent])
+        idx = held_command_index(t, t_sent, 'next')
+        idx[-1] = np.searchsorted(t_sent, t[-1] + (t[-1] - t[-2]), side='left') - 1
+        return np.where(idx >= 0, values[np.maximum(idx, 0)], 0.0)
 
     def _run_names(self, n: int) -> list[str]:
         names = [t.name for t in self.guard.log.tests][:n]
@@ -145,6 +164,7 @@ class ExperimentSession:
         s = self.settings
         log = self.guard.log.to_dict()
         log['timing'] = self.guard.timing()
+        plan = self.guard.plan
         return {
             'joint': s.joint, 'command_topic': s.command_topic,
             'command_type': s.command_type, 'state_topic': s.state_topic,
@@ -152,11 +172,10 @@ class ExperimentSession:
             'max_command': s.max_command,
             'travel': None if s.travel is None else [s.travel.low, s.travel.high],
             'max_speed': s.max_speed, 'watchdog': s.watchdog,
-            'plan': {'name': self.plan.name, 'rest_min': self.plan.rest_min,
-                     'rest_max': self.plan.rest_max,
+            'plan': {'name': plan.name, 'rest_min': plan.rest_min, 'rest_max': plan.rest_max,
                      'tests': [{'name': t.name, 'kind': t.kind, 'direction': t.direction,
                                 'amplitude': t.amplitude, 'duration': t.duration,
-                                'rest_before': t.rest_before} for t in self.plan.tests]},
+                                'rest_before': t.rest_before} for t in plan.tests]},
             'samples': len(self.rows),
             'recording': str(self.out / RECORDING),
             **log}

@@ -6,8 +6,10 @@ checked here once, with one-line errors that say what to change.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 import math
+from typing import Any
 
 from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError
@@ -93,6 +95,8 @@ class ExperimentSettings:
         Multiplies the plan's durations (1: the default plan; tests use less).
     seed : int
         Seed of the PRBS and multisine plans and of the analysis.
+    identify : bool
+        Analyse the recording at the end (False: record only).
     """
 
     joint: str
@@ -111,6 +115,7 @@ class ExperimentSettings:
     watchdog: float = 0.25
     time_scale: float = 1.0
     seed: int = 0
+    identify: bool = True
 
     def __post_init__(self) -> None:
         if not self.joint:
@@ -142,6 +147,26 @@ class ExperimentSettings:
             if len(set(self.controller_joints)) != len(self.controller_joints):
                 raise ConfigError('controller joints repeat a name: '
                                   f'{", ".join(self.controller_joints)}')
+
+    @classmethod
+    def from_parameters(cls, p: Mapping[str, Any]) -> ExperimentSettings:
+        """Settings from the node's parameter values (0 or '' for an unset option)."""
+        travel = str(p.get('travel', '')).strip()
+        return cls(
+            joint=str(p['joint']), command_topic=str(p['command_topic']),
+            max_command=float(p['max_command']), out=str(p['out']),
+            controller_joints=parse_joints(str(p.get('controller_joints', ''))),
+            command_type=str(p.get('command_type', 'multi_array')),
+            state_topic=str(p.get('state_topic', '/joint_states')),
+            input_kind=str(p.get('input_kind', 'voltage')),
+            mechanism=str(p.get('mechanism', 'simple')),
+            travel=Travel.parse(travel) if travel else None,
+            max_speed=float(p['max_speed']) if p.get('max_speed') else None,
+            plan=str(p.get('plan', 'sysid')),
+            resistance=float(p['resistance']) if p.get('resistance') else None,
+            watchdog=float(p.get('watchdog', 0.25)),
+            time_scale=float(p.get('time_scale', 1.0)), seed=int(p.get('seed', 0)),
+            identify=bool(p.get('identify', True)))
 
     @property
     def linear(self) -> bool:

@@ -1,0 +1,200 @@
+"""From the experiment's recording to ``report.json`` and the exit code.
+
+The recording is analysed as ``motor-id analyze`` does (:class:`DiscrepancyAnalysis`);
+``report.json`` is its report with the data block and ``controller.feedforward`` constants
+carrying their units. A voltage plant measured without current cannot tell the armature
+resistance: without ``-R`` the analysis runs on a nominal one (:data:`NOMINAL_R`), which
+the feedforward constants do not depend on, and the report says so.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+import signal
+import sys
+from typing import Any
+
+from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.analysis.workers import usable_cores
+from motor_id.contracts import feedforward_units
+from motor_id.errors import MotorIdError
+from motor_id.experiment.session import ExperimentSession
+from motor_id.experiment.settings import ExperimentSettings
+from motor_id.lifeline import STOP_SIGNALS, stop_signals_as_interrupt
+from motor_id.recording import Recording
+from motor_id.report import write_json
+
+NOMINAL_R = 1.0
+"""Armature resistance [Ohm] the analysis of a speed-only voltage record runs on when
+none is given: kS, kV, kA and kG do not depend on it."""
+
+EXIT_OK = 0
+EXIT_CONFIG = 2
+EXIT_SAFETY = 3
+"""A safety rule stopped the experiment (watchdog, stale states, outside the travel)."""
+EXIT_NOT_IDENTIFIED = 4
+"""The plan ran, but the analysis could not determine the feedforward constants."""
+EXIT_ERROR = 5
+"""An unexpected error stopped the experiment (0 was commanded)."""
+
+
+def identify(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
+             progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+    """The analysis report of the experiment's recording, as ``report.json`` holds it.
+
+    Parameters
+    ----------
+    rec : Recording
+    settings : ExperimentSettings
+    jobs : int
+        Processes for the candidate fits.
+    progress : callable, optional
+
+    Returns
+    -------
+    dict
+        The analyze report plus ``data`` (source, samples, runs), ``experiment`` (the
+        joint, the mechanism, how R_m was set) and units on the feedforward constants.
+    """
+    nominal = settings.input_kind == 'voltage' and settings.resistance is None
+    R = NOMINAL_R if nominal else settings.resistance
+    ana = DiscrepancyAnalysis(R_m=R, random_state=settings.seed, jobs=jobs)
+    ana.fit(rec, progress=progress)
+    out = ana.report_.to_dict()
+    out['data'] = {'source': rec.meta.get('source'), 'samples': len(rec),
+                   'runs': len(rec.segment_ranges), 'run_names': rec.meta.get('segment_names')}
+    out['experiment'] = {
+        'joint': settings.joint, 'mechanism': settings.mechanism,
+        'input_kind': settings.input_kind,
+        'R_m': (f'nominal {NOMINAL_R:g} Ohm: speed alone cannot tell the armature '
+                'resistance; kS, kV, kA do not depend on it') if nominal else
+        (f'{R:g} Ohm as given' if R is not None else None)}
+    _with_units(out, settings)
+    return out
+
+
+def _with_units(report: dict[str, Any], settings: ExperimentSettings) -> None:
+    """Give each feedforward constant its unit (``{value, std, unit}``)."""
+    ff = (report.get('controller') or {}).get('feedforward')
+    if not ff:
+        return
+    units = feedforward_units(settings.input_kind, settings.linear)
+    for name, entry in ff.items():
+        base = name.rstrip('-+')
+        if isinstance(entry, dict) and base in units:
+            entry.setdefault('unit', units[base])
+
+
+def identified(report: dict[str, Any]) -> bool:
+    """The report determines kS, kV and kA."""
+    ff = (report.get('controller') or {}).get('feedforward') or {}
+    return all((ff.get(k) or {}).get('value') is not None for k in ('kS', 'kV', 'kA'))
+
+
+def write_report(report: dict[str, Any], out: str | Path) -> Path:
+    """Write ``report.json`` into ``out``; return its path."""
+    path = Path(out) / 'report.json'
+    write_json(report, path)
+    return path
+
+
+def feedforward_line(report: dict[str, Any]) -> str:
+    """``kS 0.21 +- 0.01 V, kV ...``: the constants in one line (or why there are none)."""
+    ff = (report.get('controller') or {}).get('feedforward')
+    if not ff:
+        return 'no feedforward constants (the analysis found no simulation-error model)'
+    parts = []
+    for name, e in ff.items():
+        if e.get('value') is None:
+            parts.append(f'{name} not determined')
+        else:
+            parts.append(f'{name} {e["value"]:.4g} +- {e["std"]:.2g} {e.get("unit", "")}'
+                         .rstrip())
+    return ', '.join(parts)
+
+
+def failure_report(reason: str, settings: ExperimentSettings) -> dict[str, Any]:
+    """``report.json`` when nothing could be identified: why."""
+    return {'identified': False, 'reason': reason,
+            'experiment': {'joint': settings.joint, 'mechanism': settings.mechanism,
+                           'input_kind': settings.input_kind}}
+
+
+def try_identify(rec: Recording | None, settings: ExperimentSettings, jobs: int = 1,
+                 progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+    """:func:`identify`, or a :func:`failure_report` naming why it could not run."""
+    if rec is None:
+        return failure_report('too few samples were recorded to identify anything',
+                              settings)
+    try:
+        report = identify(rec, settings, jobs, progress)
+    except MotorIdError as exc:
+        return failure_report(f'the analysis failed: {exc}', settings)
+    report['identified'] = identified(report)
+    return report
+
+
+def finish(session: ExperimentSession, failure: str | None, signum: int | None,
+           errored: bool = False, jobs: int | None = None,
+           say: Callable[[str], object] | None = None) -> int:
+    """After the motion: finish the recording and ``experiment.json``, identify, write
+    ``report.json``; return the exit code.
+
+    Parameters
+    ----------
+    session : ExperimentSession
+    failure : str or None
+        Why the experiment never started (no state, no controller joints).
+    signum : int or None
+        The signal that ended it: the outputs are written, the analysis skipped.
+    errored : bool
+        An exception ended it.
+    jobs : int, optional
+        Processes for the analysis (default: every usable core).
+    say : callable, optional
+        Where progress lines go (default: stderr).
+
+    Returns
+    -------
+    int
+        :data:`EXIT_OK`, :data:`EXIT_CONFIG`, :data:`EXIT_SAFETY`,
+        :data:`EXIT_NOT_IDENTIFIED`, :data:`EXIT_ERROR`, or 128 + the signal number.
+    """
+    say = say or (lambda text: print(text, file=sys.stderr, flush=True))
+    # from here on a stop signal interrupts the analysis (its workers are stopped)
+    signal.set_wakeup_fd(-1)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with stop_signals_as_interrupt(STOP_SIGNALS):
+            return _finish(session, failure, signum, errored, jobs, say)
+    except KeyboardInterrupt as exc:
+        name = exc.args[0] if exc.args and isinstance(exc.args[0], str) else 'SIGINT'
+        say('experiment: interrupted')
+        return 128 + int(signal.Signals[name])
+
+
+def _finish(session: ExperimentSession, failure: str | None, signum: int | None,
+            errored: bool, jobs: int | None, say: Callable[[str], object]) -> int:
+    rec = session.close()
+    log = session.guard.log
+    say(f'experiment: {log.stop_reason}; tests: ' + ', '.join(
+        f'{t.name} ({t.end_reason})' for t in log.tests) + f'; wrote {session.out}')
+    if signum is not None:
+        return 128 + signum
+    if failure is not None:
+        write_report(failure_report(failure, session.settings), session.out)
+        return EXIT_CONFIG
+    if not session.settings.identify:
+        return EXIT_ERROR if errored else EXIT_SAFETY if log.safety_stop else EXIT_OK
+    report = try_identify(rec, session.settings, jobs or usable_cores(), say)
+    write_report(report, session.out)
+    if report.get('identified'):
+        say('feedforward: ' + feedforward_line(report))
+    else:
+        say(f'not identified: {report.get("reason") or feedforward_line(report)}')
+    if errored:
+        return EXIT_ERROR
+    if log.safety_stop:
+        return EXIT_SAFETY
+    return EXIT_OK if report.get('identified') else EXIT_NOT_IDENTIFIED
