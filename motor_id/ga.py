@@ -71,7 +71,7 @@ class Bounds:
         """Unit-cube genes (..., d) -> parameter values (..., d)."""
         lo, hi, lg = self._edges()
         z = lo + np.asarray(genes, dtype=float) * (hi - lo)
-        return np.where(lg, np.exp(z), z)
+        return np.where(lg, np.exp(np.where(lg, z, 0.0)), z)   # exp of the log genes only
 
     def encode(self, values: ArrayLike) -> NDArray[np.float64]:
         """Parameter values (..., d) -> unit-cube genes (..., d), clipped to [0, 1]."""

@@ -8,14 +8,20 @@ ROS parameters file and the node's parameters say the same thing.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
+import copy
 from dataclasses import dataclass, field
 import math
 from typing import Any
 
+import numpy as np
+
 from motor_id.controller import from_identification, to_ros_parameters
+from motor_id.effects import EFFECTS
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
 from motor_id.identify.result import IdentificationResult
+from motor_id.identify.scales import data_scales, default_max_delay
+from motor_id.model import PARAM_NAMES
 from motor_id.recording import Recording
 from motor_id.report import attach_units, to_jsonable
 
@@ -119,6 +125,152 @@ def controller_for(report: Mapping[str, Any], sample_period: float | None,
     return design.to_dict(), None, design.summary()
 
 
+def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any] | None:
+    """Search a fit's effects on the record's own scale: a linear fit first.
+
+    An effect parameter's allowed range spans every motor (a Coulomb torque of 0 to
+    1000 N m): a GA drawn over it finds a motor stuck by friction as good as any. So,
+    for a fit with free effect parameters that the settings neither bound nor start:
+
+    1. the linear model is fitted;
+    2. the model with the effects is fitted by the GA from the linear fit, each such
+       effect parameter searched in its catalogue search range on this record's scales
+       (:meth:`motor_id.effects.EffectParam.search_range`, as the analysis searches its
+       candidates). Where the linear fit leaves K_T undetermined (speed alone), K_T is
+       held at its particular value meanwhile: a torque range is on the scale of that
+       K_T, and the GA would otherwise move K_T along its unseen direction away from it;
+    3. ``identifier`` is set to refine from that fit (``start``, no GA), so that its
+       report says what the record determines, K_T free again.
+
+    Returns
+    -------
+    dict or None
+        The report's ``effect_search`` block (the ranges searched), None when nothing was
+        changed.
+    """
+    free = [fe for fe in identifier.free_effects or ()
+            if fe not in (identifier.bounds or {})]
+    if not free or identifier.start is not None or not identifier.use_ga:
+        return None
+    linear = copy.copy(identifier)
+    linear.effects, linear.free_effects = None, None
+    linear.bounds = {k: v for k, v in (identifier.bounds or {}).items() if '.' not in k} \
+        or None
+    with np.errstate(all='ignore'):
+        linear.fit(rec)
+    physical = {k: v for k, v in linear.result_.values().items() if v is not None}
+    if 'K_T' not in physical:
+        return None
+    scales = data_scales(rec, physical, physical.get('R_m'), float(rec.time[-1] - rec.time[0]),
+                         rec.sample_period, default_max_delay(len(rec)))
+    ranges = {}
+    for fe in free:
+        e, _, p = fe.partition('.')
+        ranges[fe] = next(q for q in EFFECTS[e].params if q.name == p).search_range(scales)
+    held = linear.result_.parameters['K_T'].value is None and \
+        'K_T' not in (identifier.fixed or {})
+    scaled = copy.copy(identifier)
+    scaled.bounds = {**(identifier.bounds or {}), **ranges}
+    scaled.start = {k: v for k, v in physical.items() if k != 'R_m'}
+    if held:
+        scaled.fixed = {**(identifier.fixed or {}), 'K_T': physical['K_T']}
+        scaled.start.pop('K_T')
+    with np.errstate(all='ignore'):
+        scaled.fit(rec)
+    values = {k: v for k, v in scaled.result_.values().items() if v is not None}
+    identifier.start = {**{k: v for k, v in values.items() if k != 'R_m'},
+                        **{fe: _effect_value(scaled.result_.effects, fe) for fe in free}}
+    identifier.use_ga = False
+    return {'linear_first': True, 'K_T_held': held,
+            'ranges': {k: list(v) for k, v in ranges.items()},
+            'note': 'each effect parameter searched on the scale of this record (its '
+                    "catalogue search range at the linear fit's torque, speed and input "
+                    'scales) by the GA from the linear fit'
+                    + (', K_T held at its particular value (speed alone cannot tell it), '
+                       'then refined with K_T free' if held else '')}
+
+
+def aliased_poles(result: IdentificationResult, sample_period: float) -> float | None:
+    """The frequency [Hz] of a fitted oscillatory pole pair above the Nyquist frequency
+    of the samples (None: none), for a voltage plant fitted on speed alone.
+
+    Sampled every T, the pair ``-a +- j w`` with ``w > pi / T`` gives the same samples as
+    its alias ``-a +- j (w - 2 pi / T)``: with ``w`` near ``2 pi / T`` that is a real,
+    slow pole. Speed alone cannot tell them apart; the pair is no physical motor's.
+    """
+    if result.input_kind != 'voltage' or 'current' in result.channels:
+        return None
+    v = {k: x for k, x in result.values().items() if x is not None}
+    if any(k not in v for k in PARAM_NAMES):
+        return None
+    J, K_T, K_b, B, L, R = (v[k] for k in PARAM_NAMES)
+    a1, a0 = R / L + B / J, (R * B + K_T * K_b) / (J * L)
+    disc = a1 * a1 - 4.0 * a0
+    if disc >= 0:
+        return None
+    w = math.sqrt(-disc) / 2.0
+    return w / (2 * math.pi) if w > math.pi / sample_period else None
+
+
+def alias_guard(rec: Recording, identifier: Identifier, settings: Identifier
+                ) -> dict[str, Any] | None:
+    """Refit a speed-only fit whose poles alias (:func:`aliased_poles`) with the
+    electrical time constant below half a sample period (where speed cannot see it).
+
+    ``settings`` is ``identifier`` as it was given. The refit replaces the fit in
+    ``identifier`` when it explains the speed as well (within 0.05 fit-% points): the
+    record cannot prefer the aliased pair, and a motor's electrical time constant this
+    short is the rule. Otherwise the fit stays and a warning says kA is not to be trusted.
+
+    Returns
+    -------
+    dict or None
+        The report's ``alias_guard`` block; None when the poles do not alias.
+    """
+    T = rec.sample_period
+    hz = aliased_poles(identifier.result_, T)
+    if hz is None or 'L_m' in (identifier.fixed or {}):
+        return None
+    r_m = identifier.result_.values()['R_m'] or 1.0
+    refit = copy.copy(settings)
+    low = (settings.bounds or {}).get('L_m', (1e-5 * r_m * T, 0.0))[0]
+    refit.bounds = {**(settings.bounds or {}), 'L_m': (min(low, r_m * T / 4), r_m * T / 2)}
+    scale_effect_search(rec, refit)
+    with np.errstate(all='ignore'):
+        refit.fit(rec)
+    before = identifier.result_.fit['channels']['speed']['fit_percent']
+    after = refit.result_.fit['channels']['speed']['fit_percent']
+    out = {'aliased_pair_hz': hz, 'nyquist_hz': 0.5 / T, 'fit_percent': before,
+           'refit_fit_percent': after, 'L_m_bounds': list(refit.bounds['L_m'])}
+    if after >= before - 0.05 and aliased_poles(refit.result_, T) is None:
+        identifier.__dict__.update({k: v for k, v in refit.__dict__.items()
+                                    if k.endswith('_')})
+        out['kept'] = 'refit'
+        identifier.result_.warnings.append(
+            f'the first fit had oscillatory poles at {hz:.3g} Hz, above the Nyquist '
+            f'frequency {0.5 / T:.3g} Hz of the samples (an alias of a slow real pole); '
+            'refitted with the electrical time constant L_m/R_m below half a sample '
+            f'period: speed fit {after:.2f} % (was {before:.2f} %)')
+    else:
+        out['kept'] = 'first fit'
+        for c in identifier.result_.identifiable_combinations:
+            if c['name'] == 'kA':
+                c['determined'] = False
+                c['note'] = 'the fitted poles alias at this sample period'
+        identifier.result_.warnings.append(
+            f'the fitted poles oscillate at {hz:.3g} Hz, above the Nyquist frequency '
+            f'{0.5 / T:.3g} Hz of the samples: they alias, and kA is not to be trusted '
+            '(record at a shorter loop period)')
+    return out
+
+
+def _effect_value(effects: Mapping[str, Any], key: str) -> float:
+    """The fitted value of ``effect.param`` in a result's effects block."""
+    e, _, p = key.partition('.')
+    entry = effects[e][p]
+    return float(entry['value'] if isinstance(entry, dict) else entry)
+
+
 def fit_report(rec: Recording, identifier: Identifier, *,
              controller_options: Mapping[str, Any] | None = None,
              sample_period: float | None = None,
@@ -161,8 +313,13 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     >>> sorted(report.to_dict())[:4]
     ['adequate', 'assumptions', 'channels', 'controller']
     """
+    settings = copy.copy(identifier)
+    search = scale_effect_search(rec, identifier)
     identifier.fit(rec, progress=progress)
+    guard = alias_guard(rec, identifier, settings)
     res = identifier.result_
+    extra = {**dict(extra or {}), **({'effect_search': search} if search else {}),
+             **({'alias_guard': guard} if guard else {})}
     block = data_block(rec, **dict(data or {}))
     head = res.to_dict()
     head['data'] = block

@@ -334,3 +334,53 @@ def _csv(tmp_path, model, data):
     keep = tmp_path / 'speed.csv'
     np.savetxt(keep, rows[:, [0, 1, 4, 5]], delimiter=',', header='t,seg,y,yh')
     return keep
+
+
+@pytest.fixture(scope='module')
+def friction_logs(tmp_path_factory):
+    """A metre routine with static friction at a 5 ms and at a 20 ms robot loop."""
+    root = tmp_path_factory.mktemp('friction')
+    return {period: write_sysid_wpilog(root / f'f{int(period * 1000)}.wpilog', 3,
+                                       units='Meter', loop_period=period,
+                                       motors=(RoutineMotor('lift', kS=0.1),))
+            for period in (0.005, 0.02)}
+
+
+@pytest.mark.parametrize('period', [0.005, 0.02])
+def test_fit_of_a_sysid_log_reports_ks(friction_logs, tmp_path, period):
+    log = friction_logs[period]
+    out = tmp_path / 'fit.json'
+    proc = _cli('fit', log.path, '-R', '0.5', '--json', out)
+    assert proc.returncode == 0, proc.stderr
+    assert 'model: linear + coulomb_friction (a SysId log' in proc.stderr
+    assert 'overflow' not in proc.stderr
+    report = json.loads(out.read_text())
+    assert report['adequate'] and 'coulomb_friction' in report['effects']
+    truth = log.truth['motors']['lift']
+    ff = report['controller']['feedforward']
+    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.01)
+    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.01)
+    np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.05)
+    assert ff['kS']['std'] > 0 and ff['kS']['unit'] == 'V'
+    if period == 0.02:   # a first fit aliased a 50 Hz pole pair onto the 50 ms lag
+        assert report['alias_guard']['kept'] == 'refit'
+        assert report['alias_guard']['nyquist_hz'] == pytest.approx(25.0, rel=1e-6)
+
+
+def test_fit_with_an_effect_searches_on_the_records_scale(friction_logs, tmp_path):
+    log = friction_logs[0.005]
+    out = tmp_path / 'fit.json'
+    proc = _cli('fit', log.path, '-R', '0.5', '--effect', 'coulomb_friction', '-q', '--json',
+                out)
+    assert proc.returncode == 0 and 'overflow' not in proc.stderr, proc.stderr
+    report = json.loads(out.read_text())
+    assert report['adequate'] and report['effect_search']['K_T_held'] is True
+    t_c = report['effect_search']['ranges']['coulomb_friction.T_c']
+    assert t_c[0] == 0.0 and 0 < t_c[1] < 100
+    np.testing.assert_allclose(report['controller']['feedforward']['kS']['value'], 0.1,
+                               atol=0.01)
+    # the linear model alone on request: no kS, and the notes say so
+    proc = _cli('fit', log.path, '-R', '0.5', '--effect', 'none', '-q', '--json', out)
+    report = json.loads(out.read_text())
+    assert report['effects'] == {} and report['controller']['feedforward']['kS']['value'] == 0
+    assert any(n.startswith('kS = 0') for n in report['controller']['notes'])

@@ -22,7 +22,7 @@ import numpy as np
 
 from motor_id.analysis import selection
 from motor_id.analysis.assembly import build_report
-from motor_id.analysis.candidates import CandidateFitter, data_scales
+from motor_id.analysis.candidates import CandidateFitter
 from motor_id.analysis.context import RecordContext
 from motor_id.analysis.diagnostics import map_summary, steady_state_map
 from motor_id.analysis.heldout import HeldOutSplit
@@ -39,6 +39,7 @@ from motor_id.errors import (
     IdentificationError,
     MotorIdError,
 )
+from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.identify.validation import RunScore, SavedModel, validate
 from motor_id.metrics import noise_floor
 
@@ -192,7 +193,7 @@ class DiscrepancyAnalysis:
             except FIT_ERRORS as exc:
                 electrical = {'failed': str(exc), 'favoured': None}
         max_delay = self.max_delay if self.max_delay is not None else \
-            int(min(40, max(2, len(rec) // 25)))
+            default_max_delay(len(rec))
         fitter = CandidateFitter(rec, split, self.R_m, self.random_state, self.starts,
                                  max_delay, self.R_m_tolerance)
         return RecordContext(

@@ -40,7 +40,12 @@ import numpy as np
 from motor_id.analysis.friction import folded_load, friction_summary
 from motor_id.effects import EFFECTS, role_keys, role_value
 from motor_id.identify.determinacy import MAX_RELATIVE_STD
-from motor_id.identify.uncertainty import combine, delta_method, robust_covariance
+from motor_id.identify.uncertainty import (
+    combine,
+    delta_method,
+    feedforward_of,
+    robust_covariance,
+)
 
 if TYPE_CHECKING:
     from motor_id.analysis.simulation_problem import SimulationProblem
@@ -133,25 +138,6 @@ def _si(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
     for name in prob.free:
         e, _, p = name.partition('.')
         out[name] = effects[e][p] if p else params[name]
-    return out
-
-
-def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
-                   ) -> dict[str, float]:
-    """WPILib SysId's constants of a voltage plant with its friction effects: ``kV``,
-    ``kA`` (as :func:`motor_id.identify.uncertainty.feedforward`) and the static
-    voltage ``kS`` (Coulomb torque through R_m / K_T, a brush drop, a dead band), per
-    direction when friction is asymmetric (``kS-``, ``kV-``)."""
-    R, K_T, K_b = params['R_m'], params['K_T'], params['K_b']
-    B, J, L = params['B'], params['J'], params['L_m']
-    tc = role_value(effects, 'kS', scale='torque')
-    tl = role_value(effects, 'load')
-    v0 = role_value(effects, 'kS', scale='input') + role_value(effects, 'dead_band')
-    out = {'kS': v0 + (tc + tl) * R / K_T, 'kV': (R * B + K_T * K_b) / K_T,
-           'kA': (R * J + B * L) / K_T}
-    if role_keys(effects, 'kS_extra_negative') or tl:
-        out['kS-'] = v0 + (tc + role_value(effects, 'kS_extra_negative') - tl) * R / K_T
-        out['kV-'] = (R * (B + role_value(effects, 'kV_extra_negative')) + K_T * K_b) / K_T
     return out
 
 

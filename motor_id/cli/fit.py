@@ -14,7 +14,7 @@ import yaml
 
 from motor_id import pipeline
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
-from motor_id.effects import EFFECTS, parse_effect_args
+from motor_id.effects import EFFECTS, parse_effect_args, role_params
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.report import plot_fit, write_json
@@ -23,6 +23,11 @@ from motor_id.simulate import warm_up
 if TYPE_CHECKING:
     from motor_id.identify import IdentificationResult
     from motor_id.recording import Recording
+
+STATIC_FRICTION = next(spec.name for spec, _ in role_params('kS', 'torque'))
+"""The dry-friction effect a SysId log is fitted with by default (the catalogue's first
+whose parameter is the feedforward's kS as a torque: Coulomb friction)."""
+
 
 def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Options shared by `fit` and `replay --offline`."""
@@ -48,7 +53,9 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
                         help='search range of a parameter')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME[=VALUE]',
                         help='add an effect term to the model and estimate its parameters '
-                             f'(VALUE: the start); one of {", ".join(sorted(EFFECTS))}')
+                             f'(VALUE: the start); one of {", ".join(sorted(EFFECTS))}; '
+                             'none: the linear model alone (a SysId log is fitted with '
+                             f'{STATIC_FRICTION} unless --effect says otherwise)')
     parser.add_argument('--seed', type=int, default=0, help='GA random seed')
     parser.add_argument('--population', type=int, default=20)
     parser.add_argument('--generations', type=int, default=160)
@@ -116,7 +123,7 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
         if hz is not None and not (math.isfinite(hz) and hz > 0):
             raise ConfigError(f'--{opt.replace("_", "-")} must be a frequency > 0 Hz, '
                               f'got {hz}')
-    effects = parse_effect_args(getattr(args, 'effect', []))
+    effects = model_effects(rec, getattr(args, 'effect', []))
     # a parameter a least-squares refinement cannot move (a whole number of samples, a
     # grid step) is kept at the value given
     free = [f'{e}.{p.name}' for e in effects for p in EFFECTS[e].params if p.refined]
@@ -127,6 +134,17 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
                       bounds=parse_bounds(args.bounds, '--bounds') or None,
                       bootstrap=args.bootstrap, effects=effects or None,
                       free_effects=free or None)
+
+
+def model_effects(rec: Recording, items: list[str]) -> dict[str, dict[str, float]]:
+    """The effects of ``--effect`` (``none``: the linear model alone); on a SysId log
+    given none, Coulomb friction: a SysId routine measures static friction, and its kS is
+    part of the feedforward the log is for (without it kV and kA take up the friction)."""
+    if [i.strip().lower() for i in items] == ['none']:
+        return {}
+    if not items and rec.meta.get('sysid') and rec.input_kind == 'voltage':
+        return {STATIC_FRICTION: {}}
+    return parse_effect_args(items)
 
 
 def controller_options(args: argparse.Namespace, input_kind: str) -> dict[str, Any]:
@@ -163,6 +181,10 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
                         ) -> tuple[IdentificationResult, dict[str, Any]]:
     """Run the identification on a recording and print / write what the options ask."""
     est = build_identifier(rec, args)
+    if not args.quiet and est.effects and not getattr(args, 'effect', []):
+        print(f'model: linear + {", ".join(est.effects)} (a SysId log measures static '
+              'friction: its kS is part of the feedforward; --effect none fits the linear '
+              'model alone)', file=sys.stderr)
     if not args.quiet:
         print(f'data: {len(rec)} samples, channels {", ".join(rec.channels())}, '
               f'{"regular" if rec.is_regular else "irregular"} sampling '

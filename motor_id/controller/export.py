@@ -136,13 +136,21 @@ def _feedforward_from_combinations(design: ControllerDesign, result_dict: Mappin
     """kV and kA from the determined combinations of a speed-only fit, where the
     physical parameters they are usually computed from are not determined."""
     combos = {c.get('name'): c for c in result_dict.get('identifiable_combinations') or []
-              if isinstance(c, dict)}
+              if isinstance(c, dict) and c.get('determined', True)}
     filled = []
     for k in ('kV', 'kA'):
         entry = design.feedforward.get(k) or {}
         if k in combos and entry.get('value') is None:
             design.feedforward[k] = {'value': combos[k]['value'], 'std': combos[k].get('std')}
             filled.append(k)
+    entry = design.feedforward.get('kS') or {}
+    if 'kS' in combos and (not entry.get('value') or entry.get('std') is None):
+        # T_c R_m / K_T: determined on speed alone though K_T is not
+        design.feedforward['kS'] = {'value': abs(combos['kS']['value']),
+                                    'std': combos['kS'].get('std')}
+        design.notes[:] = [n for n in design.notes if not n.startswith('kS = 0')]
+        notes.append('kS from the fitted static friction through R_m / K_T, a combination '
+                     'the speed determines (delta-method error bar)')
     if filled:
         notes.append(f'{" and ".join(filled)} from the speed transfer function the data '
                      'determine (kV = a0/b0; kA = a1/b0 = R_m J/K_T + B L_m/K_T, the second '

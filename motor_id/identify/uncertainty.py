@@ -13,6 +13,7 @@ from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 
+from motor_id.effects import role_keys, role_value
 from motor_id.metrics import correlation
 
 if TYPE_CHECKING:
@@ -284,6 +285,25 @@ def feedforward(v: Mapping[str, float]) -> dict[str, float]:
             'kA': (v['R_m'] * v['J'] + v['B'] * v['L_m']) / v['K_T']}
 
 
+def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[str, float]]
+                   ) -> dict[str, float]:
+    """WPILib SysId's constants of a voltage plant with its friction effects: ``kV``,
+    ``kA`` (as :func:`motor_id.identify.uncertainty.feedforward`) and the static
+    voltage ``kS`` (Coulomb torque through R_m / K_T, a brush drop, a dead band), per
+    direction when friction is asymmetric (``kS-``, ``kV-``)."""
+    R, K_T, K_b = params['R_m'], params['K_T'], params['K_b']
+    B, J, L = params['B'], params['J'], params['L_m']
+    tc = role_value(effects, 'kS', scale='torque')
+    tl = role_value(effects, 'load')
+    v0 = role_value(effects, 'kS', scale='input') + role_value(effects, 'dead_band')
+    out = {'kS': v0 + (tc + tl) * R / K_T, 'kV': (R * B + K_T * K_b) / K_T,
+           'kA': (R * J + B * L) / K_T}
+    if role_keys(effects, 'kS_extra_negative') or tl:
+        out['kS-'] = v0 + (tc + role_value(effects, 'kS_extra_negative') - tl) * R / K_T
+        out['kV-'] = (R * (B + role_value(effects, 'kV_extra_negative')) + K_T * K_b) / K_T
+    return out
+
+
 DELTA_STEP = 1e-6
 """Forward-difference step of :func:`delta_method` in the search coordinates."""
 
@@ -331,7 +351,11 @@ def delta_method(fn: Callable[[np.ndarray], Mapping[str, float]], z: np.ndarray,
 def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.ndarray
                  ) -> list[dict[str, Any]]:
     """The transfer-function coefficients (SI), with delta-method standard errors; for a
-    voltage plant fitted on speed alone also SysId's kV and kA (:func:`feedforward`)."""
+    voltage plant fitted on speed alone also SysId's kV and kA (:func:`feedforward`) and,
+    with a static-friction effect, kS (:func:`feedforward_of`)."""
+
+    static = bool(role_keys(problem.effects, 'kS') or role_keys(problem.effects, 'dead_band')
+                  or role_keys(problem.effects, 'load'))
 
     def values(z: np.ndarray) -> dict[str, float]:
         out = problem.coefficients(z, physical=True)
@@ -339,11 +363,24 @@ def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.nda
             v = {k: problem.units.to_physical(k, x) for k, x in problem.values_at(z).items()}
             with np.errstate(all='ignore'):
                 out.update(feedforward(v))
+                if static:   # the static voltage too: T_c R_m / K_T is determined
+                    out['kS'] = feedforward_of(v, _effects_at(problem, z))['kS']
         return out
 
     base, std = delta_method(values, z_best, cov, len(problem.free))
     return [{'name': key, 'value': float(val), 'std': max(std[key], 1e-6 * abs(float(val))),
              'determined': True} for key, val in base.items()]
+
+
+def _effects_at(problem: IdentificationProblem, z: np.ndarray) -> dict[str, dict[str, float]]:
+    """The effect parameters (SI) at search vector ``z``: the free ones from it, the
+    others as held."""
+    x = problem.from_z(z)
+    effects = {e: dict(vals) for e, vals in problem.effects.items()}
+    for j, name in enumerate(problem.free_effects):
+        e, _, p = name.partition('.')
+        effects[e][p] = float(x[len(problem.free) + j])
+    return effects
 
 
 def at_bound(problem: IdentificationProblem, z: np.ndarray) -> np.ndarray:
