@@ -397,3 +397,12 @@ def test_the_input_is_the_command_sent_before_the_next_sample(tmp_path):
     assert rec.input[0] == 0.0   # nothing sent before: 0
     sess.sent = []
     np.testing.assert_array_equal(sess.recording().input, 9.0)
+
+
+def test_a_test_cut_short_before_the_model_knew_the_joint_runs_again():
+    from motor_id.experiment.plan import repeat_later
+    plan = arrange(build_plan('sysid', 12.0), room_low=False, room_high=True)
+    again = repeat_later(plan, 0)   # quasistatic-forward and its chained reverse
+    assert [(t.name, t.rest_before) for t in again.tests[4:]] == [
+        ('quasistatic-forward', True), ('quasistatic-reverse', False)]
+    assert [t.name for t in repeat_later(plan, 3).tests[4:]] == ['dynamic-reverse']

@@ -118,6 +118,42 @@ def test_wheel_end_to_end_identifies_the_feedforward(client, launch, tmp_path):
     assert len(seen['/joint_states']) >= len(rec)
 
 
+@pytest.mark.slow   # the full plan (about 40 s) and its analysis
+def test_wheel_full_plan_identifies_the_feedforward(launch, tmp_path):
+    robot = launch('robot', robot_args(tmp_path, seed=3))
+    robot.wait_for(READY, timeout=180)
+    exp = launch('experiment', experiment_args(tmp_path, time_scale=1.0))
+    assert exp.wait(timeout=900) == EXIT_OK, exp.output()
+    robot.stop(signal.SIGINT)
+    true = truth(tmp_path)['feedforward']
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert ff(report, 'kV')['value'] == pytest.approx(true['kV']['value'], rel=0.05)
+    assert ff(report, 'kA')['value'] == pytest.approx(true['kA']['value'], rel=0.20)
+    assert ff(report, 'kS')['value'] == pytest.approx(true['kS']['value'], abs=0.03)
+
+
+def test_an_arm_is_never_pushed_past_its_travel(launch, tmp_path):
+    # hangs at -1.92 rad between stops at -2.4 and 1.4: little room below, so each test
+    # down follows a test up
+    robot = launch('robot', robot_args(tmp_path, 'arm'))
+    robot.wait_for(READY, timeout=180)
+    exp = launch('experiment', experiment_args(
+        tmp_path, 'arm_joint', '--mechanism', 'arm', '--travel=-2.3:1.3', '--no-identify',
+        '--controller-joints', 'base_joint,arm_joint,wrist_joint', time_scale=0.5))
+    assert exp.wait(timeout=600) == EXIT_OK, exp.output()
+    robot.stop(signal.SIGINT)
+    t = truth(tmp_path)
+    assert -2.3 <= t['position']['min'] and t['position']['max'] <= 1.3
+    assert t['position']['max'] > 0.0   # it did go up
+    assert max(abs(v) for c in t['commands'] for v in c['values']) <= MAX
+    assert all(c['values'][0] == c['values'][2] == 0.0 for c in t['commands'])
+    log = json.loads((tmp_path / 'out' / 'experiment.json').read_text())
+    assert log['complete']
+    done = {(x['name'], x['direction']) for x in log['tests'] if x['samples'] > 20}
+    assert done == {('quasistatic-forward', 1), ('quasistatic-reverse', -1),
+                    ('dynamic-forward', 1), ('dynamic-reverse', -1)}
+
+
 # ------------------------------------------------------------------ safety
 
 def start_moving(client, launch, tmp_path, *extra):

@@ -28,8 +28,8 @@ import math
 import statistics
 
 from motor_id.experiment.coast import Coast, OnlineModel, predict_coast
-from motor_id.experiment.log import RunLog, TestLog
-from motor_id.experiment.plan import arrange, Plan, TestSpec
+from motor_id.experiment.log import RunLog, TestLog, TRAVEL_REASONS
+from motor_id.experiment.plan import arrange, Plan, repeat_later, TestSpec
 from motor_id.experiment.settings import ExperimentSettings
 
 MARGIN = 0.05
@@ -102,6 +102,8 @@ class Guard:
         self._last: StateSample | None = None
         self._last_rx: float | None = None
         self.stats = StreamStats()
+        self._modelled = False
+        self._repeated: set[str] = set()
         self._baseline: list[StateSample] = []
         self._settled_since: float | None = None
         self._peak_speed = 0.0
@@ -281,6 +283,12 @@ class Guard:
             self.elapsed(self._last.t) if self._last is not None else test.start
         if reason == 'stopped' or s is None:
             return self._set(0.0)
+        if reason in TRAVEL_REASONS and not self._modelled and \
+                test.name not in self._repeated:
+            # cut short on the cautious coast, before the model knew the joint: again
+            # at the end, once it does
+            self._repeated.add(test.name)
+            self.plan = repeat_later(self.plan, self.test_index)
         self._set(0.0)
         return self._next_test(s)
 
@@ -341,6 +349,7 @@ class Guard:
             return None
         lo, hi = self.window()
         c = self.coast(s)
+        self._modelled = c.modelled
         if c.high > hi:
             return 'travel_high'
         if c.low < lo:

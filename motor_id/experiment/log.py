@@ -16,7 +16,9 @@ END_REASONS = {
     'stopped': 'the experiment stopped during it',
 }
 """Why a test ends."""
-LIMIT_REASONS = ('travel_high', 'travel_low', 'max_speed')
+TRAVEL_REASONS = ('travel_high', 'travel_low')
+"""End reasons at the travel's edges."""
+LIMIT_REASONS = TRAVEL_REASONS + ('max_speed',)
 """End reasons that are a limit reached."""
 
 

@@ -194,6 +194,16 @@ def arrange(plan: Plan, room_low: bool, room_high: bool) -> Plan:
     return replace(plan, tests=tuple(tests))
 
 
+def repeat_later(plan: Plan, index: int) -> Plan:
+    """``plan`` with test ``index`` and the chained tests that follow it run again at the
+    end (a test cut short before the guard knew the joint, run once it does)."""
+    k = index + 1
+    while k < len(plan.tests) and not plan.tests[k].rest_before:
+        k += 1
+    again = (replace(plan.tests[index], rest_before=True),) + plan.tests[index + 1:k]
+    return replace(plan, tests=plan.tests + again)
+
+
 def _segment(kind: str, k: int, amplitude: float, duration: float, seed: int) -> TestSpec:
     """A PRBS or multisine segment, tabulated from :mod:`motor_id.excitation`."""
     if kind == 'prbs':
