@@ -16,7 +16,7 @@ robots of its fleet).
 
 1. **Detection.** A change at every position of a 30-recording history (the 2nd
    recording on), per kind and size; the drifting motor has 3 clean siblings (a 4-robot
-   fleet) or 7 (8 wheels of one ``type:``). Per cell: the median number of recordings
+   fleet) or 7 (an 8-robot fleet), one per robot. Per cell: the median number of recordings
    from the onset to the first flag (the onset recording counting 1), the share flagged
    by the 30th recording, and the share dated right on the whole history (steps: within
    one recording of the onset; ramps: -1..+4).
@@ -112,7 +112,7 @@ def false_alarms(rule, fleets, robots, days=365, seed=2, by_type=False):
             for wheel in (('all',) if by_type else spec.motors):
                 keys = [k for k in sorted(truths) if by_type or k[1] == wheel]
                 hist = [_history(rule, truths[k], param, rng) for k in keys]
-                pool = rule.pool(hist)
+                pool = rule.pool(hist, [k[0] for k in keys])
                 for k, h in zip(keys, hist, strict=True):
                     hit = bool(np.nanmax(rule.alarms(h, pool)) > rule.threshold)
                     hit_motor[k] |= hit

@@ -144,6 +144,9 @@ def test_scatter_pooled_over_siblings_is_robust_to_their_changes():
     assert sc.tau == pytest.approx(tau, rel=0.15)
     assert sc.differences == 6 * 29 and sc.dof == pytest.approx(0.6 * 174)
     assert DriftRule().pool(hist).at(_days(30)[2]).differences == 12
+    # two wheels of one robot: their differences at one recording count once (dof)
+    same = DriftRule().pool(hist[:2], ['robot_00', 'robot_00']).at()
+    assert same.differences == 58 and same.dof == pytest.approx(0.6 * 29)
 
 
 def test_drift_says_why_a_short_or_fixed_history_is_not_tested():

@@ -267,9 +267,11 @@ class DriftRule:
         """The settings, for the outputs."""
         return asdict(self)
 
-    def pool(self, histories: Sequence[Series]) -> ScatterPool:
-        """The scatter pooled over histories of one parameter (a motor and its siblings)."""
-        return ScatterPool([(h.times, h.y, h.rel) for h in histories], self.floor)
+    def pool(self, histories: Sequence[Series], units: Sequence[str] | None = None
+             ) -> ScatterPool:
+        """The scatter pooled over histories of one parameter (a motor and its siblings;
+        ``units``: the robot of each, see :class:`~motor_id.fleet.scatter.ScatterPool`)."""
+        return ScatterPool([(h.times, h.y, h.rel) for h in histories], self.floor, units)
 
     def scan(self, times: Sequence[Any], values: Sequence[float | None],
              stds: Sequence[float | None] | None = None,

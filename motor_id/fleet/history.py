@@ -168,7 +168,7 @@ def fleet_findings(rows: Iterable[Row], rule: DriftRule | None = None,
                               [s for _, _, s, _ in hist[k][p]]) for k in keys}
         for g in sorted(set(group_of.values())):
             members = [k for k in keys if group_of[k] == g]
-            pool = rule.pool([prepared[k] for k in members])
+            pool = rule.pool([prepared[k] for k in members], [k[0] for k in members])
             found = {k: rule.scan_series(prepared[k], pool) for k in members}
             for k in members:
                 times = [hist[k][p][i][0] for i in found[k].outliers]

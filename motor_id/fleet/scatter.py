@@ -16,7 +16,10 @@ every difference of every history of the group (the motor and its siblings: the 
 motor on the other robots) up to a given time, so that the test at a recording uses
 what was known then.
 
-Its effective degrees of freedom ``DOF_PER_DIFFERENCE`` x (differences) were measured
+Siblings on one robot share its conditions (its temperature moves both wheels' R_m
+alike), so their differences at one recording count once toward the degrees of
+freedom (the scale still uses them all). Its effective degrees of freedom
+``DOF_PER_DIFFERENCE`` x (differences so counted) were measured
 by simulation (``var(log tau_hat^2) = 2 / dof`` for normal estimates; consecutive
 differences share an estimate, so they are not independent, and clipping costs a
 little): the drift test pays for an uncertain scatter with Student-t tails.
@@ -69,7 +72,8 @@ class Scatter:
     differences: int
 
 
-def scatter_of(d: NDArray[np.float64], v: NDArray[np.float64], floor: float) -> Scatter:
+def scatter_of(d: NDArray[np.float64], v: NDArray[np.float64], floor: float,
+               independent: int | None = None) -> Scatter:
     """Huber's scale estimate of tau from differences ``d`` with known parts ``v``.
 
     Parameters
@@ -80,6 +84,8 @@ def scatter_of(d: NDArray[np.float64], v: NDArray[np.float64], floor: float) -> 
         ``s_i^2 + s_i+1^2`` of each difference (the error bars' share of its variance).
     floor : float
         Smallest tau returned.
+    independent : int, optional
+        How many of the differences are independent (default: all).
 
     Returns
     -------
@@ -88,6 +94,7 @@ def scatter_of(d: NDArray[np.float64], v: NDArray[np.float64], floor: float) -> 
     m = int(d.size)
     if m == 0:
         return Scatter(tau=floor, dof=0.0, differences=0)
+    dof = DOF_PER_DIFFERENCE * (m if independent is None else independent)
     beta = _huber_beta(HUBER_C)
     c2 = HUBER_C ** 2
     d2 = d * d
@@ -95,11 +102,11 @@ def scatter_of(d: NDArray[np.float64], v: NDArray[np.float64], floor: float) -> 
     def excess(tau: float) -> float:
         return float(np.mean(np.minimum(d2 / (2 * tau * tau + v), c2))) - beta
     if excess(floor) <= 0.0:
-        return Scatter(tau=floor, dof=DOF_PER_DIFFERENCE * m, differences=m)
+        return Scatter(tau=floor, dof=dof, differences=m)
     from scipy.optimize import brentq
     top = math.log(max(float(np.sqrt(d2.max() / (2 * beta))), floor) * 2)
     root = brentq(lambda u: excess(math.exp(u)), math.log(floor), top, xtol=1e-9)
-    return Scatter(tau=math.exp(root), dof=DOF_PER_DIFFERENCE * m, differences=m)
+    return Scatter(tau=math.exp(root), dof=dof, differences=m)
 
 
 
@@ -113,21 +120,30 @@ class ScatterPool:
         format, or datetimes), the log estimates and their relative errors, in time order.
     floor : float
         Smallest tau.
+    units : sequence of str, optional
+        The robot of each history: differences of one robot at one time count once
+        toward the degrees of freedom (default: every history on its own robot).
     """
 
     def __init__(self, histories: Sequence[tuple[Sequence[Any], NDArray[np.float64],
                                                  NDArray[np.float64]]],
-                 floor: float) -> None:
-        items: list[tuple[Any, float, float]] = []
-        for times, y, rel in histories:
+                 floor: float, units: Sequence[str] | None = None) -> None:
+        items: list[tuple[Any, float, float, tuple[Any, ...]]] = []
+        for k, (times, y, rel) in enumerate(histories):
+            unit = units[k] if units is not None else str(k)
             for i in range(1, len(y)):
                 items.append((times[i], float(y[i] - y[i - 1]),
-                              float(rel[i] ** 2 + rel[i - 1] ** 2)))
+                              float(rel[i] ** 2 + rel[i - 1] ** 2), (unit, times[i])))
         items.sort(key=lambda x: x[0])
         self.floor = floor
-        self._times = [t for t, _, _ in items]
-        self._d = np.array([d for _, d, _ in items], dtype=float)
-        self._v = np.array([v for _, _, v in items], dtype=float)
+        self._times = [t for t, _, _, _ in items]
+        self._d = np.array([d for _, d, _, _ in items], dtype=float)
+        self._v = np.array([v for _, _, v, _ in items], dtype=float)
+        seen: set[tuple[Any, ...]] = set()
+        self._independent = [0]
+        for *_, key in items:
+            seen.add(key)
+            self._independent.append(len(seen))
         self._cache: dict[int, Scatter] = {}
 
     def __len__(self) -> int:
@@ -139,6 +155,6 @@ class ScatterPool:
         m = len(self._times) if time is None else bisect_right(self._times, time)
         got = self._cache.get(m)
         if got is None:
-            got = scatter_of(self._d[:m], self._v[:m], self.floor)
+            got = scatter_of(self._d[:m], self._v[:m], self.floor, self._independent[m])
             self._cache[m] = got
         return got
