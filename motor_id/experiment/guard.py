@@ -163,9 +163,9 @@ class Guard:
             return self.stop(f'stale state: joint {self.settings.joint} stamped '
                              f'{late:.2f} s later than usual', safety=True)
         self._account(s)
-        if self.phase != 'baseline' and not self._inside_travel(s.position):
-            return self.stop(f'position {s.position:.4g} outside the travel '
-                             f'{self._travel_text()}', safety=True)
+        outside = self._outside_travel(s.position) if self.phase != 'baseline' else None
+        if outside is not None:
+            return self.stop(outside, safety=True)
         if self.phase == 'baseline':
             return self._on_baseline(s)
         if self.phase == 'rest':
@@ -308,17 +308,13 @@ class Guard:
         return (min(travel.low + m, self.rest_position - tol),
                 max(travel.high - m, self.rest_position + tol))
 
-    def _inside_travel(self, x: float) -> bool:
+    def _outside_travel(self, x: float) -> str | None:
         travel = self.settings.travel
-        if travel is None:
-            return True
-        tol = 6.0 * self.noise_position + 1e-3 * travel.width
-        return min(travel.low, self.rest_position) - tol <= x <= \
-            max(travel.high, self.rest_position) + tol
-
-    def _travel_text(self) -> str:
-        travel = self.settings.travel
-        return travel.text() if travel is not None else ''
+        tol = 0.0 if travel is None else 6.0 * self.noise_position + 1e-3 * travel.width
+        if travel is None or min(travel.low, self.rest_position) - tol <= x <= \
+                max(travel.high, self.rest_position) + tol:
+            return None
+        return f'position {x:.4g} outside the travel {travel.text()}'
 
     def _has_room(self, spec: TestSpec, x: float) -> bool:
         travel = self.settings.travel
