@@ -3,7 +3,9 @@
 Ctrl-C, SIGTERM and SIGHUP stop it alike (exit 130): the driver, the identifier and the
 card are sent SIGINT together (the driver commands 0 V and closes the bag) and killed
 if they hang; killed itself (SIGKILL), the demo's children get SIGTERM from the kernel
-(:mod:`motor_id.lifeline`) and stop the same way.
+(:mod:`motor_id.lifeline`) and stop the same way. ``--robot wheel|arm|elevator`` runs
+:mod:`motor_id.cli.demo_robot` instead: the simulated ros2_control robot and
+``motor-id experiment`` on its joint.
 """
 
 import argparse
@@ -39,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f'card noise std [rad/s, A] (default {NOISE})')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--domain', type=int, help='ROS_DOMAIN_ID (default: random 1..101)')
+    parser.add_argument('--robot', choices=('wheel', 'arm', 'elevator'),
+                        help='instead of the card: `motor-id experiment` on a joint of the '
+                             'simulated ros2_control robot (--fast: a shorter plan)')
 
 
 def _say(text: str) -> None:
@@ -47,6 +52,9 @@ def _say(text: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo end to end; exit 0 when the estimate came back."""
+    if args.robot:
+        from motor_id.cli.demo_robot import run as run_robot
+        return run_robot(args)
     t_start = time.monotonic()
     out = os.path.abspath(args.out)
     os.makedirs(out, exist_ok=True)
