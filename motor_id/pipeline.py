@@ -19,6 +19,7 @@ from motor_id.controller import from_identification, to_ros_parameters
 from motor_id.effects import EFFECTS
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
+from motor_id.identify.mechanism import check_mechanism, with_gravity
 from motor_id.identify.result import IdentificationResult
 from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.model import PARAM_NAMES
@@ -276,7 +277,8 @@ def fit_report(rec: Recording, identifier: Identifier, *,
              sample_period: float | None = None,
              progress: Callable[[int, int, float], bool | None] | None = None,
              data: Mapping[str, Any] | None = None,
-             extra: Mapping[str, Any] | None = None) -> FitReport:
+             extra: Mapping[str, Any] | None = None,
+             mechanism: str = 'simple') -> FitReport:
     """Fit ``rec`` and build the full report.
 
     Parameters
@@ -293,6 +295,11 @@ def fit_report(rec: Recording, identifier: Identifier, *,
         Passed to :meth:`Identifier.fit`.
     data, extra : dict, optional
         More keys for the ``data`` block and the top level.
+    mechanism : {'simple', 'elevator', 'arm'}
+        What the joint moves (:data:`motor_id.effects.MECHANISMS`): the fit is refitted
+        with the mechanism's gravity in the model, started from its equation-error
+        values (:func:`motor_id.identify.mechanism.with_gravity`); the controller block
+        then has ``kG`` (and an arm's ``offset``).
 
     Raises
     ------
@@ -313,11 +320,12 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     >>> sorted(report.to_dict())[:4]
     ['adequate', 'assumptions', 'channels', 'controller']
     """
+    check_mechanism(rec, mechanism)   # before the fit: a missing position is found at once
     settings = copy.copy(identifier)
     search = scale_effect_search(rec, identifier)
     identifier.fit(rec, progress=progress)
     guard = alias_guard(rec, identifier, settings)
-    res = identifier.result_
+    res = with_gravity(identifier, rec, mechanism).result_
     extra = {**dict(extra or {}), **({'effect_search': search} if search else {}),
              **({'alias_guard': guard} if guard else {})}
     block = data_block(rec, **dict(data or {}))

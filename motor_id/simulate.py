@@ -169,8 +169,8 @@ def _initial_batch(x0: ArrayLike | None, P: int, n: int, resonance_states: int
 def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
                    input_kind: str = 'voltage', method: str = 'zoh',
                    effects: Mapping[str, Mapping[str, ArrayLike]] | None = None,
-                   x0: ArrayLike | None = None, position: bool = False
-                   ) -> dict[str, np.ndarray]:
+                   x0: ArrayLike | None = None, position: bool = False,
+                   measured_position: ArrayLike | None = None) -> dict[str, np.ndarray]:
     """Simulate P parameter sets on one input record.
 
     Parameters
@@ -190,7 +190,11 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
         state.
     position : bool
         Also integrate the motor's position (exactly, with the held inputs: an extra
-        state ``d(theta)/dt = w``).
+        state ``d(theta)/dt = w``); on by itself with an effect that reads the position
+        (an arm's gravity) and no ``measured_position``.
+    measured_position : array_like, shape (N,), optional
+        The record's measured position [rad or m]: an effect that reads the position
+        takes it from here, exogenous like the input (else from the integrated one).
 
     Returns
     -------
@@ -198,7 +202,14 @@ def simulate_batch(theta: Mapping[str, ArrayLike], t: ArrayLike, u: ArrayLike,
         ``'speed'`` (P, N) as the sensor reports it, ``'current'`` (P, N) for a voltage
         plant, ``'position'`` (P, N) with ``position``, ``'states'`` (P, N, n).
     """
-    return discretise_batch(theta, t, input_kind, method, effects, position).run(u, x0)
+    position = position or (measured_position is None and reads_position(effects))
+    return discretise_batch(theta, t, input_kind, method, effects, position).run(
+        u, x0, measured_position=measured_position)
+
+
+def reads_position(effects: Mapping[str, Any] | None) -> bool:
+    """An effect of ``effects`` reads the joint's position (an arm's gravity)."""
+    return any(EFFECTS[e].position for e in (effects or {}) if e in EFFECTS)
 
 
 FRICTION_EFFECTS = tuple(n for n, spec in EFFECTS.items() if spec.friction_term)
@@ -234,9 +245,11 @@ class DiscretisedBatch:
     resonance: bool
 
     def run(self, u: ArrayLike, x0: ArrayLike | None, rows: tuple[int, int] | None = None,
-            members: np.ndarray | None = None) -> dict[str, np.ndarray]:
+            members: np.ndarray | None = None, measured_position: ArrayLike | None = None
+            ) -> dict[str, np.ndarray]:
         """Simulate samples ``rows`` (``[a, b)``; all when None) of the record with the
-        input ``u`` of those samples, for the batch members ``members`` (all when None)."""
+        input ``u`` of those samples, for the batch members ``members`` (all when None);
+        ``measured_position`` is the whole record's (sliced here like the intervals)."""
         effects, full, A, Bd, Hm, Hq = (self.effects, self.full, self.A, self.Bd, self.Hm,
                                         self.Hq)
         if members is not None:
@@ -247,6 +260,10 @@ class DiscretisedBatch:
                 Hm, Hq = Hm[members], Hq[members]
         P = A.shape[0]
         idx = self.idx if rows is None else self.idx[rows[0]:max(rows[1] - 1, rows[0])]
+        theta_m = np.zeros(0)
+        if measured_position is not None:
+            mp = np.asarray(measured_position, dtype=float)
+            theta_m = np.ascontiguousarray(mp if rows is None else mp[rows[0]:rows[1]])
         n = A.shape[3]
         x0b = _initial_batch(x0, P, n, self.n_dyn if self.resonance else 0)
         ueff = apply_input_maps(u, effects, P)
@@ -270,7 +287,7 @@ class DiscretisedBatch:
         X, Y = compiled(_kernel)(A, Bd, idx, self.dts, ueff, x0b,
                                  self.input_kind == 'voltage', friction_table(effects, P),
                                  *kernel_args(effects, P), full.get('R_m', np.ones(P)), Hm,
-                                 Hq, n - 1 if self.position else -1)
+                                 Hq, n - 1 if self.position else -1, theta_m)
         out = {'speed': output_maps(Y, 'speed', effects, P), 'states': X}
         if self.position:
             out['position'] = np.ascontiguousarray(X[:, :, n - 1])
@@ -354,8 +371,8 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
                   input_kind: str = 'voltage', method: str = 'zoh',
                   effects: Mapping[str, Mapping[str, ArrayLike]] | None = None,
                   x0: ArrayLike | None = None,
-                  segments: Sequence[tuple[int, int]] | None = None
-                  ) -> dict[str, np.ndarray]:
+                  segments: Sequence[tuple[int, int]] | None = None,
+                  measured_position: ArrayLike | None = None) -> dict[str, np.ndarray]:
     """:func:`simulate_batch` over separate runs joined in one record.
 
     Each run ``[a, b)`` of ``segments`` is simulated on its own, from its own initial
@@ -370,10 +387,12 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
         ``'speed'`` and, for a voltage plant, ``'current'``, each (P, N).
     """
     if not segments or len(segments) == 1:
-        return simulate_batch(theta, t, u, input_kind, method, effects, x0)
+        return simulate_batch(theta, t, u, input_kind, method, effects, x0,
+                              measured_position=measured_position)
     effects = effects or {}
     # the plants are discretised once on every interval of the record, not once a run
-    disc = discretise_batch(theta, t, input_kind, method, effects, False)
+    disc = discretise_batch(theta, t, input_kind, method, effects,
+                            measured_position is None and reads_position(effects))
     x0 = None if x0 is None else np.asarray(x0, dtype=float)
     n0 = None if x0 is None else x0.shape[-1] // len(segments)
     members = _member_table(theta, effects) \
@@ -386,11 +405,11 @@ def simulate_runs(theta: Mapping[str, ArrayLike], t: np.ndarray, u: np.ndarray,
             _, first, inverse = np.unique(np.concatenate([members, xk], axis=1), axis=0,
                                           return_index=True, return_inverse=True)
             if first.size < xk.shape[0]:
-                part = disc.run(u[a:b], xk[first], (a, b), first)
+                part = disc.run(u[a:b], xk[first], (a, b), first, measured_position)
                 parts.append({c: v[inverse.ravel()] for c, v in part.items()
                               if c in ('speed', 'current')})
                 continue
-        parts.append(disc.run(u[..., a:b], xk, (a, b)))
+        parts.append(disc.run(u[..., a:b], xk, (a, b), None, measured_position))
     return {c: np.concatenate([p[c] for p in parts], axis=1)
             for c in ('speed', 'current') if c in parts[0]}
 

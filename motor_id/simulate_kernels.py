@@ -20,7 +20,7 @@ _HEAP_PRIME_BYTES = 16 << 20
 
 
 def _kernel(A, Bd, idx, dts, u, x0, voltage, fr, T_L, k_q, V_b, k_h, tau_th, tau_s,  # noqa: C901
-            R0, Hm, Hq, ipos):
+            T_G, G_cos, G_off, R0, Hm, Hq, ipos, theta_m):
     P, N = u.shape
     n = A.shape[2]
     X = np.zeros((P, N, n))
@@ -47,7 +47,12 @@ def _kernel(A, Bd, idx, dts, u, x0, voltage, fr, T_L, k_q, V_b, k_h, tau_th, tau
                 elif x[1] < 0.0:
                     si = -1.0
                 v -= V_b[p] * si
-            tau = -T_L[p] - k_q[p] * w * abs(w)
+            tau = -T_L[p] - T_G[p] - k_q[p] * w * abs(w)
+            if G_cos[p] != 0.0:
+                # an arm's gravity at the measured position (exogenous, like the input),
+                # else at the integrated one
+                th = theta_m[k] if theta_m.shape[0] > 0 else (x[ipos] if ipos >= 0 else 0.0)
+                tau -= G_cos[p] * np.cos(th + G_off[p])
             if w < 0.0:
                 tau -= fr[p, 2] * w   # extra viscous friction in the negative direction
             heat = 0.0

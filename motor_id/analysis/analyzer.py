@@ -39,6 +39,7 @@ from motor_id.errors import (
     IdentificationError,
     MotorIdError,
 )
+from motor_id.identify.mechanism import check_mechanism
 from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.identify.validation import RunScore, SavedModel, validate
 from motor_id.metrics import noise_floor
@@ -48,8 +49,9 @@ if TYPE_CHECKING:
     from motor_id.recording import Recording
 
 CANDIDATES = tuple(e for e, spec in EFFECTS.items()
-                   if not spec.extends and not spec.simulation_only)
-"""Candidate effects, in catalogue order (the more common first)."""
+                   if not spec.extends and not spec.simulation_only and not spec.mechanism)
+"""Candidate effects, in catalogue order (the more common first); a mechanism's gravity is
+never one (it is in the base model of a record of that mechanism)."""
 
 
 class DiscrepancyAnalysis:
@@ -96,6 +98,11 @@ class DiscrepancyAnalysis:
         Processes the candidate fits of each step run on (:class:`.workers.FitPool`:
         forked workers, the same results); 1 fits in this process, as a caller with
         threads of its own (a ROS node) must.
+    mechanism : {'simple', 'elevator', 'arm'}
+        What the joint moves (:data:`motor_id.effects.MECHANISMS`): an elevator's or an
+        arm's gravity is in the base model, fitted with it from the start (never a
+        candidate, never rejected); an effect it excludes (a constant load, for an
+        elevator) is not tried. An arm needs the measured position.
 
     Examples
     --------
@@ -124,7 +131,7 @@ class DiscrepancyAnalysis:
                  ambiguity: float = 0.03, max_effects: int = 3, structure_ratio: float = 1.5,
                  n_blocks: int = 10, max_delay: int | None = None, generations: int = 100,
                  pool_size: int = 4, starts: int = 2, R_m_tolerance: float = 0.10,
-                 init_samples: int = 20, jobs: int = 1) -> None:
+                 init_samples: int = 20, jobs: int = 1, mechanism: str = 'simple') -> None:
         self.R_m = R_m
         self.candidates = candidates
         self.random_state = random_state
@@ -140,6 +147,7 @@ class DiscrepancyAnalysis:
         self.R_m_tolerance = R_m_tolerance
         self.init_samples = init_samples
         self.jobs = jobs
+        self.mechanism = mechanism
 
     def fit(self, rec: Recording, progress: Callable[[str], object] | None = None
             ) -> DiscrepancyAnalysis:
@@ -176,7 +184,10 @@ class DiscrepancyAnalysis:
         for n in names:
             if n not in EFFECTS:
                 raise ConfigError(f'unknown candidate effect {n!r}; known: {sorted(EFFECTS)}')
-        return [n for n in names if rec.input_kind in EFFECTS[n].kinds]
+        gravity = check_mechanism(rec, self.mechanism)
+        excluded = set(EFFECTS[gravity].excludes) | {gravity} if gravity else set()
+        return [n for n in names if rec.input_kind in EFFECTS[n].kinds and n not in excluded
+                and not EFFECTS[n].mechanism]
 
     def _setup(self, rec: Recording, names: Sequence[str]) -> RecordContext:
         meas, meas_evidence = find_measurement_effects(rec)
@@ -195,7 +206,7 @@ class DiscrepancyAnalysis:
         max_delay = self.max_delay if self.max_delay is not None else \
             default_max_delay(len(rec))
         fitter = CandidateFitter(rec, split, self.R_m, self.random_state, self.starts,
-                                 max_delay, self.R_m_tolerance)
+                                 max_delay, self.R_m_tolerance, self.mechanism)
         return RecordContext(
             rec=rec, split=split, fitter=fitter, measurement=meas,
             measurement_evidence=meas_evidence, electrical=electrical,
@@ -286,6 +297,7 @@ class DiscrepancyAnalysis:
                                     n_blocks=self.n_blocks, min_gain=self.min_gain,
                                     ambiguity=self.ambiguity,
                                     unexplained=search.structure(chosen))
+        self.report_.mechanism = self.mechanism
         if rec.has_position and self.init_samples:
             model = SavedModel.from_report(self.report_.to_dict(), use_simulation=False)
             self.report_.simulation = simulation_stage(

@@ -86,9 +86,9 @@ def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None,
     """The report's ``chosen`` entry: name, estimator, effect values and the fit."""
     chosen_d: dict[str, Any] = {
         'name': dyn, 'estimator': 'output error (simulation)',
-        'effects': {} if chosen is base else chosen.effects,
+        'effects': dict(chosen.effects),   # the base's: a mechanism's gravity, or none
         'fit': full.result_.fit if (full is not None and chosen is not base) else None}
-    if full is not None and chosen is not base:
+    if full is not None and (chosen is not base or base.effects):
         chosen_d['effects'] = {e: {p: (v['value'] if isinstance(v, dict) else v)
                                    for p, v in vals.items()}
                                for e, vals in dynamic_effects(full.result_.effects).items()}

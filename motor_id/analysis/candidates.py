@@ -20,9 +20,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.analysis.report import ModelScore
-from motor_id.effects import EFFECTS
+from motor_id.effects import EFFECTS, mechanism_effect
 from motor_id.errors import FIT_ERRORS
 from motor_id.identify import Identifier
+from motor_id.identify.mechanism import with_gravity
 from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
@@ -126,12 +127,17 @@ class CandidateFitter:
         Largest input delay tried [samples].
     R_m_tolerance : float
         Relative standard deviation of the Identifier's prior on R_m.
+    mechanism : str
+        ``'simple'`` or a mechanism of :data:`motor_id.effects.MECHANISMS`: its gravity
+        is in the base model (:meth:`fit_linear`), so in every model, always fitted.
     """
 
     def __init__(self, rec: Recording, split: HeldOutSplit, R_m: float | None = None,
                  random_state: int | None = 0, starts: int = 2, max_delay: int = 40,
-                 R_m_tolerance: float = 0.10) -> None:
+                 R_m_tolerance: float = 0.10, mechanism: str = 'simple') -> None:
         self.rec = rec
+        self.mechanism = mechanism
+        self.gravity = mechanism_effect(mechanism)
         self.R_m_tolerance = R_m_tolerance
         self.split = split
         self.R_m = R_m
@@ -266,7 +272,8 @@ class CandidateFitter:
         base = prior or ref
         if seed is not None:
             base = dataclasses.replace(base, physical=dict(seed.physical), x0=dict(seed.x0))
-        fixed_eff = {e: dict(v) for e, v in (prior.effects if prior else {}).items()}
+        # the reference's own effects (a mechanism's gravity in the base model) stay in
+        fixed_eff = {e: dict(v) for e, v in (prior or ref).effects.items()}
         free_prior = [f'{e}.{p}' for e, v in fixed_eff.items() for p in v
                       if p not in grid_only(e)]
         if grid_only(name):
@@ -351,7 +358,8 @@ class CandidateFitter:
         x0 = np.array(list(ref.x0.values())) if ref.x0 else None
         with np.errstate(all='ignore'):
             out = simulate_runs(phys, self.rec.time, self.rec.input, self.rec.input_kind,
-                                'zoh', effects, x0, self.rec.segment_ranges)
+                                'zoh', effects, x0, self.rec.segment_ranges,
+                                self.rec.position)
             cost = np.zeros(P)
             for c, y, s in zip(self.split.channels, self.split.ys, self.split.scales, strict=True):
                 r = (out[c] - y[None, :]) / s
@@ -386,7 +394,12 @@ class CandidateFitter:
         with np.errstate(all='ignore'):
             est.fit(self.rec, sample_weight=sw)
         self.physical_bounds = dict(est.widened_)
-        s = self.score('linear', est, 0, t0)
+        n_extra = 0
+        if self.gravity:   # the mechanism's gravity, from the equation error's start
+            est = with_gravity(est, self.rec, self.mechanism, sw,
+                               bounds=self.physical_bounds or None)
+            n_extra = len(EFFECTS[self.gravity].params)
+        s = self.score('linear', est, n_extra, t0)
         self.resistance = est.result_.to_dict().get('resistance')
         self.linear_estimator = est
         return s

@@ -205,3 +205,4 @@ def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
     theta, *_ = np.linalg.lstsq(X, y, rcond=None)
     r = y - X @ theta
     return theta, float(r @ r)
+

@@ -27,8 +27,10 @@ def final_fits(fitter: CandidateFitter, base: ModelScore, chosen: ModelScore,
     model fails on all data (its training-block fit then stands).
     """
     say('refitting the linear and the chosen model on all data')
+    beff = {e: dict(v) for e, v in base.effects.items()}   # a mechanism's gravity
     try:
-        full_base = fitter.fit_model({}, [], dict(base.physical), weight=False)
+        full_base = fitter.fit_model(beff, [f'{e}.{p}' for e, v in beff.items() for p in v],
+                                     fitter.start(base, beff), weight=False)
     except FIT_ERRORS as exc:
         say(f'  the linear model failed on all data ({exc}); keeping its training fit')
         full_base = cast('Identifier', fitter.linear_estimator)  # fitted by fit_linear
@@ -57,7 +59,7 @@ def parameters(chosen: ModelScore, base: ModelScore, full: Identifier | None
                                               'determined': True}
                                           for k, v in chosen.physical.items()})
     params = full.result_.to_dict()['parameters']
-    if chosen is base:
+    if chosen is base and not base.effects:
         return params
     for e, vals in dynamic_effects(full.result_.effects).items():
         for p, v in vals.items():

@@ -8,6 +8,7 @@ import os
 from typing import Any
 
 from motor_id.contracts import units_of
+from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.report import attach_units
 
@@ -99,6 +100,7 @@ class DiscrepancyReport:
     simulation: dict | None = None
     linear: bool = False
     runs: tuple[RunScore, ...] = ()
+    mechanism: str = 'simple'
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
@@ -139,15 +141,24 @@ class DiscrepancyReport:
         if not combos:
             return None
         ff: dict[str, Any] = {}
+        u = units_of(self.input_kind, self.linear)
+        units = {'kS': u['kS'], 'kV': u['kV'], 'kA': u['kA'], 'kS-': u['kS'], 'kV-': u['kV'],
+                 'kG': u['kS'], **{p.role: p.unit for _, p in role_params('offset')}}
         for c in combos:
             if c.get('determined', True):
                 ff[c['name']] = {'value': c['value'], 'std': c['std']}
             else:
                 ff[c['name']] = {'value': None, 'std': None, 'particular_value': c['value'],
                                  'interval': c.get('interval'), 'note': c.get('note')}
-        return {'feedforward': ff, 'model': sim.get('chosen'),
-                'source': 'the simulation-error model (simulation.model): kS = V_b + '
-                'T_c R_m / K_T, kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T'}
+            ff[c['name']]['unit'] = units.get(c['name'])
+        source = ('the simulation-error model (simulation.model): kS = V_b + T_c R_m / K_T, '
+                  'kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T')
+        if 'kG' in ff:
+            source += (', kG = T_g R_m / K_T: V = kS sgn(w) + kG cos(theta + offset) + kV w '
+                       '+ kA dw/dt' if 'offset' in ff else
+                       ', kG = T_g R_m / K_T: V = kS sgn(w) + kG + kV w + kA dw/dt')
+        return {'feedforward': ff, 'model': sim.get('chosen'), 'mechanism': self.mechanism,
+                'source': source}
 
     def summary(self) -> str:
         """A readable report for people."""

@@ -183,7 +183,8 @@ class SimulationProblem:
             if a in self._rest:   # a noisy reading at rest is not the state
                 x0 = x0.copy()
                 x0[:, :self.n_states - pos] = 0.0
-            sim = disc.run(np.ascontiguousarray(ueff[:, k0:b]), x0, (k0, b))
+            sim = disc.run(np.ascontiguousarray(ueff[:, k0:b]), x0, (k0, b), None,
+                           self.rec.position)
             out.append({ch: sim[ch][:, 1:] for ch in self.channels})
         return out
 

@@ -53,6 +53,11 @@ if TYPE_CHECKING:
 RANK_TOL = 1e-7
 """Singular-value ratio of the column-scaled weighted Jacobian below which a direction
 is not seen."""
+ANGLES = ('offset',)
+"""Combinations that are angles: determined by their error bar alone (an offset near 0 is
+no less known than one near 1 rad)."""
+MAX_ANGLE_STD = 0.35
+"""Largest error bar of a determined angle [rad] (20 deg)."""
 HALF_NFEV = 40
 """Residual evaluations of each half's refit (it starts at the whole-record estimate)."""
 
@@ -167,7 +172,9 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
             entry['halves'] = [ha[key], hb[key]]
             std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
         entry['std'] = std
-        if not std <= MAX_RELATIVE_STD * abs(val):
+        if key in ANGLES and std <= MAX_ANGLE_STD:
+            pass   # an angle: its error bar, not its value, says what the data determine
+        elif not std <= MAX_RELATIVE_STD * abs(val):
             lo, hi = float(val - 2 * std), float(val + 2 * std)
             entry.update(determined=False, interval=[lo, hi], note=(
                 f'not determined by this record: its error bar is '

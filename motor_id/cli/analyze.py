@@ -6,6 +6,7 @@ import sys
 
 from motor_id.analysis import DiscrepancyAnalysis, plot_report
 from motor_id.analysis.workers import usable_cores
+from motor_id.cli.common import add_mechanism_argument
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='processes for the candidate fits (default: every usable core; '
                              'the results are the same)')
     parser.add_argument('--quiet', '-q', action='store_true', help='no progress output')
+    add_mechanism_argument(parser)
     add_data_arguments(parser)
 
 
@@ -59,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     ana = DiscrepancyAnalysis(R_m=args.resistance, candidates=cands, random_state=args.seed,
                               min_gain=args.min_gain,
                               R_m_tolerance=args.resistance_tolerance / 100.0,
-                              jobs=args.jobs or usable_cores())
+                              jobs=args.jobs or usable_cores(), mechanism=args.mechanism)
     ana.fit(rec, progress=progress)
     rep = ana.report_
     print(rep.summary())

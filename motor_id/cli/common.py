@@ -1,8 +1,9 @@
 """Argument helpers shared by the subcommands that build a plant (simulate, card-sim)."""
 
+import argparse
 from collections.abc import Iterable
 
-from motor_id.effects import parse_effect_args
+from motor_id.effects import MECHANISMS, parse_effect_args
 from motor_id.errors import ConfigError
 from motor_id.model import Plant
 
@@ -22,3 +23,12 @@ def parse_noise(text: str, what: str) -> list[float]:
         return [float(x) for x in text.split(',')]
     except ValueError:
         raise ConfigError(f'--noise takes SPEED[,CURRENT] {what}, got {text!r}') from None
+
+
+def add_mechanism_argument(parser: argparse.ArgumentParser) -> None:
+    """``--mechanism``: what the joint moves (its gravity in the model)."""
+    parser.add_argument('--mechanism', choices=MECHANISMS, default=MECHANISMS[0],
+                        help='what the joint moves: a shaft or wheel (simple, default), an '
+                             'elevator (constant gravity kG) or an arm (kG cos(theta + '
+                             'offset) from the measured position): the gravity is in the '
+                             'model from the start')

@@ -8,6 +8,7 @@ import os
 
 import numpy as np
 
+from motor_id.cli.common import add_mechanism_argument
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 from motor_id.identify.validation import SavedModel, validate, Validation
@@ -27,6 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--csv', metavar='OUT',
                         help='write time,segment,<channel>_measured,<channel>_simulated')
     parser.add_argument('--plot', metavar='OUT.png', help='plot measured vs simulated')
+    add_mechanism_argument(parser)
     add_data_arguments(parser)
 
 
@@ -46,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Simulate the model on the recording(s), print and write the scores."""
     model = load_model(args.model)
     rec = load_runs(args)
-    val = validate(model, rec, args.init_samples)
+    val = validate(model, rec, args.init_samples, args.mechanism)
     print(val.summary())
     if args.json:
         from motor_id.report import write_json

@@ -45,6 +45,31 @@ def _kS_from_effects(  # noqa: N802 - kS: WPILib's symbol
     return {'value': value, 'std': math.sqrt(var), 'source': '+'.join(sources)}
 
 
+def _gravity_from_effects(effects: Mapping[str, Any], vals: Mapping[str, float],
+                          input_kind: str) -> dict[str, dict[str, Any]]:
+    """``kG`` (a gravity torque through R_m / K_T, or as it is on a torque plant) and an
+    arm's ``offset`` [rad] from the fitted effect parameters with those roles, each
+    ``{value, std, unit}`` (the std from the parameter's alone: R_m / K_T taken as exact)."""
+    out: dict[str, dict[str, Any]] = {}
+    for role, convert in (('kG', True), ('offset', False)):
+        for spec, p in role_params(role):
+            entry = (effects.get(spec.name) or {}).get(p.name)
+            if entry is None:
+                continue
+            v, s = (entry.get('value'), entry.get('std')) if isinstance(entry, dict) \
+                else (entry, None)
+            scale = vals['R_m'] / vals['K_T'] if convert and input_kind == 'voltage' else 1.0
+            if v is None or not np.isfinite(scale):
+                out[role] = {'value': None, 'std': None}
+                continue
+            if not convert:
+                v = math.remainder(v, 2.0 * math.pi)
+            out[role] = {'value': v * scale, 'std': None if s is None else s * scale}
+            if not convert:
+                out[role]['unit'] = p.unit
+    return out
+
+
 def _covariance_from_fit(result_dict: Mapping[str, Any], params: Mapping[str, Any],
                          values: Mapping[str, float | None],
                          notes: list[str]) -> dict[str, Any] | None:
@@ -121,6 +146,18 @@ def from_identification(result_dict: Mapping[str, Any], **kw: Any) -> Controller
         kw['linear'] = bool((result_dict.get('data') or {}).get('linear', False))
     design = design_controller(values, covariance=covariance, input_kind=input_kind, **kw)
     _feedforward_from_combinations(design, result_dict, notes)
+    if isinstance(result_dict.get('effects'), dict):
+        # T_g R_m / K_T is determined where K_T alone is not (speed only): the fit's
+        # particular K_T then carries the ratio
+        vals = {n: values[n] if values[n] is not None else
+                params[n].get('particular_value', math.nan) for n in names}
+        vals = {n: math.nan if v is None else v for n, v in vals.items()}
+        design.feedforward.update(_gravity_from_effects(result_dict['effects'], vals,
+                                                        input_kind))
+        combo = next((c for c in result_dict.get('identifiable_combinations') or []
+                      if isinstance(c, dict) and c.get('name') == 'kG'), None)
+        if combo is not None:   # speed only: the delta method on the determined T_g / K_T
+            design.feedforward['kG'] = {'value': combo['value'], 'std': combo.get('std')}
     if undetermined:
         how = ('state one with --fix NAME=VALUE (e.g. --fix J=...)' if input_kind == 'torque'
                else 'record the current channel (with the K_T = K_b tie, on by default) or '

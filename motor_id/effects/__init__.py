@@ -18,11 +18,13 @@ import math
 from typing import Any
 
 from motor_id.effects import (
+    arm_gravity,
     asymmetric_friction,
     brush_drop,
     coulomb_friction,
     current_quantization,
     dead_zone,
+    elevator_gravity,
     input_delay,
     load_torque,
     quadratic_load,
@@ -47,6 +49,7 @@ from motor_id.effects.spec import (
     KernelArg,
     MechanicalTerm,
     OutputMap,
+    PositionTerm,
     ROLES,
     SCALES,
 )
@@ -54,16 +57,37 @@ from motor_id.errors import ConfigError
 
 __all__ = ['as_batch', 'Confusion', 'count_reading', 'EFFECTS', 'EffectParam', 'EffectSpec',
            'ElectricalTerm', 'FRICTION_COLUMNS', 'InputMap', 'interval_mean', 'KernelArg',
-           'MechanicalTerm', 'on_grid', 'OutputMap', 'parse_effect_args', 'role_keys',
-           'role_params', 'role_value', 'ROLES', 'SCALES', 'validate_effects']
+           'MECHANISMS', 'mechanism_effect', 'MechanicalTerm', 'on_grid', 'OutputMap',
+           'parse_effect_args', 'PositionTerm', 'role_keys', 'role_params', 'role_value',
+           'ROLES', 'SCALES', 'validate_effects']
 
 EFFECTS = {m.SPEC.name: m.SPEC for m in (
     coulomb_friction, asymmetric_friction, stribeck_friction, stiction, load_torque,
     quadratic_load, brush_drop, dead_zone, input_delay, voltage_saturation, sensor_lag,
     speed_quantization, current_quantization, resistance_drift, resonance, start_latency,
+    elevator_gravity, arm_gravity,
 )}
 """The catalogue of named effects, in the order the analysis names them when two explain a
 record equally well (the more common first); parameter ranges are the allowed ranges."""
+
+
+MECHANISMS = ('simple',) + tuple(s.mechanism for s in EFFECTS.values() if s.mechanism)
+"""What a joint moves: ``'simple'`` (a shaft or wheel, no gravity) or a mechanism whose
+gravity is an effect (:attr:`EffectSpec.mechanism`): ``'elevator'``, ``'arm'``."""
+
+
+def mechanism_effect(mechanism: str) -> str:
+    """The effect that is ``mechanism``'s gravity ('' for ``'simple'``).
+
+    Raises
+    ------
+    ConfigError
+        An unknown mechanism.
+    """
+    if mechanism not in MECHANISMS:
+        raise ConfigError(f'unknown mechanism {mechanism!r}; choose from {list(MECHANISMS)}',
+                          params=('mechanism',))
+    return next((n for n, s in EFFECTS.items() if s.mechanism == mechanism), '')
 
 
 def role_params(role: str, scale: str | None = None) -> Iterator[tuple[EffectSpec, EffectParam]]:

@@ -20,8 +20,8 @@ from motor_id.contracts import INPUT_KINDS
 from motor_id.errors import ConfigError
 
 __all__ = ['as_batch', 'Confusion', 'EffectParam', 'EffectSpec', 'ElectricalTerm',
-           'FRICTION_COLUMNS', 'KernelArg', 'MechanicalTerm', 'OutputMap', 'InputMap', 'ROLES',
-           'SCALES']
+           'FRICTION_COLUMNS', 'KernelArg', 'MechanicalTerm', 'OutputMap', 'InputMap',
+           'PositionTerm', 'ROLES', 'SCALES']
 
 
 SCALES = ('one', 'torque', 'input', 'speed', 'torque/speed', 'torque/speed^2', 'record',
@@ -51,6 +51,10 @@ ROLES = {
     'delay': 'a transport delay of the input [samples]',
     'grid': "a sensor's quantisation step (a validation simulates without it)",
     'counted': 'the speed read as a count difference (1) or at the sample (0)',
+    'kG': "gravity as the feedforward's kG: the gravity torque (or force) of a joint (times "
+          'R_m / K_T on a voltage plant)',
+    'offset': 'the angle from the encoder zero to horizontal [rad] (an arm: its gravity is '
+              'kG cos(theta + offset))',
 }
 """What a parameter is to the code outside its effect (:attr:`EffectParam.role`): the
 friction summary, the feedforward constants, the candidate's evidence, the validation."""
@@ -185,6 +189,17 @@ class ElectricalTerm:
 
 
 @dataclass(frozen=True)
+class PositionTerm:
+    """The effect's regressors of the measured position in the equation error ``u = kS
+    sgn(w) + kV w + kA dw/dt + ...`` (a joint's gravity, in input units):
+    ``columns(position)`` gives the columns, ``params(coefficients, torque_per_input)``
+    the effect's parameters from their coefficients (a start for the fit)."""
+
+    columns: Callable[[np.ndarray], list[np.ndarray]]
+    params: Callable[[np.ndarray, float], dict[str, float]]
+
+
+@dataclass(frozen=True)
 class Confusion:
     """Another effect this one can be taken for, and the experiment that tells them apart
     (``torque_experiment`` where a torque-input plant needs another). ``one_way``: on a
@@ -226,6 +241,10 @@ class EffectSpec:
       ``'input_leaves_zero'``, ``'position_and_speed'``), ``stage_start``
       (``(drive_scale, coulomb)`` -> its start there: the largest drive torque, the
       model's Coulomb level);
+    - a joint: ``mechanism`` (the gravity of that mechanism: in the base model of a record
+      of it, fitted from the start, never a candidate), ``position`` (it reads the joint's
+      position: the record's measured one, exogenous like the input, else the integrated
+      speed), ``position_term`` (its start from the equation error);
     - controller and reports: each parameter's ``role``.
     """
 
@@ -256,6 +275,9 @@ class EffectSpec:
     named_on_offset: bool = False
     stage_rule: str = ''
     stage_start: Callable[[float, float], dict[str, float]] | None = None
+    mechanism: str = ''
+    position: bool = False
+    position_term: PositionTerm | None = None
 
     def defaults(self) -> dict[str, float]:
         """Return ``{param: default}``."""

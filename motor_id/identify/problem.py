@@ -137,6 +137,9 @@ class IdentificationProblem(ParameterSpace):
         self.time = un.signal(rec.time, 'time')
         self.input = un.signal(rec.input, 'input')
         self.segments = rec.segment_ranges
+        # the measured position an effect reads (an arm's gravity), SI: a model with
+        # effects is fitted in SI units
+        self.position = None if rec.position is None else np.asarray(rec.position, float)
         signals: dict[str, np.ndarray | None] = {'speed': un.signal(rec.speed, 'speed')}
         if self.kind == 'voltage':
             signals['current'] = (un.signal(rec.current, 'current')
@@ -195,7 +198,8 @@ class IdentificationProblem(ParameterSpace):
         theta, effects = self.expand(X[:, :d], overrides)
         with np.errstate(all='ignore'):
             out = simulate_runs(theta, self.time, self.input, self.kind,
-                                self.discretisation, effects, x0, self.segments)
+                                self.discretisation, effects, x0, self.segments,
+                                self.position)
         return [out[c] for c in self.channels]
 
     def state_names(self) -> list[str]:

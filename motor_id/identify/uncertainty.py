@@ -9,6 +9,7 @@ a prior on R_m is one more observation, a unit row in that map.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+import math
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
@@ -290,7 +291,8 @@ def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[st
     """WPILib SysId's constants of a voltage plant with its friction effects: ``kV``,
     ``kA`` (as :func:`motor_id.identify.uncertainty.feedforward`) and the static
     voltage ``kS`` (Coulomb torque through R_m / K_T, a brush drop, a dead band), per
-    direction when friction is asymmetric (``kS-``, ``kV-``)."""
+    direction when friction is asymmetric (``kS-``, ``kV-``); with a joint's gravity
+    ``kG`` (its torque through R_m / K_T) and an arm's ``offset`` [rad, in (-pi, pi]]."""
     R, K_T, K_b = params['R_m'], params['K_T'], params['K_b']
     B, J, L = params['B'], params['J'], params['L_m']
     tc = role_value(effects, 'kS', scale='torque')
@@ -301,6 +303,10 @@ def feedforward_of(params: Mapping[str, float], effects: Mapping[str, Mapping[st
     if role_keys(effects, 'kS_extra_negative') or tl:
         out['kS-'] = v0 + (tc + role_value(effects, 'kS_extra_negative') - tl) * R / K_T
         out['kV-'] = (R * (B + role_value(effects, 'kV_extra_negative')) + K_T * K_b) / K_T
+    if role_keys(effects, 'kG'):   # a joint's gravity: kG [cos(theta + offset)]
+        out['kG'] = role_value(effects, 'kG') * R / K_T
+    if role_keys(effects, 'offset'):
+        out['offset'] = math.remainder(role_value(effects, 'offset'), 2.0 * math.pi)
     return out
 
 
@@ -356,6 +362,7 @@ def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.nda
 
     static = bool(role_keys(problem.effects, 'kS') or role_keys(problem.effects, 'dead_band')
                   or role_keys(problem.effects, 'load'))
+    gravity = bool(role_keys(problem.effects, 'kG'))
 
     def values(z: np.ndarray) -> dict[str, float]:
         out = problem.coefficients(z, physical=True)
@@ -363,8 +370,10 @@ def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.nda
             v = {k: problem.units.to_physical(k, x) for k, x in problem.values_at(z).items()}
             with np.errstate(all='ignore'):
                 out.update(feedforward(v))
-                if static:   # the static voltage too: T_c R_m / K_T is determined
-                    out['kS'] = feedforward_of(v, _effects_at(problem, z))['kS']
+                if static or gravity:   # T_c R_m / K_T, T_g R_m / K_T are determined
+                    ff = feedforward_of(v, _effects_at(problem, z))
+                    out.update({k: ff[k] for k in ('kS', 'kG') if k in ff
+                                and (static or k != 'kS')})
         return out
 
     base, std = delta_method(values, z_best, cov, len(problem.free))

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike
 from motor_id.contracts import INPUT_KINDS
 from motor_id.effects import count_reading, EFFECTS, role_keys
 from motor_id.errors import ConfigError, DataError
+from motor_id.identify.mechanism import check_mechanism
 from motor_id.metrics import normalised_fit
 from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
@@ -197,8 +198,8 @@ def _run_scores(rec: Recording, sims: Mapping[str, np.ndarray], mask: np.ndarray
     return tuple(out)
 
 
-def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
-             ) -> Validation:
+def validate(model: SavedModel, rec: Recording, init_samples: int | None = None,
+             mechanism: str | None = None) -> Validation:
     """Simulate ``model`` on ``rec`` from its input and score every measured channel.
 
     Parameters
@@ -210,6 +211,10 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
         Samples at the start of each run used to set its initial state (and left out of
         the score). Default: 1, or 2 when the current is not measured (the first speed
         change shows the initial current).
+    mechanism : {'simple', 'elevator', 'arm'}, optional
+        What the joint moves: the model must then carry that mechanism's gravity (a
+        model fitted with the mechanism), which reads ``rec``'s measured position where
+        it has one. None: whatever the model carries.
 
     Returns
     -------
@@ -236,6 +241,10 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
     (['current', 'speed'], 99)
     """
     rec.validate()
+    gravity = check_mechanism(rec, mechanism) if mechanism else ''
+    if gravity and gravity not in model.effects:
+        raise DataError(f'the model has no {gravity}: fit it with mechanism {mechanism!r}',
+                        params=('mechanism',))
     if rec.input_kind != model.input_kind:
         raise DataError(f'the model is of a {model.input_kind} plant, the recording has '
                         f'{rec.input_kind} input')
@@ -274,7 +283,7 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None
 def _simulate(model: SavedModel, rec: Recording, x0: np.ndarray) -> dict[str, np.ndarray]:
     with np.errstate(all='ignore'):
         out = simulate_batch(model.parameters, rec.time, rec.input, model.input_kind, 'zoh',
-                             model.effects, x0)
+                             model.effects, x0, measured_position=rec.position)
     res = {'speed': out['speed'][0]}
     if 'current' in out:
         res['current'] = out['current'][0]
@@ -295,7 +304,9 @@ def _simulate_from(model: SavedModel, rec: Recording, n_init: int
     ueff = apply_input_maps(rec.input, maps, 1)[0]
     with np.errstate(all='ignore'):
         sim = simulate_batch(model.parameters, rec.time[k0:], np.ascontiguousarray(ueff[k0:]),
-                             model.input_kind, 'zoh', rest, x0, position=True)
+                             model.input_kind, 'zoh', rest, x0, position=True,
+                             measured_position=rec.position[k0:]
+                             if rec.position is not None else None)
     out = {}
     for ch in ('position',) + rec.channels():
         full = np.array(getattr(rec, ch), dtype=float)
@@ -325,7 +336,8 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
     grid = guess + scale * np.linspace(-2.0, 2.0, 81)
     with np.errstate(all='ignore'):
         out = simulate_batch(p, head.time, head.input, 'voltage', 'zoh', model.effects,
-                             np.column_stack([np.full(grid.size, speed0), grid]))
+                             np.column_stack([np.full(grid.size, speed0), grid]),
+                             measured_position=head.position)
     cost = np.sum((out['speed'] - head.speed[None, :]) ** 2, axis=1)
     k = int(np.nanargmin(np.where(np.isfinite(cost), cost, np.inf)))
     from scipy.optimize import minimize_scalar  # lazy: only without a measured current
@@ -335,7 +347,7 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
     def err(i0: float) -> float:
         with np.errstate(all='ignore'):
             o = simulate_batch(p, head.time, head.input, 'voltage', 'zoh', model.effects,
-                               np.array([speed0, i0]))
+                               np.array([speed0, i0]), measured_position=head.position)
         return float(np.sum((o['speed'][0] - head.speed) ** 2))
 
     sol = minimize_scalar(err, bounds=(grid[k] - step, grid[k] + step), method='bounded')

@@ -54,7 +54,7 @@ from motor_id.model import MotorParams, PAPER_MOTOR, Plant
 from motor_id.recording import Recording
 from motor_id.simulate import simulate_batch
 
-VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds
+VOLTAGE_EFFECTS = tuple(n for n, e in EFFECTS.items() if 'voltage' in e.kinds and not e.mechanism
                         and not e.extends and not e.simulation_only)
 """Effects the generator hides: every voltage-plant effect except the refinements of
 another (asymmetric, Stribeck, static friction) and the drive's start latency, which
