@@ -449,16 +449,16 @@ def write_robot_bag(path: str | os.PathLike[str], start_ns: int, period: float,
 def drift_benchmark_spec(seed: int = 17, robots: int = 4) -> FleetSpec:
     """A held-out fleet as the drift targets state them: ``robots`` x 2 wheels x 10-12
     daily recordings (R_m +-2 % from day to day), with K_T -8 % (step), B +60 % (5-day
-    ramp) and R_m +12 % (step) on three distinct wheels from days drawn in 1..6 (the
-    2nd to the 7th recording); the other wheels clean. The seed draws the days, the
-    wheels and the fleet."""
+    ramp) and R_m +12 % (step) on three distinct wheels from days drawn in 2..7 (days
+    counted from 0, as :class:`Drift` counts them: the 3rd to the 8th recording); the
+    other wheels clean. The seed draws the days, the wheels and the fleet."""
     rng = np.random.default_rng(seed)
     days = int(rng.integers(10, 13))
     kinds = (('K_T', -0.08, 'step'), ('B', 0.60, 'ramp'), ('R_m', 0.12, 'step'))
     wheels = [(f'robot_{r:02d}', m) for r in range(robots)
               for m in ('wheel_left', 'wheel_right')]
     picked = rng.choice(len(wheels), size=len(kinds), replace=False)
-    drifts = tuple(Drift(wheels[j][0], wheels[j][1], param, size, int(rng.integers(1, 7)),
+    drifts = tuple(Drift(wheels[j][0], wheels[j][1], param, size, int(rng.integers(2, 8)),
                          kind, ramp_days=5)
                    for j, (param, size, kind) in zip(picked, kinds, strict=True))
     return FleetSpec(robots=robots, days=days, drifts=drifts, seed=seed + 6)
