@@ -201,14 +201,17 @@ def test_joint_states_stopping_mid_test_commands_0_and_exits_non_zero(client, la
     watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify')
     robot.proc.send_signal(signal.SIGSTOP)   # the robot freezes: no more joint states
     try:
-        code = exp.wait(timeout=600)
+        exp.wait_for('stopped: watchdog', timeout=60)
         with watch.lock:
             last_state = watch.states[-1]
-        delay, after = zero_after(watch, last_state)
-        assert delay is not None and all(v == 0.0 for v in after), exp.output()
+        assert wait_until(lambda: zero_after(watch, last_state)[0] is not None, 30.0)
+        assert all(v == 0.0 for v in zero_after(watch, last_state)[1]), exp.output()
     finally:
-        robot.proc.send_signal(signal.SIGCONT)
+        robot.proc.send_signal(signal.SIGCONT)   # it resumes: the 0 reaches it
+    code = exp.wait(timeout=600)
     assert code == EXIT_SAFETY, exp.output()
+    robot.stop(signal.SIGINT)
+    assert truth(tmp_path)['commands'][-1]['values'] == [0.0, 0.0]
     # at the experiment: 0 sent within ZERO_WITHIN of the last state it received
     last = sent(tmp_path)['/joint_states'][-1][0]
     delay, after = first_zero_sent(tmp_path, last)

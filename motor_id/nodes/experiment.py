@@ -86,8 +86,10 @@ COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
 """Commands: reliable, as ros2_control's forward command controller subscribes."""
 TICK = 0.02
 """The watchdog's period [s]."""
-ACK_WAIT = 0.3
-"""How long the last 0 may take to be acknowledged before the node goes [s]."""
+ACK_WAIT = 5.0
+"""How long the node waits for the controller to acknowledge the last 0 before it goes
+[s]: a controller that stalled (its states stopped) gets the 0 when it resumes only while
+the node is still there to resend it."""
 JOINT_STATE = messages.TYPE_NAMES[JointState]
 
 
@@ -117,6 +119,7 @@ class ExperimentNode(Node):
         self._start_asked: float | None = time.monotonic() if values['autostart'] else None
         self._index: int | None = None
         self._state: StateSample | None = None
+        self._bad_state = ''
         self._warned: set[str] = set()
         self._logged = [0, 0, 0]   # tests started, tests ended, stop logged
         self._lock = threading.RLock()   # one decision and its command at a time
@@ -184,6 +187,7 @@ class ExperimentNode(Node):
         if self.started:
             self.stop(reason, safety=True)
         else:
+            self._bad_state = reason
             self._warn_once('fields', reason)
 
     def _warn_once(self, key: str, text: str) -> None:
@@ -218,7 +222,8 @@ class ExperimentNode(Node):
             return f'the controller {self.settings.controller_node} gives its joints'
         if self._state is None:
             return (f'the state of joint {self.settings.joint} arrives on '
-                    f'{self.settings.state_topic}')
+                    f'{self.settings.state_topic}' +
+                    (f' ({self._bad_state})' if self._bad_state else ''))
         return ''
 
     def _start(self) -> None:
@@ -349,7 +354,10 @@ class ExperimentNode(Node):
                 self.session.guard.stop(reason)
             if self.started:
                 self.publish(0.0)
-                self.publisher.wait_for_all_acked(Duration(seconds=ACK_WAIT))
+                if not self.publisher.wait_for_all_acked(Duration(seconds=ACK_WAIT)):
+                    self.get_logger().warning(
+                        f'the last 0 was not acknowledged within {ACK_WAIT:g} s: check '
+                        f'that {self.settings.command_topic} holds 0')
             self._alive = False
 
 
