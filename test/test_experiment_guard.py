@@ -406,3 +406,20 @@ def test_a_test_cut_short_before_the_model_knew_the_joint_runs_again():
     assert [(t.name, t.rest_before) for t in again.tests[4:]] == [
         ('quasistatic-forward', True), ('quasistatic-reverse', False)]
     assert [t.name for t in repeat_later(plan, 3).tests[4:]] == ['dynamic-reverse']
+
+
+def test_a_torque_plants_feedforward_comes_from_its_parameters():
+    from motor_id.experiment.outcome import _with_units, identified, torque_feedforward
+    report = {'simulation': {'chosen': 'coulomb_friction', 'estimates': {'parameters': {
+        'J': {'value': 1e-3, 'std': 1e-6, 'determined': True},
+        'B': {'value': 2e-5, 'std': 2e-6, 'determined': True},
+        'coulomb_friction.T_c': {'value': 0.12, 'std': 5e-4, 'determined': True}}}}}
+    report['controller'] = torque_feedforward(report)
+    _with_units(report, ExperimentSettings('j', '/c/commands', 1.0, 'o', input_kind='torque'))
+    ff = report['controller']['feedforward']
+    assert ff['kS'] == {'value': 0.12, 'std': 5e-4, 'unit': 'N m'}
+    assert ff['kV'] == {'value': 2e-5, 'std': 2e-6, 'unit': 'N m s/rad'}
+    assert ff['kA'] == {'value': 1e-3, 'std': 1e-6, 'unit': 'N m s^2/rad'}
+    assert identified(report)
+    del report['simulation']['estimates']['parameters']['coulomb_friction.T_c']
+    assert torque_feedforward(report)['feedforward']['kS']['std'] is None

@@ -70,8 +70,45 @@ def identify(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
         'R_m': (f'nominal {NOMINAL_R:g} Ohm: speed alone cannot tell the armature '
                 'resistance; kS, kV, kA do not depend on it') if nominal else
         (f'{R:g} Ohm as given' if R is not None else None)}
+    if settings.input_kind == 'torque' and not out.get('controller'):
+        controller = torque_feedforward(out)
+        if controller is not None:
+            out['controller'] = controller
     _with_units(out, settings)
     return out
+
+
+TORQUE_FEEDFORWARD = {'kS': 'coulomb_friction.T_c', 'kV': 'B', 'kA': 'J',
+                      'kG': ('elevator_gravity.T_g', 'arm_gravity.T_g'),
+                      'offset': 'arm_gravity.offset'}
+"""For a torque plant the feedforward constants are parameters: u = T_c sgn(w) + T_g
+[cos(theta + offset)] + B w + J dw/dt."""
+
+
+def torque_feedforward(report: dict[str, Any]) -> dict[str, Any] | None:
+    """The ``controller`` block of a torque plant from the simulation-error model's
+    parameters (the analysis gives one for voltage plants only); None without that
+    model."""
+    sim = report.get('simulation') or {}
+    params = (sim.get('estimates') or {}).get('parameters') or {}
+    if not params:
+        return None
+    ff: dict[str, Any] = {}
+    for name, keys in TORQUE_FEEDFORWARD.items():
+        key = next((k for k in ((keys,) if isinstance(keys, str) else keys) if k in params),
+                   None)
+        if key is None:
+            if name == 'kS':
+                ff[name] = {'value': 0.0, 'std': None,
+                            'note': 'the chosen model has no Coulomb friction'}
+            continue
+        p = params[key]
+        ff[name] = ({'value': p['value'], 'std': p['std']} if p.get('determined') else
+                    {'value': None, 'std': None, 'particular_value': p['value'],
+                     'note': p.get('note')})
+    return {'feedforward': ff, 'model': sim.get('chosen'),
+            'source': 'the simulation-error model of a torque plant: kS = T_c, kV = B, '
+                      'kA = J (kG = T_g)'}
 
 
 def _with_units(report: dict[str, Any], settings: ExperimentSettings) -> None:
