@@ -41,7 +41,7 @@ def nothing_left_running(cpu_burners):
     killed, and the run fails naming it)."""
     yield
     from motor_id.testing.procs import leftovers
-    left = leftovers(exclude={p.pid for p in cpu_burners})
+    left = leftovers()
     assert not left, f'processes left running (now killed): {left}'
 
 

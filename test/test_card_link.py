@@ -425,3 +425,16 @@ def test_session_pings_under_a_non_zero_external_command_and_closes_at_zero_volt
     assert link.sent[-1] == pr.Stop()
     with pytest.raises(MotorIdError, match='shutting down'):
         session.start()
+
+
+def test_session_notices_a_card_that_abandoned_its_profile():
+    """A flagged profile sample, then one without the flag and no end flag: the card's
+    watchdog stopped it; said once, as an error; no more pings."""
+    link = FakeLink()
+    session = Session(link, Limits(), 'paper_steps', 9.0, duration=40.0)
+    session.start()
+    session.on_sample(pr.Sample(0, 0.00, 0.0, 0.0))                       # not yet flagged
+    assert session.driving and not link.faults
+    session.on_sample(pr.Sample(1, 0.01, 3.8, 1.0, flags=pr.FLAG_PROFILE))
+    session.on_sample(pr.Sample(2, 0.02, 0.0, 1.0))
+    assert not session.driving and link.faults == ['card_abandoned_profile']

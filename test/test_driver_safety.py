@@ -21,7 +21,7 @@ from motor_id.contracts import FLAG_LIMIT, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.nodes import messages
 from motor_id.nodes.driver import PARAMETERS
 from motor_id.testing.procs import wait_until
-from motor_id.testing.ros import latest_status, REPO, rows_of, stop_cleanly
+from motor_id.testing.ros import latest_status, REPO, rows_of, settle, stop_cleanly
 
 DRIVER = 'motor_id: driver'
 BEST_EFFORT = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
@@ -245,27 +245,26 @@ def test_joint_states_follow_the_samples(client, launch, tmp_path):
         client, launch, tmp_path, ('--speedup', '1'), 'excitation:=bipolar_steps',
         'duration:=5.0', 'joint_name:=left_wheel')
     assert client.call(Trigger, '/driver/start').success
-    assert wait_until(lambda: rows_of(samples).shape[0] > 300 and len(joints) > 300, 20.0)
+    assert wait_until(lambda: rows_of(samples).shape[0] > 300 and len(joints) > 300, 60.0)
     stop_cleanly(drv)
-    seen = None
-    for _ in range(40):  # let the last messages of both streams arrive
-        now = (len(joints), rows_of(samples).shape[0])
-        if now == seen:
-            break
-        seen = now
-        time.sleep(0.25)
+    settle(joints, samples)     # what is still on its way in the client arrives
     rows = rows_of(samples)
     js = list(joints)
     assert all(j.name == ['left_wheel'] for j in js)
-    # stamp = card time + a fixed offset: found from the last joint state and its sample
-    # among the last rows; then the messages are paired by card time (a message either
-    # subscription lost under load costs one pair, not the alignment of the rest)
+    # stamp = card time + a fixed offset: found from a joint state moving at a speed that
+    # one sample alone has (the last batch of samples may be lost when the driver exits
+    # while its joint states arrive); then the messages are paired by card time (a
+    # message either subscription lost under load costs one pair, not the alignment)
     def ns(j):
         return j.header.stamp.sec * 10 ** 9 + j.header.stamp.nanosec
 
-    last = [r for r in rows[-10:] if r[3] == js[-1].velocity[0] and r[4] == js[-1].effort[0]]
-    assert last, 'the last joint state matches none of the last 10 samples'
-    offset = ns(js[-1]) - round(last[-1][1] * 1e9)
+    offset = None
+    for j in reversed(js):
+        same = rows[(rows[:, 3] == j.velocity[0]) & (rows[:, 4] == j.effort[0])]
+        if j.velocity[0] != 0.0 and same.shape[0] == 1:
+            offset = ns(j) - round(same[0, 1] * 1e9)
+            break
+    assert offset is not None, "no joint state matches exactly one sample's values"
     by_time = {round(r[1] * 1e9): r for r in rows}
     pairs = [(j, by_time[ns(j) - offset]) for j in js if ns(j) - offset in by_time]
     k = len(pairs)

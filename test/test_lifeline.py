@@ -10,7 +10,13 @@ import psutil
 import pytest
 
 from motor_id.lifeline import stop_signals_as_interrupt, tied
-from motor_id.testing.procs import leftovers, live_groups, Processes, wait_until
+from motor_id.testing.procs import (
+    leftovers,
+    live_groups,
+    Processes,
+    start_burners,
+    wait_until,
+)
 from motor_id.testing.ros import REPO
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith('linux'),
@@ -137,3 +143,14 @@ def test_leftovers_names_and_kills_a_forgotten_child():
     finally:
         proc.kill()
         proc.wait()
+
+
+def test_burners_are_load_not_leftovers():
+    burners = start_burners(1)
+    try:
+        assert burners[0].poll() is None and leftovers() == []
+        assert burners[0].poll() is None
+    finally:
+        for proc in burners:
+            proc.kill()
+            proc.wait()

@@ -39,7 +39,6 @@ def graph_names(node, name, ns):
 def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
     from std_msgs.msg import Float64MultiArray, String
-    from std_srvs.srv import Trigger
 
     from motor_id.nodes import messages
     diags = client.collect(DiagnosticArray, '/diagnostics', messages.DIAGNOSTICS_QOS)
@@ -82,14 +81,9 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
     for ns in MOTORS:
         assert wait_until(lambda ns=ns: any(ends[ns]), 60.0), ns
     for ns, motor in MOTORS.items():
-        answers = []
-
-        def fitted(ns=ns, answers=answers):
-            answers.append(client.call(Trigger, f'/{ns}/identifier/identify',
-                                       timeout=120.0))
-            return answers[-1].success
-        assert wait_until(fitted, 20.0, 1.0), (answers[-1].message, idents[ns].output())
-        assert wait_until(lambda ns=ns: reports[ns], 10.0)
+        ok, text = client.identify(f'/{ns}/identifier/identify')
+        assert ok, (text, idents[ns].output())
+        assert wait_until(lambda ns=ns: reports[ns], 30.0)
         report = json.loads(reports[ns][-1].data)
         assert report['hardware_id'] == ns
         for name in ('J', 'K_T', 'B', 'L_m'):

@@ -158,6 +158,7 @@ class Session:
         self._started = False
         self.keepalive = float(keepalive)
         self.card_profile_running = False
+        self._profile_seen = False
         self.pings = 0
         self._commanded = 0.0
         self._closed = False
@@ -187,8 +188,8 @@ class Session:
         value = None
         if host is not None:
             sample, value = host.on_sample(sample)
-        if host is None and sample.flags & FLAG_PROFILE_END:
-            self.card_profile_running = False
+        if host is None and self.card_profile_running:
+            self._follow_card_profile(sample)
         sample, trip = self.supervisor.on_sample(sample)
         if trip is not None:
             self.host_profile = None
@@ -201,6 +202,21 @@ class Session:
             self.host_profile = None
             self._log('info', f'host-played {host.name} profile done')
         return sample
+
+    def _follow_card_profile(self, sample: Sample) -> None:
+        """The card's profile ends with its end flag; samples without the profile flag
+        after flagged ones mean the card abandoned it (its watchdog: no command for its
+        watchdog time, the host or the line too slow)."""
+        if sample.flags & FLAG_PROFILE_END:
+            self.card_profile_running = False
+        elif sample.flags & FLAG_PROFILE:
+            self._profile_seen = True
+        elif self._profile_seen:
+            self.card_profile_running = False
+            self.link.fault('card_abandoned_profile', f'the card abandoned the profile at '
+                            f'seq {sample.seq} and holds 0 V: its watchdog fired (no command '
+                            'reached it in time: is this host overloaded, or the line?)',
+                            'error')
 
     def on_reply(self, reply: Reply) -> None:
         """A card reply: ``unsupported`` to our profile switches to playing it here."""
@@ -263,6 +279,7 @@ class Session:
         self.host_profile = None
         self._pending = cmd
         self.card_profile_running = True
+        self._profile_seen = False
         self.link.send(cmd)
         return f'started {cmd.name}'
 

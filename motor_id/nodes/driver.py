@@ -207,6 +207,7 @@ class DriverNode(Node):
             try:
                 for batch in self.link.poll():
                     self._emit(batch)
+                    self.session.keep_alive()   # also between batches: a busy reader
                 self.session.check_watchdog()
                 self.session.keep_alive()
             except Exception as exc:  # noqa: BLE001 - the reader must outlive any bug

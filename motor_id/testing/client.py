@@ -2,6 +2,7 @@
 
 from collections.abc import Callable
 import threading
+import time
 from typing import Any
 
 import rclpy
@@ -11,6 +12,9 @@ from std_srvs.srv import Trigger
 from motor_id.errors import MotorIdError
 from motor_id.nodes.common import StopSignal
 from motor_id.testing.procs import use_ros_env
+
+NOT_YET = 'no complete excitation profile'
+"""The identifier's refusal while the end of the profile has not reached it."""
 
 
 class RosClient:
@@ -94,6 +98,18 @@ class RosClient:
         """Call a ``std_srvs/Trigger`` service; return ``(success, message)``."""
         res = self.call(Trigger, name, timeout=timeout, wait_service=wait_service)
         return res.success, res.message
+
+    def identify(self, service: str = '/identifier/identify', retry_for: float = 120.0,
+                 timeout: float = 120.0) -> tuple[bool, str]:
+        """Call an identifier's ``~/identify`` until its answer is more than "the profile
+        has not ended in my window yet" (its last rows may arrive after the caller saw the
+        profile's end: a loaded machine delays them by seconds), or ``retry_for`` [s]."""
+        deadline = time.monotonic() + retry_for
+        while True:
+            ok, text = self.trigger(service, timeout=timeout)
+            if ok or NOT_YET not in text or time.monotonic() > deadline:
+                return ok, text
+            time.sleep(0.2)
 
     def close(self, timeout: float = 60.0) -> None:
         """Stop spinning, then destroy the node and shut its context down.

@@ -2,7 +2,6 @@
 
 import json
 import threading
-import time
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -57,14 +56,6 @@ class DemoClient(RosClient):
         """Wait until the identifier reports received samples (it is subscribed)."""
         return wait_until(lambda: self._received() > 0, timeout, 0.1)
 
-    def identify(self, retry_for: float = 10.0) -> tuple[bool, str]:
-        """Call /identifier/identify, retrying while the last rows are still arriving."""
-        deadline = time.monotonic() + retry_for
-        while True:
-            ok, text = self.trigger('/identifier/identify')
-            if ok or 'no complete' not in text or time.monotonic() > deadline:
-                return ok, text
-            time.sleep(0.3)
 
     def wait_report(self, count: int, timeout: float = 10.0) -> dict[str, Any] | None:
         """Wait until at least ``count`` reports were received; return the last."""

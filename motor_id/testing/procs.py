@@ -26,6 +26,8 @@ from motor_id.lifeline import tied
 _LIVE: set['Process'] = set()
 _GROUPS: set[int] = set()
 """Every process group started here (the children lead their own)."""
+_BURNERS: set[int] = set()
+"""The load processes of :func:`start_burners` (not leftovers)."""
 
 
 @atexit.register
@@ -61,8 +63,10 @@ def leftovers(exclude: Collection[int] = ()) -> list[str]:
 
     Looks at this process's descendants (psutil, from the ``test`` extra) and at the
     groups of :func:`live_groups`; zombies (ended, not yet reaped), the processes in
-    ``exclude`` and multiprocessing's own fork server and resource tracker do not count.
+    ``exclude``, the burners of :func:`start_burners` and multiprocessing's own fork
+    server and resource tracker do not count.
     """
+    exclude = set(exclude) | _BURNERS
     import psutil
     found: dict[int, psutil.Process] = {}
     candidates = psutil.Process().children(recursive=True)
@@ -105,8 +109,10 @@ def start_burners(count: int | None = None) -> list['subprocess.Popen[bytes]']:
     cores = (len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity')
              else os.cpu_count() or 1)
     n = count or cores
-    return [subprocess.Popen(tied([sys.executable, '-c', 'while True: pass']),
-                             stdin=subprocess.DEVNULL) for _ in range(n)]
+    burners = [subprocess.Popen(tied([sys.executable, '-c', 'while True: pass']),
+                                stdin=subprocess.DEVNULL) for _ in range(n)]
+    _BURNERS.update(p.pid for p in burners)
+    return burners
 
 
 def domain_id(name: str, low: int = 1, high: int = 101) -> int:

@@ -6,9 +6,10 @@ packages are imported where they are used, so a test that only needs :data:`REPO
 :func:`ros_env` loads no rclpy.
 """
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sized
 import os
 import signal
+import time
 from typing import Any, TYPE_CHECKING
 import weakref
 
@@ -23,7 +24,7 @@ if TYPE_CHECKING:  # rclpy loads only where a client is used
     from motor_id.testing.client import RosClient
 
 __all__ = ['domain_id', 'latest_status', 'Process', 'publish_samples', 'REPO', 'ros_env',
-           'rows_of', 'samples_publisher', 'stop_cleanly', 'wait_until']
+           'rows_of', 'samples_publisher', 'settle', 'stop_cleanly', 'wait_until']
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 """The directory this ``motor_id`` is imported from: the repository in a source checkout."""
@@ -47,6 +48,22 @@ def stop_cleanly(proc: Process, sig: int | None = None) -> None:
     assert not proc.killed, f'{proc.name} ignored the signal:\n{proc.output()}'
     assert 'Traceback' not in err and 'Destroyable' not in err, err
     assert code == 0, f'{proc.name} exit {code}:\n{proc.output()}'
+
+
+def settle(*boxes: Sized, quiet: float = 1.0, timeout: float = 60.0) -> bool:
+    """Wait until no list in ``boxes`` (filled by subscriptions) grew for ``quiet`` [s]:
+    the messages still on their way have arrived. Returns False after ``timeout`` [s]."""
+    deadline = time.monotonic() + timeout
+    sizes = [len(b) for b in boxes]
+    still = time.monotonic()
+    while time.monotonic() < deadline:
+        time.sleep(0.05)
+        now = [len(b) for b in boxes]
+        if now != sizes:
+            sizes, still = now, time.monotonic()
+        elif time.monotonic() - still >= quiet:
+            return True
+    return False
 
 
 def rows_of(msgs: Iterable[Any]) -> NDArray[np.float64]:
