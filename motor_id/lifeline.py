@@ -21,6 +21,11 @@ harness's nodes, the launch file's nodes, the forked fit workers) is tied to its
   :class:`KeyboardInterrupt` as SIGINT does, so that a command's ``finally`` blocks (its
   children stopped, its files closed) run whichever of the three ends it.
 
+The kernel sends the parent-death signal each time the child is handed from a dying
+thread of its parent to another (a parent with many threads killed at once: once per
+thread), so a child hears SIGTERM several times: motor_id's handlers act on the first
+SIGTERM or SIGHUP and ignore repeats (only a second Ctrl-C forces an exit).
+
 The parent-death signal is Linux only; elsewhere :func:`tied` returns the command as
 given and the children rely on their own process group being ended by the parent
 (:mod:`motor_id.testing.procs`). The kernel sends the signal when the *thread* that
@@ -133,8 +138,16 @@ def _launch(argv: Sequence[str]) -> int:
     return 0   # not reached: exec replaced this process
 
 
-def _interrupt(signum: int, frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+class _Interrupt:
+    """A handler raising :class:`KeyboardInterrupt` on the first of its signals only."""
+
+    def __init__(self) -> None:
+        self.fired = False
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        if not self.fired:
+            self.fired = True
+            raise KeyboardInterrupt(signal.Signals(signum).name)
 
 
 @contextlib.contextmanager
@@ -142,22 +155,25 @@ def stop_signals_as_interrupt(signals: Sequence[int] = (signal.SIGTERM, signal.S
                               ) -> Iterator[None]:
     """Within the block, ``signals`` raise :class:`KeyboardInterrupt` as SIGINT does.
 
-    Only in the main thread (elsewhere Python cannot set handlers: the block runs
-    unchanged). A signal ignored on entry (``nohup`` ignores SIGHUP) stays ignored.
-    The previous handlers come back at the end.
+    The first of them does; repeats are ignored, so that the cleanup they started is not
+    cut short (the parent-death signal comes once per thread of a dying parent). Only in
+    the main thread (elsewhere Python cannot set handlers: the block runs unchanged). A
+    signal ignored on entry (``nohup`` ignores SIGHUP) stays ignored. The previous
+    handlers come back at the end.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    handler = _Interrupt()
     previous = {}
     for sig in signals:
         if signal.getsignal(sig) is not signal.SIG_IGN:
-            previous[sig] = signal.signal(sig, _interrupt)
+            previous[sig] = signal.signal(sig, handler)
     try:
         yield
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        for sig, before in previous.items():
+            signal.signal(sig, before)
 
 
 if __name__ == '__main__':

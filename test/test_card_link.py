@@ -102,6 +102,24 @@ def test_link_sends_commands_and_routes_replies():
     link.close()
 
 
+def test_a_write_to_a_pty_whose_card_end_closed_is_a_lost_device():
+    """tcdrain on a pty whose other end closed raises termios.error, no OSError."""
+    import termios
+
+    from motor_id.card.transport import write_all
+
+    class Port:
+        name = 'fake'
+
+        def write(self, data):
+            return len(data)
+
+        def flush(self):
+            raise termios.error(5, 'Input/output error')
+    with pytest.raises(TransportError, match='Input/output error'):
+        write_all(Port(), b'x')
+
+
 def test_link_notes_when_the_last_command_went_out():
     link = CardLink('loop://', read_timeout=0.02)
     assert link.last_sent == -np.inf

@@ -96,6 +96,24 @@ def test_stop_signals_raise_keyboard_interrupt_then_the_handlers_come_back(sig):
     assert signal.getsignal(sig) is before
 
 
+def test_a_repeated_stop_signal_does_not_cut_the_cleanup_short():
+    """The parent-death signal comes once per thread of a dying parent: the first
+    SIGTERM interrupts, the repeats (SIGTERM or SIGHUP) do not."""
+    cleaned = False
+    with stop_signals_as_interrupt():
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            for _ in range(10 ** 6):
+                pass
+        except KeyboardInterrupt:
+            for sig in (signal.SIGTERM, signal.SIGTERM, signal.SIGHUP):
+                os.kill(os.getpid(), sig)
+            for _ in range(10 ** 6):      # the cleanup runs on
+                pass
+            cleaned = True
+    assert cleaned
+
+
 def test_an_ignored_sighup_stays_ignored():
     """``nohup`` ignores SIGHUP on purpose: a command keeps that."""
     previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
@@ -129,7 +147,7 @@ def test_processes_close_ends_every_child_and_whatever_they_left(tmp_path):
     assert len(grandchild) == 1 and left.pid in live_groups()
     kids.close(timeout=2.0)
     assert quiet.proc.returncode == -signal.SIGINT and not quiet.killed and hard.killed
-    assert _gone(grandchild[0].pid)
+    assert wait_until(lambda: _gone(grandchild[0].pid), 30.0)   # SIGKILL lands at once
     assert not {quiet.pid, hard.pid, left.pid} & set(live_groups())
 
 

@@ -2,6 +2,12 @@
 
 import serial
 
+try:
+    from termios import error as TermiosError  # noqa: N812 - the module's name for it
+except ImportError:   # not POSIX: pyserial raises no termios errors there
+    class TermiosError(Exception):  # type: ignore[no-redef]
+        """Never raised: a stand-in where the termios module does not exist."""
+
 from motor_id.errors import ConfigError, MotorIdError
 
 
@@ -75,9 +81,13 @@ def read_available(port: serial.SerialBase, max_bytes: int = 4096) -> bytes:
 
 
 def write_all(port: serial.SerialBase, data: bytes) -> None:
-    """Write ``data`` and wait until it is sent; :class:`TransportError` on failure."""
+    """Write ``data`` and wait until it is sent; :class:`TransportError` on failure.
+
+    A pseudo-terminal whose other end closed fails the wait (``tcdrain``) with a
+    ``termios.error``, which is no ``OSError``: it is a lost device too.
+    """
     try:
         port.write(data)
         port.flush()
-    except (serial.SerialException, OSError) as exc:
+    except (serial.SerialException, OSError, TermiosError) as exc:
         raise TransportError(f'write to {port.name or port.port} failed: {exc}') from exc

@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
                                   '-p', 'window_s:=120.0', '-p', f'seed:={args.seed}'])
         kids.start('driver', ['-m', 'motor_id.nodes.driver', '--ros-args',
                               '-p', f'device:={link}', '-p', 'autostart:=false',
+                              '-p', 'publish_channels:=false',   # 3 messages a sample
                               '-p', f'record_path:={bag}', '-p', f'meta_file:={meta}'])
         client = DemoClient(domain)
         if not client.wait_identifier_receiving(40.0):
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         _say(f'identifier: {text.splitlines()[0]} ({latency:.2f} s from the call)')
     finally:   # Ctrl-C, SIGTERM, SIGHUP and errors alike: the driver stops first (0 V)
         try:
-            kids.close()
+            kids.close(last=('card',))   # the driver sends 0 V to a card still there
         finally:
             if client is not None:
                 client.close()

@@ -311,8 +311,10 @@ class SignalWatcher:
     interpreter's C-level handler writes the signal number to a socket whichever thread
     the kernel delivers it to, and a thread reading that socket sets :attr:`stop`, the
     :class:`StopSignal` the main thread spins on. The spin then returns, the node stops
-    and is destroyed, and only then the context. A second signal while
-    shutting down ends the process at once (exit code 128 + signal number).
+    and is destroyed, and only then the context. A second SIGINT (Ctrl-C twice) while
+    shutting down ends the process at once (exit code 130); a repeated SIGTERM or SIGHUP
+    does not: the parent-death signal of :mod:`motor_id.lifeline` arrives once per
+    thread of a dying parent, and a supervisor escalates with SIGKILL, not SIGTERM.
     """
 
     SIGNALS = STOP_SIGNALS
@@ -355,9 +357,9 @@ class SignalWatcher:
         if self.received is None:
             return
         self.stop.set()
-        again = self._next_signal()
-        if again is not None:
-            os._exit(128 + again)
+        while (again := self._next_signal()) is not None:
+            if again == signal.SIGINT:
+                os._exit(128 + again)
 
 
 def drain(executor: Executor, node: Node, timeout: float = 10.0) -> bool:
