@@ -172,3 +172,30 @@ def test_burners_are_load_not_leftovers():
         for proc in burners:
             proc.kill()
             proc.wait()
+
+
+@linux_only
+def test_forked_fit_workers_die_with_a_killed_caller():
+    """The analysis's forked workers (motor-id analyze -j N) do not wait for tasks for ever
+    when their caller is killed."""
+    parent = textwrap.dedent("""
+        import multiprocessing, os, time
+        from motor_id.analysis.workers import _worker_start
+        def pid(_):
+            return os.getpid()
+        pool = multiprocessing.get_context('fork').Pool(2, initializer=_worker_start)
+        print(' '.join(str(p) for p in set(pool.map(pid, range(40), chunksize=1))),
+              flush=True)
+        time.sleep(600)
+    """)
+    proc = subprocess.Popen([sys.executable, '-c', parent], stdout=subprocess.PIPE,
+                            env=dict(os.environ, PYTHONPATH=REPO))
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert workers and not any(_gone(w) for w in workers)
+        proc.kill()
+        assert proc.wait(30) == -signal.SIGKILL
+        assert wait_until(lambda: all(_gone(w) for w in workers), 30.0)
+    finally:
+        proc.kill()
+        proc.wait()

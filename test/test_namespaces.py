@@ -53,7 +53,7 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
             ns, 'identifier', f'R_m:={motor.R_m}', 'select:=profile', 'window_s:=120.0',
             'generations:=80'))
         launch(f'driver_{ns}', ros_args(ns, 'driver', f'device:={link}',
-                                        'autostart:=false'))
+                                        'autostart:=false', 'publish_channels:=false'))
         ends[ns] = []
         client.subscribe(Float64MultiArray, f'/{ns}/samples', messages.SAMPLES_QOS,
                          lambda msg, box=ends[ns]: box.append(bool(np.any(
@@ -79,7 +79,7 @@ def test_two_motors_in_two_namespaces_each_fit_their_own(client, launch, tmp_pat
         ok, text = client.trigger(f'/{ns}/driver/start', wait_service=30.0)
         assert ok, text
     for ns in MOTORS:
-        assert wait_until(lambda ns=ns: any(ends[ns]), 60.0), ns
+        assert wait_until(lambda ns=ns: any(ends[ns]), 120.0), ns
     for ns, motor in MOTORS.items():
         ok, text = client.identify(f'/{ns}/identifier/identify')
         assert ok, (text, idents[ns].output())

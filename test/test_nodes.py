@@ -190,13 +190,14 @@ def test_card_driver_identifier_recover_the_motor(client, launch, tmp_path):
     samples = client.collect(Float64MultiArray, 'samples', messages.SAMPLES_QOS)
     launch('card', card_args(link, '--speedup', '10', '--params', str(params)))
     ident = launch('identifier', identifier_args('select:=profile', 'window_s:=120.0'))
-    drv = launch('driver', driver_args(f'device:={link}', 'autostart:=false'))
+    drv = launch('driver', driver_args(f'device:={link}', 'autostart:=false',
+                                       'publish_channels:=false'))   # 1000 samples/s
     assert wait_until(lambda: int(latest_status(diags, 'motor_id: identifier')
-                                  .get('received', 0)) > 0, 30.0), ident.output()
+                                  .get('received', 0)) > 0, 60.0), ident.output()
     resp = client.call(Trigger, '/driver/start')
     assert resp.success, resp.message
     assert wait_until(lambda: np.any(rows_of(samples[-20:])[:, 5].astype(int)
-                                     & FLAG_PROFILE_END), 30.0)
+                                     & FLAG_PROFILE_END), 120.0), drv.output()
     ok, text = client.identify()   # it may get the profile's last rows after us
     assert ok, text
     assert 'from 4000 samples' in text

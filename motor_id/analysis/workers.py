@@ -21,6 +21,7 @@ import signal
 from typing import Any, TYPE_CHECKING
 
 from motor_id.effects import EFFECTS
+from motor_id.lifeline import set_parent_death_signal
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
@@ -129,10 +130,12 @@ def longest_first(pool: multiprocessing.pool.Pool, fn: Callable[[Any], Any],
 def _worker_start() -> None:
     """A worker leaves Ctrl-C to the caller, which stops the pool (no worker traceback);
     SIGTERM and SIGHUP (the pool's terminate, a caller that made them raise
-    KeyboardInterrupt) end it at once."""
+    KeyboardInterrupt) end it at once; and it dies with its caller: a killed caller's
+    workers would wait for tasks for ever."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     for sig in (signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_DFL)
+    set_parent_death_signal(signal.SIGKILL)   # a fit worker has nothing to clean up
 
 
 def _fit(job: tuple[dict[str, Any], FitTask]) -> ModelScore:
