@@ -1,5 +1,6 @@
 """Children that cannot outlive their parent; SIGTERM and SIGHUP as Ctrl-C; nothing left."""
 
+import json
 import os
 import signal
 import subprocess
@@ -10,13 +11,7 @@ import psutil
 import pytest
 
 from motor_id.lifeline import stop_signals_as_interrupt, tied
-from motor_id.testing.procs import (
-    leftovers,
-    live_groups,
-    Processes,
-    start_burners,
-    wait_until,
-)
+from motor_id.testing.procs import live_groups, Processes, wait_until
 from motor_id.testing.ros import REPO
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith('linux'),
@@ -152,26 +147,23 @@ def test_processes_close_ends_every_child_and_whatever_they_left(tmp_path):
 
 
 def test_leftovers_names_and_kills_a_forgotten_child():
-    proc = subprocess.Popen(['sleep', '600'])
-    try:
-        left = leftovers()
-        assert left == [f'{proc.pid}: sleep 600']
-        assert proc.wait(30) == -signal.SIGKILL
-        assert leftovers() == []
-    finally:
-        proc.kill()
-        proc.wait()
-
-
-def test_burners_are_load_not_leftovers():
-    burners = start_burners(1)
-    try:
-        assert burners[0].poll() is None and leftovers() == []
-        assert burners[0].poll() is None
-    finally:
-        for proc in burners:
-            proc.kill()
-            proc.wait()
+    """In a process of its own (here other tests' children may run): a forgotten child
+    is named and killed, a burner is not, and then nothing is left."""
+    script = textwrap.dedent("""
+        import json, subprocess
+        from motor_id.testing.procs import leftovers, start_burners
+        burner = start_burners(1)[0]
+        sleeper = subprocess.Popen(['sleep', '600'])
+        first = leftovers()
+        code = sleeper.wait(30)
+        print(json.dumps([first, sleeper.pid, code, burner.poll(), leftovers()]))
+        burner.kill()
+    """)
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=REPO), timeout=120)
+    first, pid, code, burner, after = json.loads(out.stdout)
+    assert first == [f'{pid}: sleep 600'], out.stderr
+    assert code == -signal.SIGKILL and burner is None and after == []
 
 
 @linux_only

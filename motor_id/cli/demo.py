@@ -61,9 +61,7 @@ def run(args: argparse.Namespace) -> int:
     truth = DEMO_MOTOR
     if args.params:
         truth = Plant.from_json(args.params).params
-    params_file = os.path.join(out, 'truth.json')
-    with open(params_file, 'w') as fh:
-        json.dump(truth.to_dict(), fh, indent=2)
+    params_file, meta = _write_inputs(out, truth)
     domain = args.domain or random.SystemRandom().randint(1, 101)
     if not 0 <= domain <= 232:
         raise ConfigError(f'--domain must be in 0..232, got {domain}')
@@ -76,12 +74,6 @@ def run(args: argparse.Namespace) -> int:
     for stale in (bag, os.path.join(out, 'report.json')):
         if os.path.exists(stale):
             os.remove(stale)
-    meta = os.path.join(out, 'meta.json')
-    with open(meta, 'w') as fh:
-        json.dump({'provenance': 'motor-id demo: simulated card (motor_id.card.simulator), '
-                                 "the paper's Eq. 14 excitation",
-                   'truth': {'params': truth.to_dict(), 'input_kind': 'voltage',
-                             'effects': {}}}, fh)
     speedup = '40' if args.fast else '10'
     link = os.path.join(out, 'card')
     kids = Processes(env, out)
@@ -134,6 +126,20 @@ def run(args: argparse.Namespace) -> int:
                       'seconds': time.monotonic() - t_start}
     _finish(report, truth, bag, out)
     return 0
+
+
+def _write_inputs(out: str, truth: MotorParams) -> tuple[str, str]:
+    """The card's motor (JSON) and the recording's metadata in ``out``; their paths."""
+    params_file = os.path.join(out, 'truth.json')
+    with open(params_file, 'w') as fh:
+        json.dump(truth.to_dict(), fh, indent=2)
+    meta = os.path.join(out, 'meta.json')
+    with open(meta, 'w') as fh:
+        json.dump({'provenance': 'motor-id demo: simulated card (motor_id.card.simulator), '
+                                 "the paper's Eq. 14 excitation",
+                   'truth': {'params': truth.to_dict(), 'input_kind': 'voltage',
+                             'effects': {}}}, fh)
+    return params_file, meta
 
 
 def _wait_for_profile_end(client: 'DemoClient', kids: 'Processes', limit: float) -> None:
