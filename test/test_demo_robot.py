@@ -1,5 +1,6 @@
 """`motor-id demo --robot`: the simulated ros2_control robot and `motor-id experiment` on
-its joint, end to end, as a user runs it; and stopping it any way at any moment.
+its joint, end to end, as a user runs it (the wheel; the arm: slow); and stopping the arm
+demo any way mid-experiment.
 
 Real processes over DDS on the module's ROS domain; every wait is on an event (a line of
 the demo's output, an exit), never a fixed time.
@@ -35,38 +36,69 @@ def feedforward(out):
     return report['controller']['feedforward'], truth['feedforward'], truth
 
 
-@pytest.fixture(scope='module')
-def wheel(tmp_path_factory, ros_domain):
-    out = tmp_path_factory.mktemp('wheel')
-    proc = subprocess.run([sys.executable, *demo_args(out, ros_domain)],
-                          env=ros_env(ros_domain), capture_output=True, text=True,
-                          timeout=900)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    return out, proc
+def run_demo(out, domain, robot):
+    proc = subprocess.run([sys.executable, *demo_args(out, domain, robot)],
+                          env=ros_env(domain), capture_output=True, text=True, timeout=900)
+    lines = [x for x in proc.stdout.splitlines() if ' gain ' not in x
+             and 'simulation error:' not in x]     # the analysis' candidates, shortened
+    assert proc.returncode == 0, '\n'.join(lines) + proc.stderr[-3000:]
+    assert 'Traceback' not in proc.stdout + proc.stderr
+    return proc
 
 
-def test_wheel_demo_identifies_the_feedforward_beside_the_truth(wheel):
-    out, proc = wheel
-    found, true, truth = feedforward(out)
-    assert found['kV']['value'] == pytest.approx(true['kV']['value'], rel=0.05)
-    assert found['kA']['value'] == pytest.approx(true['kA']['value'], rel=0.20)
-    assert found['kS']['value'] == pytest.approx(true['kS']['value'], abs=0.05)
-    for name in ('kS', 'kV', 'kA'):
+def check_table(proc, found, true, names):
+    """The printed table: each identified value, its error bar and the true one on one
+    line; no other constant."""
+    rows = {line.split()[0]: line.split() for line in proc.stdout.splitlines()
+            if line.split() and line.split()[0] in ('kS', 'kV', 'kA', 'kG', 'offset')}
+    assert sorted(rows) == sorted(names)
+    for name in names:
         assert found[name]['std'] > 0 and found[name]['unit'] == true[name]['unit']
-        # the table: the identified value, its error bar and the true one on one line
-        row = next(line.split() for line in proc.stdout.splitlines()
-                   if line.startswith(f'{name} '))
+        row = rows[name]
         assert float(row[1]) == pytest.approx(found[name]['value'], rel=1e-3)
         assert float(row[2]) == pytest.approx(found[name]['std'], rel=0.05)
         assert float(row[3]) == pytest.approx(true[name]['value'], rel=1e-3)
-    assert not any(line.startswith('kG ') for line in proc.stdout.splitlines())
-    assert truth['commands'][-1]['values'] == [0.0, 0.0]
+
+
+def check_outputs(out, controller_joints):
+    truth = json.loads((out / 'truth.json').read_text())
+    assert truth['commands'][-1]['values'] == [0.0] * controller_joints
     assert max(abs(v) for c in truth['commands'] for v in c['values']) <= 6.0
     log = json.loads((out / 'experiment.json').read_text())
     assert log['complete'] and log['max_command'] == 6.0
     with AnyReader([out / 'recording.mcap']) as reader:
         assert {TOPIC, '/joint_states', '/samples'} <= {c.topic for c in reader.connections}
-    assert 'Traceback' not in proc.stdout + proc.stderr
+    return truth
+
+
+@pytest.mark.slow
+def test_arm_demo_identifies_gravity_and_the_feedforward(tmp_path, ros_domain):
+    """The issue's targets on the simulated arm, and never past its travel. Slow, and not
+    yet reliable: in 2 of 6 runs with both cores busy the analysis left kS undetermined
+    (interval -0.02 .. 0.33 V for 0.167; exit 4) while kG, offset, kV, kA met the
+    targets."""
+    out = tmp_path / 'arm'
+    proc = run_demo(out, ros_domain, 'arm')
+    found, true, _ = feedforward(out)
+    assert found['kG']['value'] == pytest.approx(true['kG']['value'], rel=0.10)
+    assert found['offset']['value'] == pytest.approx(true['offset']['value'], abs=0.1)
+    assert found['kV']['value'] == pytest.approx(true['kV']['value'], rel=0.10)
+    assert found['kS']['value'] == pytest.approx(true['kS']['value'], abs=0.1)
+    assert found['kA']['value'] == pytest.approx(true['kA']['value'], rel=0.30)
+    check_table(proc, found, true, ('kS', 'kV', 'kA', 'kG', 'offset'))
+    truth = check_outputs(out, 3)
+    assert -2.3 <= truth['position']['min'] and truth['position']['max'] <= 1.3
+
+
+def test_wheel_demo_identifies_the_feedforward(tmp_path, ros_domain):
+    out = tmp_path / 'wheel'
+    proc = run_demo(out, ros_domain, 'wheel')
+    found, true, _ = feedforward(out)
+    assert found['kV']['value'] == pytest.approx(true['kV']['value'], rel=0.05)
+    assert found['kA']['value'] == pytest.approx(true['kA']['value'], rel=0.20)
+    assert found['kS']['value'] == pytest.approx(true['kS']['value'], abs=0.05)
+    check_table(proc, found, true, ('kS', 'kV', 'kA'))
+    check_outputs(out, 2)
 
 
 # ---------------------------------------------------------------------------------------
@@ -74,10 +106,10 @@ def test_wheel_demo_identifies_the_feedforward_beside_the_truth(wheel):
 
 
 def start_moving(tmp_path, ros_domain, name):
-    """The wheel demo up to its second test (the joint has moved); the demo and its
+    """The arm demo up to its second test (the arm has moved); the demo and its
     children."""
     out = tmp_path / 'out'
-    demo = Process(demo_args(out, ros_domain), ros_env(ros_domain), tmp_path, name)
+    demo = Process(demo_args(out, ros_domain, 'arm'), ros_env(ros_domain), tmp_path, name)
     demo.wait_for(r'^  test quasistatic-reverse started', timeout=300.0, stream='stdout')
     kids = psutil.Process(demo.pid).children(recursive=True)
     names = sorted(next(a for a in k.cmdline() if a.startswith('motor_id.')) for k in kids)
@@ -115,12 +147,14 @@ def test_a_signal_mid_experiment_leaves_the_joint_at_0_and_nothing_running(
     assert all(gone(k) for k in kids), [k.cmdline() for k in kids if not gone(k)]
     truth = json.loads((out / 'truth.json').read_text())
     commands = truth['commands']
+    zero = [0.0, 0.0, 0.0]
     assert any(c['values'][1] != 0.0 for c in commands if c['time'] < t_wall)
-    assert commands[-1]['values'] == [0.0, 0.0]
+    assert commands[-1]['values'] == zero
     after = [c for c in commands if c['time'] >= t_wall]
-    first_zero = next(c['time'] for c in after if c['values'] == [0.0, 0.0])
+    first_zero = next(c['time'] for c in after if c['values'] == zero)
     assert first_zero - t_wall <= ZERO_WITHIN, first_zero - t_wall
-    assert all(c['values'] == [0.0, 0.0] for c in after if c['time'] >= first_zero)
+    assert all(c['values'] == zero for c in after if c['time'] >= first_zero)
+    assert -2.3 <= truth['position']['min'] and truth['position']['max'] <= 1.3
     log = json.loads((out / 'experiment.json').read_text())
     assert log['stop_reason'] == 'signal SIGINT'     # the demo stops it as Ctrl-C does
     for name in ('experiment', 'robot'):
@@ -137,5 +171,5 @@ def test_killed_demo_leaves_its_children_stopping_cleanly(tmp_path, ros_domain):
         (k.pid, k.cmdline()) for k in kids if not gone(k)]
     log = json.loads((out / 'experiment.json').read_text())
     assert log['stop_reason'] == 'signal SIGTERM'
-    assert last_sent(out) == [0.0, 0.0]
+    assert last_sent(out) == [0.0, 0.0, 0.0]
     assert (out / 'truth.json').exists()     # the robot ended cleanly too

@@ -203,7 +203,8 @@ def _print_results(out: str, truth: dict[str, Any], mechanism: str, code: int) -
             _say(f'{name:<9}{"not determined":>22}{t["value"]:>11.4g}{"":>16}  {t["unit"]}')
             continue
         err = f['value'] - t['value']
-        rel = f'{100 * err / t["value"]:+.1f}%' if t['value'] else f'{err:+.3g}'
+        rel = f'{100 * err / t["value"]:+.1f}%' if t['value'] and name != 'offset' \
+            else f'{err:+.3f}'
         std = f.get('std')
         _say(f'{name:<9}{f["value"]:>12.4g}{"" if std is None else f"{std:.2g}":>10}'
              f'{t["value"]:>11.4g}{rel:>9}{"" if not std else f"{err / std:+.1f}":>7}'

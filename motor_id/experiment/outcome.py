@@ -59,7 +59,8 @@ def identify(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
     """
     nominal = settings.input_kind == 'voltage' and settings.resistance is None
     R = NOMINAL_R if nominal else settings.resistance
-    ana = DiscrepancyAnalysis(R_m=R, random_state=settings.seed, jobs=jobs)
+    ana = DiscrepancyAnalysis(R_m=R, random_state=settings.seed, jobs=jobs,
+                             mechanism=settings.mechanism)
     ana.fit(rec, progress=progress)
     out = ana.report_.to_dict()
     out['data'] = {'source': rec.meta.get('source'), 'samples': len(rec),
