@@ -13,8 +13,8 @@ kV, kA of each model in the log's units.
   :mod:`motor_id.testing.sysid_ols`), and the discrete form of SysId 2021
   (``v[k+1] = a v[k] + b V[k] + c sgn(v[k])``). Each simulated as SysId plots it: from
   the test's first velocity, every interval discretised exactly.
-- motor_id: ``motor-id analyze LOG --resistance R --json`` (``--fit-only``: ``motor-id fit
-  LOG --resistance R --effect coulomb_friction --json``) in a child process, then its
+- motor_id: ``motor-id analyze LOG --json`` (``--fit-only``: ``motor-id fit LOG
+  --effect coulomb_friction --json``) in a child process, then its
   saved model simulated on every test with :func:`motor_id.identify.validation.validate`
   (each test a run from its first samples: the per-test fit % that ``motor-id validate``
   and the analyze report print). Its kS, kV, kA are the report's
@@ -94,7 +94,9 @@ def sysid_side(rec):
 def run_motor_id(log, out_json, args):
     """``motor-id analyze`` (or ``fit``) on the log in a child process; its seconds."""
     cmd = [sys.executable, '-m', 'motor_id.cli', 'fit' if args.fit_only else 'analyze',
-           str(log), '--resistance', repr(args.resistance), '--json', str(out_json)]
+           str(log), '--json', str(out_json)]
+    if args.resistance is not None:
+        cmd += ['--resistance', repr(args.resistance)]
     if args.fit_only:
         cmd += ['--effect', 'coulomb_friction', '-q']
     if args.joint:
@@ -189,9 +191,9 @@ def parse(argv):
                     help='where to write the numbers (default sysid_benchmark.json)')
     ap.add_argument('--fit-only', action='store_true',
                     help='motor-id fit (with Coulomb friction) instead of motor-id analyze')
-    ap.add_argument('--resistance', type=float, default=1.0, metavar='R',
-                    help='R_m [Ohm] given to motor-id (a speed-only log cannot see it; the '
-                         'I/O behaviour and kS, kV, kA do not depend on it; default 1)')
+    ap.add_argument('--resistance', type=float, default=None, metavar='R',
+                    help='R_m [Ohm] given to motor-id (default none: a speed-only log '
+                         'cannot see it, and no output depends on it)')
     ap.add_argument('--joint', choices=('left', 'right'), help='side of a Drivetrain log')
     ap.add_argument('--motor', metavar='NAME', help='.wpilog: the motor, where it has several')
     ap.add_argument('--timeout', type=float, default=3600.0, metavar='S',

@@ -173,8 +173,9 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any
     scaled = copy.copy(identifier)
     scaled.bounds = {**(identifier.bounds or {}), **ranges}
     scaled.start = {k: v for k, v in physical.items() if k != 'R_m'}
-    if held:
+    if held:   # at the R_m the linear fit used (an internal one where R_m does not enter)
         scaled.fixed = {**(identifier.fixed or {}), 'K_T': physical['K_T']}
+        scaled.R_m = physical['R_m']
         scaled.start.pop('K_T')
     with np.errstate(all='ignore'):
         scaled.fit(rec)

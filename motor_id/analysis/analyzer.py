@@ -41,6 +41,7 @@ from motor_id.errors import (
 )
 from motor_id.identify.mechanism import check_mechanism
 from motor_id.identify.scales import data_scales, default_max_delay
+from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.identify.validation import RunScore, SavedModel, validate
 from motor_id.metrics import noise_floor
 
@@ -172,9 +173,17 @@ class DiscrepancyAnalysis:
         if self._progress is not None:
             self._progress(msg)
 
+    def _resistance(self, rec: Recording) -> float | None:
+        """The R_m the fits are given: the given one, or where the record cannot see it
+        (speed-only voltage data) none, so that the fits use
+        :data:`~motor_id.identify.space.SPEED_ONLY_R_M` and no output depends on it."""
+        if rec.input_kind == 'voltage' and not resistance_enters('voltage', rec.has_current):
+            return None   # the fits then use SPEED_ONLY_R_M
+        return self.R_m
+
     def _check(self, rec: Recording) -> list[str]:
         rec.validate()  # also rejects corrupt cells (1e300) whose squares would overflow
-        if rec.input_kind == 'voltage' and self.R_m is None:
+        if self.R_m is None and resistance_enters(rec.input_kind, rec.has_current):
             raise ConfigError('R_m (the armature resistance in Ohm, as measured) is required '
                               'for voltage-input data', params=('R_m',))
         if len(rec) < 10 * self.n_blocks:
@@ -205,8 +214,8 @@ class DiscrepancyAnalysis:
                 electrical = {'failed': str(exc), 'favoured': None}
         max_delay = self.max_delay if self.max_delay is not None else \
             default_max_delay(len(rec))
-        fitter = CandidateFitter(rec, split, self.R_m, self.random_state, self.starts,
-                                 max_delay, self.R_m_tolerance, self.mechanism)
+        fitter = CandidateFitter(rec, split, self._resistance(rec), self.random_state,
+                                 self.starts, max_delay, self.R_m_tolerance, self.mechanism)
         return RecordContext(
             rec=rec, split=split, fitter=fitter, measurement=meas,
             measurement_evidence=meas_evidence, electrical=electrical,
@@ -228,7 +237,8 @@ class DiscrepancyAnalysis:
         base = self._speed_reading(ctx, base)
         ctx.resistance = f.resistance
         counted = any(m.name in count_reading() for m in ctx.measurement)
-        f.scales = data_scales(rec, base.physical, f.R_m, float(rec.time[-1] - rec.time[0]),
+        r_m = f.R_m if f.R_m is not None else base.physical.get('R_m', SPEED_ONLY_R_M)
+        f.scales = data_scales(rec, base.physical, r_m, float(rec.time[-1] - rec.time[0]),
                                float(np.median(np.diff(rec.time))), f.max_delay, counted)
         if ctx.electrical:
             f.extra_starts = dict(ctx.electrical.get('start', {}))
@@ -304,6 +314,9 @@ class DiscrepancyAnalysis:
                 rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say,
                 jobs=self.jobs)
         self.report_.runs = _run_scores(self.report_, rec)
+        if rec.input_kind == 'voltage' and not resistance_enters('voltage', rec.has_current):
+            self.report_.resistance = str(self.report_.parameters['R_m'].get('reason')) + (
+                '' if self.R_m is None else f'; the given {self.R_m:g} Ohm is not used')
         self.report_.seconds = time.perf_counter() - t_start
         return self
 

@@ -76,7 +76,8 @@ class DiscrepancyReport:
     measurement effects first, then every dynamic model tried (chosen first). ``linear``:
     the record is of a linear axis (constants per metre). ``runs``: the chosen model
     simulated on each run of the record from its input alone (as ``motor-id validate``
-    scores it), by name. Every constant of :meth:`to_dict` carries its ``unit``.
+    scores it), by name. ``resistance``: why R_m does not enter (speed-only voltage data),
+    or None. Every constant of :meth:`to_dict` carries its ``unit``.
     """
 
     verdict: str
@@ -101,6 +102,7 @@ class DiscrepancyReport:
     linear: bool = False
     runs: tuple[RunScore, ...] = ()
     mechanism: str = 'simple'
+    resistance: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the documented keys first)."""
@@ -128,6 +130,8 @@ class DiscrepancyReport:
             d['controller'] = controller
         if self.runs:
             d['runs'] = [r.to_dict() for r in self.runs]
+        if self.resistance:
+            d['resistance'] = {'enters': False, 'note': self.resistance}
         return attach_units(d, self.input_kind, self.linear)
 
     def controller(self) -> dict[str, Any] | None:
@@ -168,6 +172,8 @@ class DiscrepancyReport:
                                                             units_of(self.input_kind,
                                                                      self.linear))
         lines += run_lines(self.runs)
+        if self.resistance:
+            lines.append(f'R_m: {self.resistance}')
         if not self.adequate:
             lines.append('MODEL INADEQUATE: ' + self.warnings[0])
         for w in self.warnings[(0 if self.adequate else 1):]:

@@ -9,6 +9,7 @@ from motor_id.analysis.workers import usable_cores
 from motor_id.cli.common import add_mechanism_argument
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
+from motor_id.identify.space import resistance_enters
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'is held out whole)')
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
                         help='armature resistance R_m [Ohm] as measured (voltage plants); '
-                             'with current data it is the prior of the estimate')
+                             'with current data it is the prior of the estimate; speed-only '
+                             'data need none (R_m does not enter)')
     parser.add_argument('--resistance-tolerance', type=float, default=10.0, metavar='PCT',
                         help='how good --resistance is, in %% (default 10)')
     parser.add_argument('--json', metavar='OUT', help='write the report as JSON')
@@ -42,9 +44,10 @@ def run(args: argparse.Namespace) -> int:
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(',') if c.strip()]
-    if rec.input_kind == 'voltage' and args.resistance is None:
+    if args.resistance is None and resistance_enters(rec.input_kind, rec.has_current):
         raise ConfigError('--resistance R (the known armature resistance in Ohm) is required '
-                          'for voltage-input data')
+                          'for voltage-input data with a measured current (speed alone does '
+                          'not need it)')
 
     def progress(msg: str) -> None:
         if not args.quiet:

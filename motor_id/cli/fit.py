@@ -18,6 +18,7 @@ from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.effects import EFFECTS, parse_effect_args, role_params
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
+from motor_id.identify.space import resistance_enters
 from motor_id.report import plot_fit, write_json
 from motor_id.simulate import warm_up
 
@@ -34,7 +35,8 @@ def add_fit_arguments(parser: argparse.ArgumentParser) -> None:
     """Options shared by `fit` and `replay --offline`."""
     parser.add_argument('--resistance', '-R', type=float, metavar='R',
                         help='armature resistance R_m [Ohm] as measured (an ohmmeter '
-                             'reading); with current data it is the prior of the estimate')
+                             'reading); with current data it is the prior of the estimate; '
+                             'speed-only voltage data need none (R_m does not enter)')
     parser.add_argument('--resistance-tolerance', type=float, default=10.0, metavar='PCT',
                         help='how good --resistance is, in %% (the std of its Gaussian '
                              'prior; default 10)')
@@ -114,9 +116,10 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
     """The :class:`Identifier` the options ask for (checked before any work)."""
     fixed = parse_fixed(args.fix, '--fix')
     r_m = fixed.get('R_m', args.resistance)
-    if rec.input_kind == 'voltage' and r_m is None:
+    if r_m is None and resistance_enters(rec.input_kind, rec.has_current, fixed):
         raise ConfigError('--resistance R (the armature resistance in Ohm, as measured) is '
-                          'required for voltage-input data')
+                          'required for voltage-input data with a measured current or a '
+                          '--fix other than R_m (speed alone does not need it)')
     tol = getattr(args, 'resistance_tolerance', 10.0)
     if not (math.isfinite(tol) and tol > 0):
         raise ConfigError(f'--resistance-tolerance must be a percentage > 0, got {tol}')

@@ -12,12 +12,13 @@ import numpy as np
 from motor_id.identify import determinacy, uncertainty
 from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.result import Estimate
-from motor_id.identify.space import TORQUE_FREE
+from motor_id.identify.space import SPEED_ONLY_R_M, TORQUE_FREE
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
     from motor_id.ga import GeneticAlgorithm
+    from motor_id.identify.result import IdentificationResult
     from motor_id.recording import Recording
 
 
@@ -169,6 +170,21 @@ def resistance_block(problem: IdentificationProblem, params: dict[str, Estimate]
     return {'given': given, 'estimate': e.value, 'std': e.std, 'relative_change': rel,
             'estimated': True, 'note': note,
             'prior_std': prior_std * given}
+
+
+def unseen_resistance(result: IdentificationResult, given: float | None) -> None:
+    """Mark R_m as not entering ``result`` (fitted at :data:`~.space.SPEED_ONLY_R_M`):
+    its estimate not determined, the ``resistance`` block saying so, no sensitivity."""
+    note = (f'R_m does not enter: speed-only voltage data determine kS, kV, kA and the '
+            f'speed transfer function, which are the same at any R_m; fitted at an '
+            f'internal {SPEED_ONLY_R_M:g} Ohm')
+    result.parameters['R_m'] = Estimate(particular_value=SPEED_ONLY_R_M, reason=note)
+    result.resistance = {'given': given, 'estimate': None, 'std': None,
+                         'relative_change': None, 'estimated': False, 'enters': False,
+                         'internal': SPEED_ONLY_R_M,
+                         'note': note + ('' if given is None else
+                                         f'; the given {given:g} Ohm is not used')}
+    result.r_m_sensitivity = None
 
 
 def ga_block(problem: IdentificationProblem, ga: GeneticAlgorithm | None,

@@ -18,6 +18,7 @@ from motor_id.errors import IdentificationError, MotorIdError
 from motor_id.identify import assembly, blocks, determinacy, search, uncertainty
 from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.search import Progress
+from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
@@ -296,9 +297,10 @@ class Identifier:
 
     def _fit(self, rec: Recording, progress: Progress | None,
              sample_weight: ArrayLike | None) -> None:
+        unseen, R_m, fixed = _resistance_used(rec, self.R_m, self.fixed)
         problem = IdentificationProblem(
-            rec, method=self.method, R_m=self.R_m, R_m_tolerance=self.R_m_tolerance,
-            tie=self.tie, fixed=self.fixed, bounds=self.bounds, channels=self.channels,
+            rec, method=self.method, R_m=R_m, R_m_tolerance=self.R_m_tolerance,
+            tie=self.tie, fixed=fixed, bounds=self.bounds, channels=self.channels,
             effects=self.effects, free_effects=self.free_effects,
             sample_weight=sample_weight)
         self.problem_ = problem
@@ -323,7 +325,9 @@ class Identifier:
         J = problem.jacobian_z(z_best, w)
         result, self.covariance_ = assembly.build_result(
             rec, problem, x_best, z_best, J, sigma, w, pred, error_blocks=self.error_blocks,
-            r_m_fixed_by_caller='R_m' in (self.fixed or {}))
+            r_m_fixed_by_caller='R_m' in (fixed or {}))
+        if unseen:
+            blocks.unseen_resistance(result, (self.fixed or {}).get('R_m', self.R_m))
         result.ga = blocks.ga_block(problem, ga, ga_seconds)
         result.refinement = refine_info
         if self.bootstrap and self.method != 'paper':
@@ -331,3 +335,15 @@ class Identifier:
         self.result_ = result
         self.params_ = result.values()
         self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
+
+
+def _resistance_used(rec: Recording, R_m: float | None, fixed: Mapping[str, float] | None
+                     ) -> tuple[bool, float | None, Mapping[str, float] | None]:
+    """``(unseen, R_m, fixed)`` a fit uses: where R_m does not enter (speed-only voltage
+    data, :func:`~motor_id.identify.space.resistance_enters`) the internal
+    :data:`~motor_id.identify.space.SPEED_ONLY_R_M`, never the given value, so that no
+    output depends on it."""
+    if rec.input_kind != 'voltage' or resistance_enters(rec.input_kind, rec.has_current,
+                                                        fixed):
+        return False, R_m, fixed
+    return True, SPEED_ONLY_R_M, {k: v for k, v in (fixed or {}).items() if k != 'R_m'} or None

@@ -157,6 +157,8 @@ class IdentificationResult:
                     shown = '-'
                 why = 'not determined' + (' (model inadequate)' if not self.adequate else
                                           ' by this data')
+                if name == 'R_m' and (self.resistance or {}).get('enters') is False:
+                    why = 'does not enter (speed-only voltage data)'
                 lines.append(f'{name:<12}{shown:>14}{"-":>12}  {why}')
                 continue
             std = '-' if e.std is None else f'{e.std:.4g}'
@@ -173,7 +175,9 @@ class IdentificationResult:
         lines: list[str] = []
         r = self.resistance
         if r is not None:
-            if r['estimated']:
+            if r.get('enters') is False:
+                lines.append(f'R_m: {r["note"]}')
+            elif r['estimated']:
                 lines.append(f'R_m: given {r["given"]:.3g} Ohm, the data say '
                              f'{r["estimate"]:.4g} +- {_num(r["std"], ".2g")} Ohm '
                              f'({100 * r["relative_change"]:+.1f} %: {r["note"]})')

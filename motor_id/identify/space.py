@@ -24,6 +24,20 @@ DEFAULT_BOUNDS = {
 }
 TORQUE_BOUNDS = {'J': (1e-7, 1e4), 'B': (1e-8, 1e5)}
 R_M_SPAN = 4.0      # a free R_m is searched in [given / 4, given * 4]
+SPEED_ONLY_R_M = 1.0
+"""The armature resistance [Ohm] a voltage plant is fitted at where the record cannot see
+R_m (:func:`resistance_enters`): speed alone determines kS, kV, kA and the speed transfer
+function, and every one of them is the same at any R_m, so a fixed internal value makes
+every output the same whatever resistance is given."""
+
+
+def resistance_enters(input_kind: str, has_current: bool,
+                      fixed: Mapping[str, float] | None = None) -> bool:
+    """Whether R_m enters a fit's outputs: a voltage plant with its current measured, or
+    one with a parameter other than R_m held at a known value (its scale then ties the
+    others to R_m). Speed-only voltage data otherwise see only combinations that R_m
+    leaves unchanged (:data:`SPEED_ONLY_R_M`)."""
+    return input_kind == 'voltage' and (has_current or bool(set(fixed or {}) - {'R_m'}))
 
 
 def _effect_terms(effects: Mapping[str, Mapping[str, float]] | None,
