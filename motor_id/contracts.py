@@ -76,11 +76,11 @@ drive."""
 UNITS = {
     'J': 'kg m^2', 'K_T': 'N m/A', 'K_b': 'V s/rad', 'B': 'N m s/rad', 'L_m': 'H',
     'R_m': 'Ohm', 'time': 's', 'input': 'V', 'speed': 'rad/s', 'current': 'A',
-    'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad',
+    'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad', 'kG': 'V', 'offset': 'rad',
 }
 """SI units of the parameters and channels of a voltage plant."""
 TORQUE_UNITS = {'J': 'kg m^2 (or kg)', 'B': 'N m s/rad (or N s/m)', 'input': 'N m (or N)',
-                'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad'}
+                'kS': 'N m', 'kV': 'N m s/rad', 'kA': 'N m s^2/rad', 'kG': 'N m'}
 """Units that differ for a torque- (or force-) input plant."""
 
 

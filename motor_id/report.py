@@ -66,7 +66,6 @@ def attach_units(report: Any, input_kind: str = 'voltage', linear: bool = False)
     a unit keeps it.
     """
     units = units_of(input_kind, linear)
-    units.setdefault('kG', units['kS'])
     _attach(report, units, linear, (), None)
     return report
 

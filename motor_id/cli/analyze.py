@@ -6,7 +6,7 @@ import sys
 
 from motor_id.analysis import DiscrepancyAnalysis, plot_report
 from motor_id.analysis.workers import usable_cores
-from motor_id.cli.common import add_mechanism_argument
+from motor_id.cli.common import add_mechanism_argument, mechanism_for
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 from motor_id.identify.space import resistance_enters
@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     ana = DiscrepancyAnalysis(R_m=args.resistance, candidates=cands, random_state=args.seed,
                               min_gain=args.min_gain,
                               R_m_tolerance=args.resistance_tolerance / 100.0,
-                              jobs=args.jobs or usable_cores(), mechanism=args.mechanism)
+                              jobs=args.jobs or usable_cores(),
+                              mechanism=mechanism_for(args, rec))
     ana.fit(rec, progress=progress)
     rep = ana.report_
     print(rep.summary())

@@ -2,10 +2,13 @@
 
 import argparse
 from collections.abc import Iterable
+import sys
+from typing import TextIO
 
 from motor_id.effects import MECHANISMS, parse_effect_args
 from motor_id.errors import ConfigError
 from motor_id.model import Plant
+from motor_id.recording import Recording
 
 
 def plant_from_args(params_path: str | None, effect_items: Iterable[str] | None) -> Plant:
@@ -27,8 +30,24 @@ def parse_noise(text: str, what: str) -> list[float]:
 
 def add_mechanism_argument(parser: argparse.ArgumentParser) -> None:
     """``--mechanism``: what the joint moves (its gravity in the model)."""
-    parser.add_argument('--mechanism', choices=MECHANISMS, default=MECHANISMS[0],
-                        help='what the joint moves: a shaft or wheel (simple, default), an '
+    parser.add_argument('--mechanism', choices=MECHANISMS, default=None,
+                        help='what the joint moves: a shaft or wheel (simple), an '
                              'elevator (constant gravity kG) or an arm (kG cos(theta + '
                              'offset) from the measured position): the gravity is in the '
-                             'model from the start')
+                             "model from the start (default: the SysId log's test, Arm or "
+                             'Elevator, else simple)')
+
+
+def mechanism_for(args: argparse.Namespace, rec: Recording,
+                  stream: TextIO | None = None) -> str:
+    """The mechanism ``--mechanism`` names, else the recording's (a SysId JSON log's
+    ``"test": "Arm"`` or ``"Elevator"``, said on ``stream``), else ``simple``."""
+    given = getattr(args, 'mechanism', None)
+    if given:
+        return str(given)
+    logged = rec.meta.get('mechanism')
+    if logged in MECHANISMS:
+        print(f"mechanism: {logged} (the log's test; --mechanism to choose another)",
+              file=stream or sys.stderr)
+        return str(logged)
+    return MECHANISMS[0]

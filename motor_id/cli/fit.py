@@ -13,7 +13,7 @@ from typing import Any, TextIO, TYPE_CHECKING
 import yaml
 
 from motor_id import pipeline
-from motor_id.cli.common import add_mechanism_argument
+from motor_id.cli.common import add_mechanism_argument, mechanism_for
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.effects import EFFECTS, parse_effect_args, role_params
 from motor_id.errors import ConfigError
@@ -196,7 +196,7 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
               f'(median {rec.sample_period * 1e3:.3g} ms)', file=sys.stderr)
     fit = pipeline.fit_report(rec, est, progress=progress_printer(args.quiet),
                             controller_options=controller_options(args, rec.input_kind),
-                            extra=extra, mechanism=getattr(args, 'mechanism', 'simple'))
+                            extra=extra, mechanism=mechanism_for(args, rec))
     res = fit.result
     if not fit.adequate:
         print(f'motor-id fit: the model is inadequate for this record: {res.warnings[0]}',

@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from motor_id.cli.common import add_mechanism_argument
+from motor_id.cli.common import add_mechanism_argument, mechanism_for
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
 from motor_id.identify.validation import SavedModel, validate, Validation
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     """Simulate the model on the recording(s), print and write the scores."""
     model = load_model(args.model)
     rec = load_runs(args)
-    val = validate(model, rec, args.init_samples, args.mechanism)
+    val = validate(model, rec, args.init_samples, mechanism_for(args, rec))
     print(val.summary())
     if args.json:
         from motor_id.report import write_json

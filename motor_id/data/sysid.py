@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from motor_id.contracts import channel_units
+from motor_id.effects import MECHANISMS
 from motor_id.errors import DataError
 from motor_id.recording import Recording
 
@@ -87,7 +88,8 @@ def load_sysid(path: str | os.PathLike[str], joint: str | None = None) -> Record
         ``meta['segment_names']`` names the test of each run, ``meta['sysid']`` holds the
         log's ``test``, ``units``, ``unitsPerRotation``, the joint and ``si_to_units``:
         the log's units per SI unit (a gain per unit speed in the log's units is the SI
-        gain divided by it: ``kV_log = kV_SI / si_to_units``).
+        gain divided by it: ``kV_log = kV_SI / si_to_units``); ``meta['mechanism']`` the
+        mechanism of an Arm or Elevator log (``arm``, ``elevator``; None otherwise).
 
     Raises
     ------
@@ -125,6 +127,7 @@ def load_sysid(path: str | os.PathLike[str], joint: str | None = None) -> Record
                   'log_to_si': scale},
         'segment_names': names,
         'segment_offsets': [float(x) for x in rec.meta.get('segment_offsets', [0.0])],
+        'mechanism': test_type.lower() if test_type.lower() in MECHANISMS[1:] else None,
         'units': {k: u for k, u in channel_units('voltage', linear, position=True).items()
                   if k not in ('current', 'flags')},
     }

@@ -216,7 +216,7 @@ def routine_commands(name: str, timing: Timing, rng: np.random.Generator, ramp_r
 
 def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
             timing: Timing, w_noise: float, phase: int, rng: np.random.Generator,
-            effects: Mapping[str, Mapping[str, float]] | None = None
+            effects: Mapping[str, Mapping[str, float]] | None = None, theta0: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
     """Position [rad] and speed [rad/s] readings of one motor at the loops of one test.
 
@@ -225,7 +225,7 @@ def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
     friction ``kS`` [V] and any further ``effects`` of
     :func:`motor_id.testing.independent_physics.integrate`); the speed gets white noise of
     std ``w_noise`` and both readings are refreshed every ``timing.hold`` loops from loop
-    ``phase``.
+    ``phase``. The joint starts at rest at ``theta0`` [rad, or m for an elevator].
     """
     grid, u = command
     h = timing.sample_period / timing.sub
@@ -240,7 +240,7 @@ def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
     if kS > 0:
         T_c = kS * motor.K / motor.R
         hidden['coulomb_friction'] = {'T_c': T_c, 'T_s': T_c}
-    states = integrate(motor, v, h, hidden)
+    states = integrate(motor, v, h, hidden, theta0=theta0)
     speed = states['speed'][grid] + w_noise * rng.standard_normal(grid.size)
     angle = states['angle'][grid]
     n = grid.size

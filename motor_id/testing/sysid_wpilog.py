@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from motor_id.testing.independent_physics import feedforward as joint_feedforward
 from motor_id.testing.independent_physics import Motor
 from motor_id.testing.sysid_log import (
     DEFAULT_MOTOR,
@@ -70,13 +71,26 @@ class RoutineMotor:
     kS : float
         Coulomb friction as the voltage that balances it [V].
     effects : dict
-        Further effects of :func:`motor_id.testing.independent_physics.integrate`.
+        Further effects of :func:`motor_id.testing.independent_physics.integrate` (a
+        joint's gravity: ``arm_gravity``, ``elevator_gravity``, ``hard_stops``).
+    start : float or dict, optional
+        A joint whose position matters (gravity): where each test starts at rest [rad],
+        one value or ``{test: value}`` (a reverse test from the top of an elevator);
+        the position is then logged as it is. None: each test continues the position
+        where the last ended (a flywheel).
     """
 
     name: str = 'shooter'
     motor: Motor = field(default_factory=lambda: DEFAULT_MOTOR)
     kS: float = 0.0  # noqa: N815 - WPILib's symbol
     effects: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    start: float | Mapping[str, float] | None = None
+
+    def start_of(self, test: str) -> float | None:
+        """Where ``test`` starts (None: where the last one ended)."""
+        if self.start is None or isinstance(self.start, (int, float)):
+            return self.start
+        return float(self.start[test])
 
 
 @dataclass(frozen=True)
@@ -89,7 +103,7 @@ class SysIdWpilog:
     truth : dict
         ``{'log_name', 'units', 'si_per_unit', 'loop_period', ..., 'motors': {name:
         {'kS', 'kV', 'kA' (SI: per rad or per m), 'kV_log', 'kA_log' (per position unit
-        of the log), 'motor'}}}``.
+        of the log), 'kG' [V], 'offset' [rad], 'motor'}}}``.
     """
 
     path: str
@@ -185,10 +199,13 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
         phase = int(rng.integers(timing.hold))
         readings = []
         for k, m in enumerate(motors):
+            start = m.start_of(test)
             angle, speed = measure(m.motor, m.kS, (grid, u), timing, w_scale, phase, rng,
-                                   m.effects)
-            readings.append(((angles[k] + angle) * raw_per_rad, speed * raw_per_rad))
-            angles[k] += float(angle[-1])
+                                   m.effects, 0.0 if start is None else start)
+            if start is None:
+                angle = angles[k] + angle
+                angles[k] = float(angle[-1])
+            readings.append((angle * raw_per_rad, speed * raw_per_rad))
         if console is not None:
             console.append(f'starting {test}', int(stamps[0]) - 400)
         for i, stamp in enumerate(stamps):
@@ -236,8 +253,10 @@ def _truth(seed: int, motors: Sequence[RoutineMotor], log_name: str, units: str,
         'speed_noise_std': w_noise, 'motors': {}}
     for m in motors:
         ff = feedforward(m.motor, m.kS)
+        joint = joint_feedforward(m.motor, m.effects)
         kV, kA = ff['kV'] / per_si, ff['kA'] / per_si
         out['motors'][m.name] = {'kS': ff['kS'], 'kV': kV, 'kA': kA,
                                  'kV_log': kV * si_per_unit, 'kA_log': kA * si_per_unit,
+                                 'kG': joint['kG'], 'offset': joint['offset'],
                                  'motor': m.motor.to_dict()}
     return out

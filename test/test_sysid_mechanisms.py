@@ -1,0 +1,131 @@
+"""SysId routines of an arm and a flywheel on the independent physics (issue 27): kG and the
+arm's offset with error bars, kS, kV, kA within the issue's targets, the mechanism taken
+from a JSON log's test.
+
+The arm: a geared motor (kV 0.6008 V s/rad, kA 0.0417 V s^2/rad, kS 0.1 V) lifting a
+load of kG = 1 V whose encoder zero is 0.35 rad off horizontal; each test starts hanging
+at rest (theta + offset = -pi/2), a 20 ms robot loop with jitter. The flywheel: kV 0.02025
+V s/rad, kA 0.01 V s^2/rad (tau_m 0.5 s), kS 0.2 V, a 40 ms enable latency, 20 ms loop.
+"""
+
+from dataclasses import replace
+import json
+import math
+
+import numpy as np
+import pytest
+
+from motor_id.cli import main
+from motor_id.data.wpilog import load_wpilog
+from motor_id.testing.independent_physics import Motor
+from motor_id.testing.sysid_log import DEFAULT_MOTOR
+from motor_id.testing.sysid_wpilog import ROUTINE, RoutineMotor, write_sysid_wpilog
+
+ARM = Motor(J=0.05, K=0.6, R=0.5, L=1.5e-4, B=1e-3, V_supply=12.0, motor_class='arm')
+OFFSET = 0.35
+KG = 1.0
+ARM_TESTS = {'ramp_rate': 0.5, 'ramp_duration': 4.0, 'step_voltage': 2.0,
+             'step_duration': 1.0}
+
+
+def arm_routine(path, seed=5, **kw):
+    joint = RoutineMotor('arm', motor=ARM, kS=0.1, start=-math.pi / 2 - OFFSET,
+                         effects={'arm_gravity': {'T_g': KG * ARM.K / ARM.R,
+                                                  'offset': OFFSET}})
+    return write_sysid_wpilog(path, seed, motors=(joint,), log_name='arm', **{**ARM_TESTS,
+                                                                               **kw})
+
+
+@pytest.fixture(scope='module')
+def arm(tmp_path_factory):
+    return arm_routine(tmp_path_factory.mktemp('arm') / 'arm.wpilog')
+
+
+def feedforward(report):
+    return {k: v for k, v in report['controller']['feedforward'].items()
+            if isinstance(v, dict) and 'value' in v}
+
+
+def check_arm(ff, truth):
+    """The issue's targets: kG 10 %, offset 0.1 rad, kV 10 %, kS 0.1 V, kA 30 % or not
+    determined; each with an error bar and a unit."""
+    np.testing.assert_allclose(ff['kG']['value'], truth['kG'], rtol=0.10)
+    np.testing.assert_allclose(ff['offset']['value'], truth['offset'], atol=0.1)
+    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.10)
+    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.1)
+    if ff['kA']['value'] is not None:
+        np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.30)
+    for k in ('kG', 'offset', 'kV', 'kS'):
+        assert ff[k]['std'] > 0
+    assert (ff['kG']['unit'], ff['offset']['unit']) == ('V', 'rad')
+
+
+def test_the_generated_arm_hangs_and_lifts(arm):
+    rec = load_wpilog(arm.path)
+    assert rec.meta['segment_names'] == list(ROUTINE)
+    for a, _ in rec.segment_ranges:   # every test starts hanging at rest
+        np.testing.assert_allclose(rec.position[a] + OFFSET, -math.pi / 2, atol=1e-9)
+    a, b = rec.segment_ranges[0]      # the ramp lifts it to near horizontal, not over
+    assert -0.5 < rec.position[b - 1] + OFFSET < 1.0
+    assert arm.truth['motors']['arm']['kG'] == pytest.approx(KG, rel=1e-12)
+
+
+def test_fit_of_an_arm_routine(arm, tmp_path, capsys):
+    out = tmp_path / 'fit.json'
+    assert main(['fit', arm.path, '--mechanism', 'arm', '-q', '--json', str(out)]) == 0
+    capsys.readouterr()
+    report = json.loads(out.read_text())
+    check_arm(feedforward(report), arm.truth['motors']['arm'])
+
+
+def test_analyze_of_an_arm_routine(arm, tmp_path, capsys):
+    out = tmp_path / 'analyze.json'
+    assert main(['analyze', arm.path, '--mechanism', 'arm', '-q', '--json', str(out)]) == 0
+    text = capsys.readouterr().out
+    report = json.loads(out.read_text())
+    check_arm(feedforward(report), arm.truth['motors']['arm'])
+    assert [r['name'] for r in report['runs']] == list(ROUTINE)
+    assert all(r['channels']['speed']['fit_percent'] > 90 for r in report['runs'])
+    assert 'kG' in text and 'offset' in text
+
+
+def json_log(rec, test):
+    """A SysId JSON log (units Radians, positions in rotations) of a recording's runs."""
+    log = {'sysid': True, 'test': test, 'units': 'Radians', 'unitsPerRotation': 2 * math.pi}
+    names = {'quasistatic-forward': 'slow-forward', 'quasistatic-reverse': 'slow-backward',
+             'dynamic-forward': 'fast-forward', 'dynamic-reverse': 'fast-backward'}
+    for name, (a, b) in zip(rec.meta['segment_names'], rec.segment_ranges, strict=True):
+        rows = np.column_stack([rec.time[a:b], rec.input[a:b], rec.position[a:b] / (2 * math.pi),
+                                rec.speed[a:b] / (2 * math.pi)])
+        log[names[name]] = rows.tolist()
+    return log
+
+
+def test_a_json_arm_log_fits_as_an_arm(arm, tmp_path, capsys):
+    path = tmp_path / 'sysid_data.json'
+    path.write_text(json.dumps(json_log(load_wpilog(arm.path), 'Arm')))
+    out = tmp_path / 'fit.json'
+    assert main(['fit', str(path), '-q', '--json', str(out)]) == 0
+    assert "mechanism: arm (the log's test" in capsys.readouterr().err
+    check_arm(feedforward(json.loads(out.read_text())), arm.truth['motors']['arm'])
+    # --mechanism overrides the log: an arm fitted as a simple mechanism has no kG
+    assert main(['fit', str(path), '-q', '--mechanism', 'simple', '--json', str(out)]) == 0
+    assert 'kG' not in feedforward(json.loads(out.read_text()))
+    capsys.readouterr()
+
+
+def test_analyze_of_a_flywheel_routine(tmp_path, capsys):
+    wheel = replace(DEFAULT_MOTOR, J=4e-4, motor_class='flywheel')
+    log = write_sysid_wpilog(tmp_path / 'flywheel.wpilog', 9, loop_period=0.02, jitter=0.1,
+                             start_latency=0.04, noise=0.003, ramp_duration=6.0,
+                             step_duration=3.0,
+                             motors=(RoutineMotor('flywheel', motor=wheel, kS=0.2),))
+    out = tmp_path / 'analyze.json'
+    assert main(['analyze', log.path, '-q', '--json', str(out)]) == 0
+    capsys.readouterr()
+    ff = feedforward(json.loads(out.read_text()))
+    truth = log.truth['motors']['flywheel']
+    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.05)
+    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.03)
+    if ff['kA']['value'] is not None:
+        np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.30)
