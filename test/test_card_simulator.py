@@ -343,7 +343,9 @@ def test_pty_disconnect_comes_back_at_the_link(tmp_path):
     assert vanished, 'the link should disappear while the card is away'
     gaps = [e for e in events if e.kind == 'gap']
     assert gaps and gaps[0].lost >= 0.1 / (0.01 / 5.0)  # ~0.2 s of samples at 500/s
-    assert stats['disconnects'] >= 1 and stats['lost_offline'] >= gaps[0].lost * 0.5
+    # samples taken while away are lost (more may be: what the pty held at the
+    # disconnect, and what came before this reader reopened it, on a loaded machine)
+    assert stats['disconnects'] >= 1 and stats['lost_offline'] >= 0.1 / (0.01 / 5.0)
     assert not os.path.lexists(link)  # removed on stop
 
 
