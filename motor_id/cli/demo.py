@@ -90,9 +90,10 @@ def run(args: argparse.Namespace) -> int:
         _say(f'card:       simulated card on {line} ({speedup}x real time)')
         kids.start('identifier', ['-m', 'motor_id.nodes.identifier', '--ros-args',
                                   '-p', f'R_m:={truth.R_m}', '-p', 'select:=profile',
-                                  # 12 s of wall clock: the profile is still in the
-                                  # window when a loaded machine delivers its end late
-                                  '-p', f'window_s:={12.0 * float(speedup)}',
+                                  # 40 s of wall clock (160,000 rows at 40x): the
+                                  # profile is still in the window when this process
+                                  # sees its end late on a loaded machine
+                                  '-p', f'window_s:={40.0 * float(speedup)}',
                                   '-p', f'seed:={args.seed}'])
         kids.start('driver', ['-m', 'motor_id.nodes.driver', '--ros-args',
                               '-p', f'device:={link}', '-p', 'autostart:=false',
