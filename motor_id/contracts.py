@@ -110,21 +110,11 @@ def units_of(input_kind: str = 'voltage', linear: bool = False) -> dict[str, str
 
 
 def feedforward_units(input_kind: str = 'voltage', linear: bool = False) -> dict[str, str]:
-    """Units of the feedforward constants ``kS, kV, kA, kG`` and an arm's ``offset``.
-
-    Parameters
-    ----------
-    input_kind : {'voltage', 'torque'}
-    linear : bool
-        A linear axis (an elevator): per m instead of per rad, N instead of N m.
-    """
-    units = units_of(input_kind)
-    out = {k: units[k] for k in ('kS', 'kV', 'kA')}
-    out['kG'] = units['kS']
-    if linear:
-        out = {k: v.replace('N m', 'N').replace('rad', 'm') for k, v in out.items()}
-    out['offset'] = 'rad'
-    return out
+    """Units of the feedforward constants ``kS, kV, kA, kG`` and an arm's ``offset``, for a
+    rotary or (``linear``) a linear axis."""
+    units = units_of(input_kind, linear)
+    return {'kS': units['kS'], 'kV': units['kV'], 'kA': units['kA'], 'kG': units['kS'],
+            'offset': 'rad'}
 
 
 def channel_units(input_kind: str = 'voltage', linear: bool = False,

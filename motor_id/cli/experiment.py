@@ -9,10 +9,10 @@ error, 128 + N on signal N (0 commanded in every case).
 import argparse
 
 from motor_id.contracts import INPUT_KINDS
+from motor_id.effects import MECHANISMS
 from motor_id.experiment.settings import (
     COMMAND_TYPES,
     ExperimentSettings,
-    MECHANISMS,
     PLANS,
     Travel,
 )

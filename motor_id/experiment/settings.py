@@ -12,12 +12,10 @@ import math
 from typing import Any
 
 from motor_id.contracts import INPUT_KINDS
+from motor_id.effects import MECHANISMS
 from motor_id.errors import ConfigError
 
-MECHANISMS = ('simple', 'arm', 'elevator')
-"""What the joint moves: a free shaft or wheel, an arm under gravity (cos of its angle),
-an elevator under a constant gravity load."""
-GRAVITY_MECHANISMS = ('arm', 'elevator')
+GRAVITY_MECHANISMS = tuple(m for m in MECHANISMS if m != 'simple')
 """Mechanisms that fall when commanded 0 (they need ``--travel``)."""
 PLANS = ('sysid', 'prbs', 'multisine')
 COMMAND_TYPES = ('multi_array', 'float64')

@@ -37,11 +37,12 @@ from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
 
 from motor_id.contracts import INPUT_KINDS
+from motor_id.effects import MECHANISMS
 from motor_id.errors import ConfigError
 from motor_id.experiment.guard import limit_command, StateSample
 from motor_id.experiment.outcome import EXIT_CONFIG, finish
 from motor_id.experiment.session import ExperimentSession
-from motor_id.experiment.settings import COMMAND_TYPES, ExperimentSettings, MECHANISMS, PLANS
+from motor_id.experiment.settings import COMMAND_TYPES, ExperimentSettings, PLANS
 from motor_id.nodes import messages
 from motor_id.nodes.common import declare_parameters, ParamSpec, SignalWatcher, TopicWatch
 from motor_id.nodes.rclshim import RCLError
