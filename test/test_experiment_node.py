@@ -156,6 +156,27 @@ def test_an_arm_is_never_pushed_past_its_travel(launch, tmp_path):
                     ('dynamic-forward', 1), ('dynamic-reverse', -1)}
 
 
+@pytest.mark.slow   # the full plan on the arm and its analysis: about 2 minutes
+def test_arm_end_to_end_identifies_gravity_and_the_feedforward(launch, tmp_path):
+    robot = launch('robot', robot_args(tmp_path, 'arm', seed=2))
+    robot.wait_for(READY, timeout=180)
+    exp = launch('experiment', experiment_args(
+        tmp_path, 'arm_joint', '--mechanism', 'arm', '--travel=-2.3:1.3', '--seed', '2',
+        time_scale=1.0))
+    assert exp.wait(timeout=900) == EXIT_OK, exp.output()
+    robot.stop(signal.SIGINT)
+    t = truth(tmp_path)
+    true = t['feedforward']
+    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    assert ff(report, 'kG')['value'] == pytest.approx(true['kG']['value'], rel=0.10)
+    assert ff(report, 'offset')['value'] == pytest.approx(true['offset']['value'], abs=0.1)
+    assert ff(report, 'kV')['value'] == pytest.approx(true['kV']['value'], rel=0.10)
+    assert ff(report, 'kS')['value'] == pytest.approx(true['kS']['value'], abs=0.1)
+    assert ff(report, 'kA')['value'] == pytest.approx(true['kA']['value'], rel=0.30)
+    assert (ff(report, 'kG')['unit'], ff(report, 'offset')['unit']) == ('V', 'rad')
+    assert -2.3 <= t['position']['min'] and t['position']['max'] <= 1.3
+
+
 # ------------------------------------------------------------------ safety
 
 def start_moving(client, launch, tmp_path, *extra):
