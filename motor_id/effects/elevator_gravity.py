@@ -28,9 +28,12 @@ SPEC = EffectSpec(
     'a force [N] on a linear axis',
     kernel_args=(KernelArg('T_G', 'T_g'),),
     mechanical_term=MechanicalTerm('T_g', ' + T_g', np.ones_like),
-    excludes=('load_torque',),
+    excludes=('load_torque', 'asymmetric_friction'),
     confused_with=(
         Confusion('load_torque', 'none needed: an elevator carries its gravity as a constant '
-                  'load, so a further constant load is the same term'),),
+                  'load, so a further constant load is the same term'),
+        Confusion('asymmetric_friction', 'a known payload or a load cell: the dry levels up '
+                  '(T_c + T_g) and down (T_c + dT_c - T_g) are two numbers for three '
+                  'parameters, so the two are never fitted together')),
     mechanism='elevator',
     position_term=PositionTerm(_columns, _params))
