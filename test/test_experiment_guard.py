@@ -13,7 +13,7 @@ from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.experiment.coast import CoastModel, OnlineModel, predict_coast
 from motor_id.experiment.guard import Guard, limit_command, StateSample
-from motor_id.experiment.plan import arrange, build_plan, STEP_FRACTION
+from motor_id.experiment.plan import arrange, build_plan, LOW_STEP_FRACTION, STEP_FRACTION
 from motor_id.experiment.session import EXPERIMENT, ExperimentSession, RECORDING
 from motor_id.experiment.settings import ExperimentSettings, Travel
 
@@ -113,13 +113,15 @@ def run_loop(joint, st, period=0.01, delay=2, noise=(1e-4, 0.01), seed=0, t_max=
 def test_sysid_plan_ramps_and_steps_each_way_within_the_limit():
     plan = build_plan('sysid', 6.0)
     assert [t.name for t in plan.tests] == ['quasistatic-forward', 'quasistatic-reverse',
-                                            'dynamic-forward', 'dynamic-reverse']
-    assert [t.direction for t in plan.tests] == [1, -1, 1, -1]
+                                            'dynamic-forward', 'dynamic-reverse',
+                                            'dynamic-forward-low', 'dynamic-reverse-low']
+    assert [t.direction for t in plan.tests] == [1, -1] * 3
     ramp, step = plan.tests[0], plan.tests[2]
     assert ramp.command(0.0) == 0.0
     assert ramp.command(ramp.duration * 0.5) == pytest.approx(3.0, rel=1e-12)
     assert ramp.command(ramp.duration) == 0.0   # over: 0
     assert step.command(0.1) == pytest.approx(STEP_FRACTION * 6.0, rel=1e-12)
+    assert plan.tests[4].command(0.1) == pytest.approx(LOW_STEP_FRACTION * 6.0, rel=1e-12)
     assert plan.tests[1].command(1.0) < 0 and plan.tests[3].command(1.0) < 0
     assert plan.peak() <= 6.0
     assert all(t.rest_before for t in plan.tests)
@@ -131,11 +133,13 @@ def test_a_test_toward_the_edge_the_joint_rests_at_follows_the_one_away_from_it(
     up = arrange(plan, room_low=False, room_high=True)   # an elevator on its bottom
     assert [(t.name, t.rest_before) for t in up.tests] == [
         ('quasistatic-forward', True), ('quasistatic-reverse', False),
-        ('dynamic-forward', True), ('dynamic-reverse', False)]
+        ('dynamic-forward', True), ('dynamic-reverse', False),
+        ('dynamic-forward-low', True), ('dynamic-reverse-low', False)]
     down = arrange(plan, room_low=True, room_high=False)
     assert [(t.name, t.rest_before) for t in down.tests] == [
         ('quasistatic-reverse', True), ('quasistatic-forward', False),
-        ('dynamic-reverse', True), ('dynamic-forward', False)]
+        ('dynamic-reverse', True), ('dynamic-forward', False),
+        ('dynamic-reverse-low', True), ('dynamic-forward-low', False)]
     prbs = build_plan('prbs', 12.0)
     assert arrange(prbs, False, True) == prbs
 
@@ -237,21 +241,22 @@ def test_wheel_runs_the_plan_within_the_command_limit(tmp_path):
     sess, _, sent = run_loop(wheel(), st)
     log = sess.guard.log
     assert log.stop_reason == 'complete' and not log.safety_stop
-    assert [t.end_reason for t in log.tests] == ['complete'] * 4
+    assert [t.end_reason for t in log.tests] == ['complete'] * 6
     assert np.max(np.abs(sent)) <= 6.0
     assert np.max(np.abs(sent)) == pytest.approx(6.0, rel=0.02)
     assert log.clamped == 0
     assert sent[0] == 0.0 and sent[-1] == 0.0
     assert [t.direction * t.peak_command for t in log.tests] == pytest.approx(
-        [6.0, -6.0, 3.6, -3.6], rel=0.02)
+        [6.0, -6.0, 3.6, -3.6, 1.8, -1.8], rel=0.02)
 
 
 def test_max_speed_ends_the_test(tmp_path):
     st = settings(tmp_path, max_command=6.0, time_scale=0.3, max_speed=100.0)
     sess, _, _ = run_loop(wheel(), st)
     tests = sess.guard.log.tests
-    assert [t.end_reason for t in tests] == ['max_speed'] * 4
-    assert all(100.0 < t.peak_speed < 120.0 for t in tests)
+    # the low steps (1.8 V, 89 rad/s) stay below the limit
+    assert [t.end_reason for t in tests] == ['max_speed'] * 4 + ['complete'] * 2
+    assert all(100.0 < t.peak_speed < 120.0 for t in tests[:4])
     assert sess.guard.log.limits_reached()[0] == 'quasistatic-forward: max_speed'
 
 
@@ -282,7 +287,7 @@ def test_an_arm_hanging_near_its_low_stop_goes_down_from_up_there(tmp_path):
     log = sess.guard.log
     assert log.stop_reason == 'complete', log.to_dict()
     assert rest - 0.4 <= xs.min() and xs.max() <= rest + 3.3
-    assert [(t.direction, t.samples > 0) for t in log.tests] == [(1, True), (-1, True)] * 2
+    assert [(t.direction, t.samples > 0) for t in log.tests] == [(1, True), (-1, True)] * 3
     down = [t for t in log.tests if t.direction < 0]
     assert all(t.position_high - t.position_low > 1.0 for t in down)
 
@@ -349,14 +354,14 @@ def test_the_recording_reads_as_runs_with_position_and_the_log_is_written(tmp_pa
     out = Path(st.out)
     back = load_recording(out / RECORDING)
     assert len(back) == len(rec) == len(sess.rows)
-    assert back.segments == rec.segments and len(back.segments) == 4
+    assert back.segments == rec.segments and len(back.segments) == 6
     np.testing.assert_allclose(back.position, rec.position, rtol=0, atol=0)
     np.testing.assert_allclose(back.input, [r.command for r in sess.rows], rtol=0, atol=0)
     assert back.current is None   # no -R: speed only
     assert back.meta['segment_names'] == [t.name for t in sess.guard.plan.tests]
     log = json.loads((out / EXPERIMENT).read_text())
     assert log['stop_reason'] == 'complete' and log['complete']
-    assert [t['end_reason'] for t in log['tests']] == ['complete'] * 4
+    assert [t['end_reason'] for t in log['tests']] == ['complete'] * 6
     assert log['tests'][0]['start'] < log['tests'][0]['end'] < log['tests'][1]['start']
     assert log['max_command'] == 6.0 and log['limits_reached'] == []
     assert log['timing']['sample_period'] == pytest.approx(0.01, rel=1e-6)
@@ -403,9 +408,9 @@ def test_a_test_cut_short_before_the_model_knew_the_joint_runs_again():
     from motor_id.experiment.plan import repeat_later
     plan = arrange(build_plan('sysid', 12.0), room_low=False, room_high=True)
     again = repeat_later(plan, 0)   # quasistatic-forward and its chained reverse
-    assert [(t.name, t.rest_before) for t in again.tests[4:]] == [
+    assert [(t.name, t.rest_before) for t in again.tests[6:]] == [
         ('quasistatic-forward', True), ('quasistatic-reverse', False)]
-    assert [t.name for t in repeat_later(plan, 3).tests[4:]] == ['dynamic-reverse']
+    assert [t.name for t in repeat_later(plan, 3).tests[6:]] == ['dynamic-reverse']
 
 
 def test_a_torque_plants_feedforward_comes_from_its_parameters():

@@ -103,10 +103,10 @@ def test_wheel_end_to_end_identifies_the_feedforward(client, launch, tmp_path):
     # the others' joint always 0 (intake_joint first in the controller's order)
     assert all(c['values'][0] == 0.0 for c in received)
     log = json.loads((tmp_path / 'out' / 'experiment.json').read_text())
-    assert log['complete'] and [t['end_reason'] for t in log['tests']] == ['complete'] * 4
+    assert log['complete'] and [t['end_reason'] for t in log['tests']] == ['complete'] * 6
     bag = tmp_path / 'out' / 'recording.mcap'
     rec = load_recording(bag)
-    assert len(rec.segments) == 4 and rec.has_position
+    assert len(rec.segments) == 6 and rec.has_position
     assert watch.values(1)[-1][1] == 0.0
     # rosbags reads what was sent and received
     with AnyReader([bag]) as reader:
@@ -153,7 +153,8 @@ def test_an_arm_is_never_pushed_past_its_travel(launch, tmp_path):
     assert log['complete']
     done = {(x['name'], x['direction']) for x in log['tests'] if x['samples'] > 20}
     assert done == {('quasistatic-forward', 1), ('quasistatic-reverse', -1),
-                    ('dynamic-forward', 1), ('dynamic-reverse', -1)}
+                    ('dynamic-forward', 1), ('dynamic-reverse', -1),
+                    ('dynamic-forward-low', 1), ('dynamic-reverse-low', -1)}
 
 
 @pytest.mark.slow   # the full plan on the arm and its analysis: about 2 minutes
