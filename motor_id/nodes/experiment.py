@@ -225,6 +225,8 @@ class ExperimentNode(Node):
             return (f'the state of joint {self.settings.joint} arrives on '
                     f'{self.settings.state_topic}' +
                     (f' ({self._bad_state})' if self._bad_state else ''))
+        if self.publisher.get_subscription_count() == 0:
+            return f'the controller subscribes to {self.publisher.topic_name}'
         return ''
 
     def _start(self) -> None:
