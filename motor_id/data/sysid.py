@@ -117,19 +117,50 @@ def load_sysid(path: str | os.PathLike[str], joint: str | None = None) -> Record
     if not runs:
         raise DataError(f'{path}: no test has at least {MIN_TEST_ROWS} rows ('
                         + '; '.join(warnings) + ')')
+    return sysid_recording(
+        path, runs, names, warnings, 'WPILib SysId log', units in LINEAR_UNITS,
+        {'test': test_type, 'units': units, 'unitsPerRotation': per_rotation,
+         'joint': joint, 'si_to_units': 1.0 / SI_PER_UNIT[units], 'log_to_si': scale},
+        mechanism=test_type.lower() if test_type.lower() in MECHANISMS[1:] else None)
+
+
+def sysid_recording(path: str, runs: list[Recording], names: list[str], warnings: list[str],
+                    fmt: str, linear: bool, sysid: dict[str, Any], **meta: Any) -> Recording:
+    """The validated recording of a SysId routine's tests, one run each.
+
+    Parameters
+    ----------
+    path : str
+        The log (named in the meta and in an error).
+    runs, names : list
+        The tests as recordings, and their SysId names.
+    warnings : list of str
+        What the reader dropped or repaired (kept in ``meta['warnings']``).
+    fmt : str
+        The log's format, for ``meta['format']``.
+    linear : bool
+        Whether the axis is linear (metres): the channels' units.
+    sysid : dict
+        ``meta['sysid']``: the log's units and where they come from.
+    **meta
+        More meta keys (a JSON log's ``mechanism``).
+
+    Returns
+    -------
+    Recording
+        Validated; a :class:`DataError` names ``path``.
+    """
     rec = Recording.concatenate(runs)
-    linear = units in LINEAR_UNITS
     rec.meta = {
         'source': os.path.basename(path),
-        'format': 'WPILib SysId log',
-        'sysid': {'test': test_type, 'units': units, 'unitsPerRotation': per_rotation,
-                  'joint': joint, 'si_to_units': 1.0 / SI_PER_UNIT[units],
-                  'log_to_si': scale},
+        'format': fmt,
+        'sysid': sysid,
         'segment_names': names,
         'segment_offsets': [float(x) for x in rec.meta.get('segment_offsets', [0.0])],
-        'mechanism': test_type.lower() if test_type.lower() in MECHANISMS[1:] else None,
-        'units': {k: u for k, u in channel_units('voltage', linear, position=True).items()
-                  if k not in ('current', 'flags')},
+        **meta,
+        'units': {k: u for k, u in channel_units(
+            'voltage', linear, position=rec.has_position).items()
+            if k not in ('current', 'flags')},
     }
     if warnings:
         rec.meta['warnings'] = warnings

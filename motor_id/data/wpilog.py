@@ -35,9 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from motor_id.contracts import channel_units
 from motor_id.data.align import held_command_index
-from motor_id.data.sysid import MIN_TEST_ROWS
+from motor_id.data.sysid import MIN_TEST_ROWS, sysid_recording
 from motor_id.errors import DataError
 from motor_id.recording import Recording
 
@@ -158,27 +157,12 @@ def load_wpilog(path: str | os.PathLike[str], entries: LogEntries | None = None)
     chosen = _choose(path, log, sel)
     scales = _units(path, chosen, sel.units)
     runs, names = _runs(path, chosen, scales, warnings)
-    rec = Recording.concatenate(runs)
-    offsets = rec.meta.get('segment_offsets', [0.0])
-    rec.meta = {
-        'source': os.path.basename(path),
-        'format': 'WPILib DataLog (SysId routine)',
-        'sysid': {'test': None, 'units': scales.unit, 'motor': chosen.label,
-                  'entries': {k: e.name for k, e in chosen.channels.items()}
-                  | {'state': chosen.state.name},
-                  'si_to_units': 1.0 / scales.position, 'linear': scales.linear},
-        'segment_names': names,
-        'segment_offsets': [float(x) for x in offsets],
-        'units': {k: u for k, u in channel_units(
-            'voltage', scales.linear, position=rec.has_position).items()
-            if k not in ('current', 'flags')},
-    }
-    if warnings:
-        rec.meta['warnings'] = warnings
-    try:
-        return rec.validate()
-    except DataError as exc:
-        raise DataError(f'{path}: {exc}') from exc
+    return sysid_recording(
+        path, runs, names, warnings, 'WPILib DataLog (SysId routine)', scales.linear,
+        {'test': None, 'units': scales.unit, 'motor': chosen.label,
+         'entries': {k: e.name for k, e in chosen.channels.items()}
+         | {'state': chosen.state.name},
+         'si_to_units': 1.0 / scales.position, 'linear': scales.linear})
 
 
 # ------------------------------------------------------------------------------ reading
