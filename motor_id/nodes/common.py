@@ -374,6 +374,30 @@ def drain(executor: Executor, node: Node, timeout: float = 10.0) -> bool:
     return done
 
 
+def init_ros(name: str, args: list[str] | None = None) -> bool:
+    """``rclpy.init`` with rclpy's own signal handlers off (a :class:`SignalWatcher` has them).
+
+    Parameters
+    ----------
+    name : str
+        The program, named in the one line a bad command line gets on stderr.
+    args : list of str, optional
+        Command line (default ``sys.argv``).
+
+    Returns
+    -------
+    bool
+        False when rclpy refused the command line (the caller exits with code 2).
+    """
+    try:
+        rclpy.init(args=sys.argv if args is None else args,
+                   signal_handler_options=SignalHandlerOptions.NO)
+    except RCLError as exc:
+        print(f'{name}: bad command line: {exc}', file=sys.stderr)
+        return False
+    return True
+
+
 def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
              args: list[str] | None = None) -> int:
     """Init rclpy, build the node, spin it, and shut down quietly.
@@ -401,11 +425,7 @@ def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
     """
     signals = SignalWatcher()
     signals.install()
-    try:
-        rclpy.init(args=sys.argv if args is None else args,
-                   signal_handler_options=SignalHandlerOptions.NO)
-    except RCLError as exc:
-        print(f'{name}: bad command line: {exc}', file=sys.stderr)
+    if not init_ros(name, args):
         return 2
     node = None
     try:

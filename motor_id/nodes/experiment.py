@@ -31,7 +31,6 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 from std_srvs.srv import Trigger
@@ -44,8 +43,13 @@ from motor_id.experiment.outcome import EXIT_CONFIG, finish
 from motor_id.experiment.session import ExperimentSession
 from motor_id.experiment.settings import COMMAND_TYPES, ExperimentSettings, PLANS
 from motor_id.nodes import messages
-from motor_id.nodes.common import declare_parameters, ParamSpec, SignalWatcher, TopicWatch
-from motor_id.nodes.rclshim import RCLError
+from motor_id.nodes.common import (
+    declare_parameters,
+    init_ros,
+    ParamSpec,
+    SignalWatcher,
+    TopicWatch,
+)
 
 PARAMETERS = (
     ParamSpec('joint', '', 'the joint to identify, by its JointState name'),
@@ -409,11 +413,7 @@ def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
     """
     signals = ExperimentSignals()
     signals.install()
-    try:
-        rclpy.init(args=sys.argv if args is None else args,
-                   signal_handler_options=SignalHandlerOptions.NO)
-    except RCLError as exc:
-        print(f'experiment: bad command line: {exc}', file=sys.stderr)
+    if not init_ros('experiment', args):
         return EXIT_CONFIG
     node: ExperimentNode | None = None
     error: str | None = None

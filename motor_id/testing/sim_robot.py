@@ -28,7 +28,6 @@ constants, the positions reached and every command received with its receive tim
 
 from collections import deque
 import math
-import signal
 import sys
 import threading
 import time
@@ -39,12 +38,11 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
 from motor_id.errors import ConfigError
-from motor_id.nodes.common import declare_parameters, ParamSpec, SignalWatcher
+from motor_id.nodes.common import declare_parameters, init_ros, ParamSpec, SignalWatcher
 from motor_id.nodes.rclshim import RCLError
 from motor_id.testing.sim_joint import (
     ARM_OFFSET,
@@ -224,10 +222,6 @@ class SimRobot(Node):
         super().destroy_node()
 
 
-def _no_op() -> None:
-    """Timer callback: waking the main thread is all it is for."""
-
-
 def main(args: list[str] | None = None) -> int:
     """Run the simulated robot until SIGINT, SIGTERM or SIGHUP; write the truth file.
 
@@ -238,14 +232,7 @@ def main(args: list[str] | None = None) -> int:
     """
     signals = SignalWatcher()
     signals.install()
-    hup = signal.SIGHUP not in SignalWatcher.SIGNALS
-    if hup:   # SIGHUP (a closed terminal) as SIGINT, where the watcher does not take it
-        signal.signal(signal.SIGHUP, lambda _sig, _frame: signals.stop.set())
-    try:
-        rclpy.init(args=sys.argv if args is None else args,
-                   signal_handler_options=SignalHandlerOptions.NO)
-    except RCLError as exc:
-        print(f'sim_robot: bad command line: {exc}', file=sys.stderr)
+    if not init_ros('sim_robot', args):
         return 2
     robot = None
     try:
@@ -254,8 +241,6 @@ def main(args: list[str] | None = None) -> int:
         for node in robot.nodes():
             executor.add_node(node)
         signals.stop.attach(robot)
-        if hup:   # return the main thread to Python, where the SIGHUP handler runs
-            robot.create_timer(0.1, _no_op)
         try:
             signals.stop.spin(executor)
         except (KeyboardInterrupt, ExternalShutdownException):
