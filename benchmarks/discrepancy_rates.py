@@ -438,7 +438,7 @@ def main(argv=None):
 
     Returns 0, or 2 when the analysis cannot be imported (bad options exit with 2 too).
     """
-    from motor_id.report import write_json
+    from motor_id.output import write_json
 
     parser = _parser()
     args = parser.parse_args(argv)

@@ -249,7 +249,7 @@ def main(argv=None):
     rec = run(quick=args.quick, memory_tasks=args.memory)
     _print(rec)
     if args.json:
-        from motor_id.report import to_jsonable
+        from motor_id.output import to_jsonable
         with open(args.json, 'w', encoding='utf-8') as fh:
             json.dump(to_jsonable(rec), fh, indent=1)
     return 0 if all(t['pass'] is not False for t in rec['targets']) else 1

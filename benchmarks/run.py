@@ -228,7 +228,7 @@ def main(argv=None):
 
     from common import blas_limit
 
-    from motor_id.report import to_jsonable
+    from motor_id.output import to_jsonable
     try:
         import threadpoolctl  # noqa: F401
         blas_one = partial(blas_limit, 1)

@@ -42,7 +42,7 @@ from rosproc import close_all, num, processes, ros_env, rows_counter_client, wai
 
 from motor_id.errors import MotorIdError
 from motor_id.model import MotorParams, PAPER_MOTOR
-from motor_id.report import to_jsonable
+from motor_id.output import to_jsonable
 
 MOTOR = MotorParams(J=PAPER_MOTOR.J, K_T=0.65, K_b=0.65, B=PAPER_MOTOR.B, L_m=PAPER_MOTOR.L_m,
                     R_m=PAPER_MOTOR.R_m)

@@ -50,7 +50,7 @@ from motor_id.data.wpilog import LogEntries
 from motor_id.errors import MotorIdError
 from motor_id.identify.validation import SavedModel, validate
 from motor_id.metrics import normalised_fit
-from motor_id.report import to_jsonable
+from motor_id.output import to_jsonable
 from motor_id.testing.sysid_ols import fit_acceleration, fit_discrete, prepare
 
 REPO = Path(__file__).resolve().parents[1]

@@ -23,8 +23,8 @@ from motor_id.identify.mechanism import check_mechanism, with_gravity
 from motor_id.identify.result import IdentificationResult
 from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.model import PARAM_NAMES
+from motor_id.output import attach_units, to_jsonable
 from motor_id.recording import Recording
-from motor_id.report import attach_units, to_jsonable
 
 
 def data_block(rec: Recording, **extra: Any) -> dict[str, Any]:
@@ -68,7 +68,7 @@ class FitReport:
 
     def to_dict(self) -> dict[str, Any]:
         """The ``--json`` shape (docs/user-guide.md): the fit, ``data``, ``controller``,
-        extras; every constant with its ``unit`` (:func:`motor_id.report.attach_units`)."""
+        extras; every constant with its ``unit`` (:func:`motor_id.output.attach_units`)."""
         d = self.result.to_dict()
         d['data'] = dict(self.data)
         if self.controller is not None:

@@ -10,7 +10,7 @@ from typing import Any
 from motor_id.contracts import units_of
 from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
-from motor_id.report import attach_units
+from motor_id.output import attach_units
 
 
 @dataclass

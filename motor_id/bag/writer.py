@@ -50,8 +50,8 @@ from motor_id.contracts import (
     SEQ,
 )
 from motor_id.errors import BagError, ConfigError
+from motor_id.output import to_jsonable
 from motor_id.recording import Recording
-from motor_id.report import to_jsonable
 
 DEFAULT_CHUNK_SIZE = 64 * 1024
 """Uncompressed bytes per chunk: the most a killed writer can lose (about 13 s of samples
@@ -313,7 +313,7 @@ class BagWriter:
         ----------
         meta : dict
             ``input_kind``, ``provenance``, ``units``, ``truth`` ... (converted by
-            :func:`motor_id.report.to_jsonable`: numpy values to Python, NaN/inf to null).
+            :func:`motor_id.output.to_jsonable`: numpy values to Python, NaN/inf to null).
         """
         try:
             text = json.dumps(to_jsonable(meta))

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
         print(f'motor-id analyze: the model is inadequate for this record: '
               f'{rep.warnings[0]}', file=sys.stderr)
     if args.json:
-        from motor_id.report import write_json
+        from motor_id.output import write_json
         out = rep.to_dict()
         out['data'] = {'source': rec.meta.get('source', str(args.data[0])),
                        'samples': len(rec), 'runs': len(rec.segment_ranges)}

@@ -165,7 +165,7 @@ def _finish(report: dict[str, Any], truth: MotorParams, bag: str, out: str) -> N
     """Print estimates next to the truth, check the bag, write JSON and plots."""
     from motor_id.bag import read_recording, read_samples
     from motor_id.identify import Identifier
-    from motor_id.report import plot_fit, write_json
+    from motor_id.output import plot_fit, write_json
     _say('')
     _say(f'{"parameter":<10}{"estimate":>14}{"std":>12}{"truth":>12}{"error":>9}')
     for name in PARAM_NAMES:

@@ -19,7 +19,7 @@ from motor_id.effects import EFFECTS, parse_effect_args, role_params
 from motor_id.errors import ConfigError
 from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.identify.space import resistance_enters
-from motor_id.report import plot_fit, write_json
+from motor_id.output import plot_fit, write_json
 from motor_id.simulate import warm_up
 
 if TYPE_CHECKING:

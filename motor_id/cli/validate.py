@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     val = validate(model, rec, args.init_samples, mechanism_for(args, rec))
     print(val.summary())
     if args.json:
-        from motor_id.report import write_json
+        from motor_id.output import write_json
         out = val.to_dict()
         out['data'] = {'source': rec.meta.get('source'), 'samples': len(rec)}
         write_json(out, args.json)

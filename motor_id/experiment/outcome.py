@@ -22,8 +22,8 @@ from motor_id.errors import MotorIdError
 from motor_id.experiment.session import ExperimentSession
 from motor_id.experiment.settings import ExperimentSettings
 from motor_id.lifeline import STOP_SIGNALS, stop_signals_as_interrupt
+from motor_id.output import write_json
 from motor_id.recording import Recording
-from motor_id.report import write_json
 
 NOMINAL_R = 1.0
 """Armature resistance [Ohm] the analysis of a speed-only voltage record runs on when

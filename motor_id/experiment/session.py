@@ -24,8 +24,8 @@ from motor_id.errors import BagError, ConfigError
 from motor_id.experiment.guard import Guard, StateSample
 from motor_id.experiment.plan import build_plan, Plan
 from motor_id.experiment.settings import ExperimentSettings
+from motor_id.output import write_json
 from motor_id.recording import MIN_SAMPLES, Recording
-from motor_id.report import write_json
 
 RECORDING = 'recording.mcap'
 REPORT = 'report.json'

@@ -30,7 +30,7 @@ from motor_id.contracts import (  # noqa: F401  (topic names re-exported for the
 from motor_id.contracts import SAMPLE_COLUMNS as COLUMNS
 from motor_id.contracts import SAMPLES_LABEL as ROW_LABEL
 from motor_id.errors import DataError
-from motor_id.report import to_jsonable
+from motor_id.output import to_jsonable
 
 SAMPLES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAMPLES_DEPTH,
                          reliability=ReliabilityPolicy.RELIABLE,

@@ -9,7 +9,7 @@ from motor_id.cli import main
 from motor_id.contracts import linear_unit, units_of
 from motor_id.data.wpilog import load_wpilog
 from motor_id.identify.validation import SavedModel, validate
-from motor_id.report import attach_units, expression_unit
+from motor_id.output import attach_units, expression_unit
 from motor_id.testing.sysid_wpilog import ROUTINE, RoutineMotor, write_sysid_wpilog
 
 SHORT = {'ramp_duration': 2.0, 'step_duration': 0.8, 'rest': 0.5, 'loop_period': 0.005}

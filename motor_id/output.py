@@ -1,4 +1,4 @@
-"""Reports for people and machines: JSON files and PNG plots of a fit."""
+"""The output of a fit for people and machines: JSON files (with units) and PNG plots."""
 
 from __future__ import annotations
 
