@@ -15,9 +15,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.errors import IdentificationError, MotorIdError
-from motor_id.identify import assembly, blocks, determinacy, search, uncertainty
+from motor_id.identify import assembly, blocks, determinacy, optimize, uncertainty
+from motor_id.identify.optimize import Progress
 from motor_id.identify.problem import IdentificationProblem
-from motor_id.identify.search import Progress
 from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.model import PARAM_NAMES
 
@@ -305,12 +305,12 @@ class Identifier:
             sample_weight=sample_weight)
         self.problem_ = problem
         rng = np.random.default_rng(self.random_state)   # a Generator comes back as is
-        ga, best, ga_seconds = search.run_ga(
+        ga, best, ga_seconds = optimize.run_ga(
             problem, rng, progress, start=self.start, use_ga=self.use_ga,
             population=self.population, generations=self.generations,
             crossover=self.crossover, mutation=self.mutation)
         problem.forward_differences = bool(self.quick_jacobian)
-        z_best, refine_info = search.refine(
+        z_best, refine_info = optimize.refine(
             problem, ga, best, method=self.method, refine_starts=self.refine_starts,
             reweight=self.reweight, max_nfev=self.max_nfev)
         problem.forward_differences = False

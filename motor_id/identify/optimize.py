@@ -1,4 +1,4 @@
-"""The search of a fit: the paper's GA over the problem's box, then bounded least squares
+"""The optimisation of a fit: the paper's GA over the problem's box, then bounded least squares
 from its best individuals, re-weighted by the estimated noise levels."""
 
 from __future__ import annotations
