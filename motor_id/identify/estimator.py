@@ -1,8 +1,8 @@
 """The estimator: GA fit of the constrained Elman net, then least-squares refinement.
 
 :class:`Identifier` holds the settings and runs the stages of a fit (a first fit, refits
-in a widened box, a settling refit); the search itself is :mod:`.search`, the result
-:mod:`.assembly`."""
+in a widened box, a settling refit); the search itself is :mod:`.optimize`, the result
+:mod:`.estimates`."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.errors import IdentificationError, MotorIdError
-from motor_id.identify import assembly, blocks, determinacy, optimize, uncertainty
+from motor_id.identify import blocks, determinacy, estimates, optimize, uncertainty
 from motor_id.identify.optimize import Progress
 from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
@@ -323,7 +323,7 @@ class Identifier:
                                       params=('bounds',))
         sigma, w = uncertainty.noise_levels(problem, z_best)
         J = problem.jacobian_z(z_best, w)
-        result, self.covariance_ = assembly.build_result(
+        result, self.covariance_ = estimates.build_result(
             rec, problem, x_best, z_best, J, sigma, w, pred, error_blocks=self.error_blocks,
             r_m_fixed_by_caller='R_m' in (fixed or {}))
         if unseen:
@@ -331,7 +331,7 @@ class Identifier:
         result.ga = blocks.ga_block(problem, ga, ga_seconds)
         result.refinement = refine_info
         if self.bootstrap and self.method != 'paper':
-            assembly.bootstrap_intervals(problem, result, z_best, w, rng, self.bootstrap)
+            estimates.bootstrap_intervals(problem, result, z_best, w, rng, self.bootstrap)
         self.result_ = result
         self.params_ = result.values()
         self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
