@@ -25,7 +25,7 @@ AnyReader and its errors), ``scan`` (the tolerant scan of damaged files), ``info
 """
 
 from motor_id.bag.info import bag_info
-from motor_id.bag.profile import default_qos, qos_profile
+from motor_id.bag.metadata import default_qos, qos_profile
 from motor_id.bag.reader import (
     read_any_recording,
     read_meta,

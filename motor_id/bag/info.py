@@ -3,7 +3,7 @@
 import os
 from typing import Any
 
-from motor_id.bag.profile import METADATA_RECORD, read_ros_distro
+from motor_id.bag.metadata import METADATA_RECORD, read_ros_distro
 from motor_id.bag.scan import scan_file
 
 

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id import __version__
-from motor_id.bag.profile import channel_metadata, default_qos, METADATA_RECORD, rosbag2_metadata
+from motor_id.bag.metadata import channel_metadata, default_qos, METADATA_RECORD, rosbag2_metadata
 from motor_id.bag.schemas import (
     DIAGNOSTIC_ARRAY,
     FLOAT64,
@@ -178,8 +178,8 @@ class BagWriter:
         msgtype : str
             A ROS 2 Jazzy message type, e.g. ``'std_msgs/msg/String'``.
         qos : dict, optional
-            Offered QoS (:func:`~motor_id.bag.profile.qos_profile`); default
-            :func:`~motor_id.bag.profile.default_qos`.
+            Offered QoS (:func:`~motor_id.bag.metadata.qos_profile`); default
+            :func:`~motor_id.bag.metadata.default_qos`.
         """
         with self._lock:
             name = topic_name(topic)

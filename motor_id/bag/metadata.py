@@ -1,4 +1,4 @@
-"""The rosbag2 MCAP profile: offered QoS per channel and the ``rosbag2`` metadata record.
+"""The rosbag2 metadata of an MCAP bag: offered QoS per channel and the ``rosbag2`` record.
 
 What ``ros2 bag info`` / ``ros2 bag play`` of ROS 2 Jazzy expect besides the messages:
 each channel's ``offered_qos_profiles`` (YAML) and ``topic_type_hash`` metadata, and a
