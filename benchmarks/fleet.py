@@ -26,10 +26,10 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _tasks(root, robots=None):
+    from motor_id.fleet.config import load_fleet_config
     from motor_id.fleet.discover import find_recordings
-    from motor_id.fleet.profile import load_fleet_profile
     from motor_id.fleet.run import plan
-    prof = load_fleet_profile(str(Path(root) / 'fleet.yaml'))
+    prof = load_fleet_config(str(Path(root) / 'fleet.yaml'))
     return plan(find_recordings([str(root)]), prof), prof
 
 
@@ -121,7 +121,7 @@ def run(quick=False, memory_tasks=None, stream=sys.stdout):
     """Run everything; returns the section record (benchmarks/run.py form)."""
     from common import target
 
-    from motor_id.fleet.profile import load_fleet_profile
+    from motor_id.fleet.config import load_fleet_config
     from motor_id.fleet.run import run_fleet
     from motor_id.testing.fleet_gen import (
         drift_benchmark_spec,
@@ -149,7 +149,7 @@ def run(quick=False, memory_tasks=None, stream=sys.stdout):
         t0 = time.perf_counter()
         generate_fleet(spec, work / f'drift{seed}')
         gen_s = time.perf_counter() - t0
-        prof = load_fleet_profile(str(work / f'drift{seed}' / 'fleet.yaml'))
+        prof = load_fleet_config(str(work / f'drift{seed}' / 'fleet.yaml'))
         res = run_fleet([str(work / f'drift{seed}')], prof, str(work / f'out{seed}'),
                         workers=2)
         rows, fl, ns = score_detection(spec, res.drift)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from motor_id.errors import ConfigError
+from motor_id.fleet.config import parse_fleet_config
 from motor_id.fleet.discover import find_recordings, robot_rule
 from motor_id.fleet.drift import ChangePoint, DriftRule, series
 from motor_id.fleet.live import drift_message, EstimateHistory
-from motor_id.fleet.profile import parse_fleet_profile
 from motor_id.fleet.siblings import compare_siblings
 from motor_id.testing.fleet_gen import Drift, FleetSpec, generate_fleet, MotorTruth, simulate_motor
 
@@ -191,7 +191,7 @@ def test_siblings_report_the_odd_motor_and_say_when_too_few():
 
 # ------------------------------------------------------------------------- profile
 def test_profile_parses_defaults_and_refuses_unknown_keys():
-    prof = parse_fleet_profile({
+    prof = parse_fleet_config({
         'motors': {'left': {'input': '/l', 'joint': 'left', 'resistance': 1.2}},
         'defaults': {'speed': '/joint_states:velocity', 'effort_is': 'current'},
         'fit': {'seed': 3}, 'drift': {'threshold': 6.0}})
@@ -202,7 +202,7 @@ def test_profile_parses_defaults_and_refuses_unknown_keys():
     assert prof.settings_hash(m, False) != prof.settings_hash(m, True)
     assert prof.groups() == {'left': 'left'}
     # type: siblings across names; it decides no fit (the settings hash is the same)
-    typed = parse_fleet_profile({'motors': {
+    typed = parse_fleet_config({'motors': {
         'left': {'input': '/l', 'joint': 'left', 'resistance': 1.2, 'type': 'wheel'},
         'right': {'input': '/r', 'joint': 'right', 'resistance': 1.2, 'type': 'wheel'}},
         'defaults': {'speed': '/joint_states:velocity', 'effort_is': 'current'},
@@ -210,13 +210,13 @@ def test_profile_parses_defaults_and_refuses_unknown_keys():
     assert typed.groups() == {'left': 'wheel', 'right': 'wheel'}
     assert typed.settings_hash(typed.motors[0], False) == prof.settings_hash(m, False)
     with pytest.raises(ConfigError, match='motor left: type must be a name'):
-        parse_fleet_profile({'motors': {'left': {'type': 3}}})
+        parse_fleet_config({'motors': {'left': {'type': 3}}})
     with pytest.raises(ConfigError, match='motor left: unknown key.*resistence'):
-        parse_fleet_profile({'motors': {'left': {'resistence': 1.2}}})
+        parse_fleet_config({'motors': {'left': {'resistence': 1.2}}})
     with pytest.raises(ConfigError, match='"motors:"'):
-        parse_fleet_profile({'wheel_left': {}})
+        parse_fleet_config({'wheel_left': {}})
     with pytest.raises(ConfigError, match='resistance must be a number > 0'):
-        parse_fleet_profile({'motors': {'left': {'resistance': -1}}})
+        parse_fleet_config({'motors': {'left': {'resistance': -1}}})
 
 
 # ------------------------------------------------------------------------- generator
@@ -247,7 +247,7 @@ def test_generated_bags_read_back_through_the_profile(tmp_path):
     from motor_id.fleet.task import read_motor, Task
     spec = FleetSpec(robots=1, days=1, duration_s=2.0)
     truth = generate_fleet(spec, tmp_path)
-    prof = parse_fleet_profile(truth.profile)
+    prof = parse_fleet_config(truth.profile)
     rec_path = truth.recordings[0]['path']
     assert os.path.isfile(os.path.join(rec_path, 'metadata.yaml'))
     task = Task(rec_path, 'robot_00', 0, 0, prof.motors[1], prof.fit, False, 'x')
@@ -264,7 +264,7 @@ def test_task_with_analysis_names_the_generators_friction(tmp_path):
     from motor_id.fleet.task import run_task
     truth = generate_fleet(FleetSpec(robots=1, days=1, motors=('m',), duration_s=8.0,
                                      nominal=MotorTruth(T_c=0.05)), tmp_path)
-    task = plan(find_recordings([str(tmp_path)]), parse_fleet_profile(truth.profile),
+    task = plan(find_recordings([str(tmp_path)]), parse_fleet_config(truth.profile),
                 analyze=True)[0]
     row = run_task(task)
     assert row['status'] == 'ok', row.get('reason')
@@ -374,15 +374,15 @@ def test_fleet_names_the_drifting_motor_parameter_and_date(fleet_run):
 
 
 def test_fleet_rerun_fits_only_new_recordings(fleet_run, small_fleet):
+    from motor_id.fleet.config import load_fleet_config
     from motor_id.fleet.engine import DaskEngine
-    from motor_id.fleet.profile import load_fleet_profile
     from motor_id.fleet.run import run_fleet
     root, truth = small_fleet
     out, _ = fleet_run
     work = root / 'rerun'
     shutil.copytree(out, work)
     logs = root / 'logs'
-    prof = load_fleet_profile(str(logs / 'fleet.yaml'))
+    prof = load_fleet_config(str(logs / 'fleet.yaml'))
     extra = root / 'more'
     generate_fleet(FleetSpec(robots=1, days=1, motors=('wheel_left',), duration_s=6.0,
                              start='2026-01-20', seed=5), extra)
@@ -390,7 +390,7 @@ def test_fleet_rerun_fits_only_new_recordings(fleet_run, small_fleet):
         res = run_fleet([str(logs), str(extra / 'robot_00')], prof, str(work), engine=engine)
         assert (res.tasks, res.skipped, res.done, res.failed) == (23, 22, 1, 0)
         # a changed profile fits everything again
-        prof2 = parse_fleet_profile({**truth.profile, 'fit': {'seed': 1}})
+        prof2 = parse_fleet_config({**truth.profile, 'fit': {'seed': 1}})
         res = run_fleet([str(extra)], prof2, str(work), engine=engine, report=False)
         assert (res.tasks, res.skipped, res.done) == (1, 0, 1)
 
@@ -471,7 +471,7 @@ def test_fleet_meets_the_detection_targets_on_a_held_out_fleet(tmp_path):
     from motor_id.testing.fleet_gen import drift_benchmark_spec, score_detection
     spec = drift_benchmark_spec(seed=23)
     truth = generate_fleet(spec, tmp_path / 'logs')
-    res = run_fleet([str(tmp_path / 'logs')], parse_fleet_profile(truth.profile),
+    res = run_fleet([str(tmp_path / 'logs')], parse_fleet_config(truth.profile),
                     str(tmp_path / 'out'), workers=2)
     assert res.failed == 0
     rows, false, clean_series = score_detection(spec, res.drift)

@@ -7,8 +7,8 @@ import sys
 import time
 from typing import Any, TextIO
 
+from motor_id.fleet.config import load_fleet_config
 from motor_id.fleet.discover import ROBOT_RULES
-from motor_id.fleet.profile import load_fleet_profile
 from motor_id.fleet.run import Progress
 
 
@@ -68,8 +68,8 @@ def progress_line(quiet: bool, stream: TextIO | None = None) -> Progress:
 def run(args: argparse.Namespace) -> int:
     """Run the fleet, print the drifting motors and where the files are."""
     from motor_id.fleet.run import run_fleet
-    profile = load_fleet_profile(args.profile)
-    res = run_fleet(args.recordings, profile, args.out, workers=args.workers,
+    config = load_fleet_config(args.profile)
+    res = run_fleet(args.recordings, config, args.out, workers=args.workers,
                     scheduler=args.scheduler, analyze=args.analyze,
                     robot_from=args.robot_from, retry_failed=args.retry_failed,
                     progress=progress_line(args.quiet))

@@ -9,10 +9,10 @@ import json
 import time
 from typing import Any
 
+from motor_id.fleet.config import FleetConfig
 from motor_id.fleet.discover import find_recordings, RecordingRef
 from motor_id.fleet.engine import DaskEngine
 from motor_id.fleet.history import DriftRow, fleet_findings, SiblingRow
-from motor_id.fleet.profile import FleetProfile
 from motor_id.fleet.store import ResultStore
 from motor_id.fleet.task import run_task, Task
 
@@ -42,15 +42,15 @@ class FleetRun:
         return [s for s in self.siblings if s.outlier]
 
 
-def plan(recordings: Sequence[RecordingRef], profile: FleetProfile,
+def plan(recordings: Sequence[RecordingRef], config: FleetConfig,
          analyze: bool = False) -> list[Task]:
-    """One :class:`Task` per recording and motor of the profile."""
+    """One :class:`Task` per recording and motor of the config."""
     return [Task(path=r.path, robot=r.robot, size=r.size, mtime_ns=r.mtime_ns, motor=m,
-                 fit=profile.fit, analyze=analyze, settings=profile.settings_hash(m, analyze))
-            for r in recordings for m in profile.motors]
+                 fit=config.fit, analyze=analyze, settings=config.settings_hash(m, analyze))
+            for r in recordings for m in config.motors]
 
 
-def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
+def run_fleet(paths: Sequence[str], config: FleetConfig, out_dir: str,
               workers: int | None = None, scheduler: str | None = None,
               analyze: bool = False, robot_from: str = 'parent', retry_failed: bool = False,
               progress: Progress | None = None, engine: DaskEngine | None = None,
@@ -62,7 +62,7 @@ def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
     paths : sequence of str
         Files, folders, globs (:func:`motor_id.fleet.discover.find_recordings`); empty:
         only recompute drift and the report from ``out_dir``.
-    profile : motor_id.fleet.profile.FleetProfile
+    config : motor_id.fleet.config.FleetConfig
     out_dir : str
     workers, scheduler : see :class:`motor_id.fleet.engine.DaskEngine`
     analyze : bool
@@ -85,13 +85,13 @@ def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
     store = ResultStore(out_dir)
     run = FleetRun()
     if paths:
-        tasks = plan(find_recordings(paths, robot_from), profile, analyze)
+        tasks = plan(find_recordings(paths, robot_from), config, analyze)
         todo = [t for t in tasks if not store.is_done(t, retry_failed)]
         run.tasks, run.skipped = len(tasks), len(tasks) - len(todo)
         if todo:
             _execute(todo, store, run, workers, scheduler, progress, engine)
     store.flush(force=True)
-    found = fleet_findings(store.rows.values(), profile.drift, profile.groups())
+    found = fleet_findings(store.rows.values(), config.drift, config.groups())
     run.drift, run.siblings = found.drift, found.siblings
     run.files = {'estimates': str(store.parquet_path), 'csv': str(store.csv_path),
                  'failed': str(store.failed_path)}
@@ -104,7 +104,7 @@ def run_fleet(paths: Sequence[str], profile: FleetProfile, out_dir: str,
         from motor_id.fleet.report_page import write_report
         path = store.out / 'report.html'
         write_report(path, store.sorted_rows(), list(store.failures.values()), found,
-                     profile.drift)
+                     config.drift)
         run.files['report'] = str(path)
     run.seconds = time.perf_counter() - started
     return run

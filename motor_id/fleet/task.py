@@ -18,7 +18,7 @@ import traceback
 from typing import Any, SupportsFloat, TYPE_CHECKING
 
 from motor_id.errors import MotorIdError
-from motor_id.fleet.profile import FitSettings, MotorSpec
+from motor_id.fleet.config import FleetFit, MotorSpec
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
@@ -35,7 +35,7 @@ class Task:
     size: int
     mtime_ns: int
     motor: MotorSpec
-    fit: FitSettings
+    fit: FleetFit
     analyze: bool
     settings: str
 

@@ -1,4 +1,4 @@
-"""The fleet profile: every motor of a robot's recordings mapped, with the fit settings.
+"""The fleet configuration: every motor of a robot's recordings mapped, with the fit settings.
 
 A YAML file::
 
@@ -45,7 +45,7 @@ TOP_KEYS = ('motors', 'defaults', 'fit', 'drift')
 
 @dataclass(frozen=True)
 class MotorSpec:
-    """One motor of the profile: where its channels are and what is known of it."""
+    """One motor of the configuration: where its channels are and what is known of it."""
 
     name: str
     input: str | None = None
@@ -75,7 +75,7 @@ class MotorSpec:
 
 
 @dataclass(frozen=True)
-class FitSettings:
+class FleetFit:
     """Identifier settings shared by every task."""
 
     method: str = 'zoh'
@@ -86,11 +86,11 @@ class FitSettings:
 
 
 @dataclass(frozen=True)
-class FleetProfile:
-    """The parsed profile."""
+class FleetConfig:
+    """The parsed configuration."""
 
     motors: tuple[MotorSpec, ...]
-    fit: FitSettings
+    fit: FleetFit
     drift: DriftRule
 
     def groups(self) -> dict[str, str]:
@@ -98,7 +98,7 @@ class FleetProfile:
         return {m.name: m.group for m in self.motors}
 
     def settings_hash(self, motor: MotorSpec, analyze: bool) -> str:
-        """A short hash of everything that decides a motor's result (a changed profile
+        """A short hash of everything that decides a motor's result (a changed configuration
         fits the recordings again); ``type`` is left out (it decides no fit)."""
         spec = asdict(motor)
         spec.pop('type')           # siblings' key: decides no fit
@@ -107,8 +107,8 @@ class FleetProfile:
         return hashlib.sha1(text.encode()).hexdigest()[:12]
 
 
-def load_fleet_profile(path: str) -> FleetProfile:
-    """Read and check a fleet profile.
+def load_fleet_config(path: str) -> FleetConfig:
+    """Read and check a fleet configuration.
 
     Parameters
     ----------
@@ -116,7 +116,7 @@ def load_fleet_profile(path: str) -> FleetProfile:
 
     Returns
     -------
-    FleetProfile
+    FleetConfig
 
     Raises
     ------
@@ -124,11 +124,11 @@ def load_fleet_profile(path: str) -> FleetProfile:
         Unreadable file, bad YAML, unknown keys, bad values; the message names the file,
         the motor and the key.
     """
-    return parse_fleet_profile(read_yaml(path), str(path))
+    return parse_fleet_config(read_yaml(path), str(path))
 
 
-def parse_fleet_profile(data: Any, where: str = 'profile') -> FleetProfile:
-    """A :class:`FleetProfile` from the profile's parsed YAML (see :func:`load_fleet_profile`)."""
+def parse_fleet_config(data: Any, where: str = 'fleet configuration') -> FleetConfig:
+    """A :class:`FleetConfig` from the parsed YAML (see :func:`load_fleet_config`)."""
     if not isinstance(data, dict) or not isinstance(data.get('motors'), dict) \
             or not data['motors']:
         raise ConfigError(f'{where}: expected "motors:" mapping each motor name to its '
@@ -148,7 +148,7 @@ def parse_fleet_profile(data: Any, where: str = 'profile') -> FleetProfile:
         drift = DriftRule.from_dict(data.get('drift'))
     except (TypeError, ConfigError) as exc:
         raise ConfigError(f'{where}: {exc}') from None
-    return FleetProfile(tuple(motors), FitSettings(**fit), drift)
+    return FleetConfig(tuple(motors), FleetFit(**fit), drift)
 
 
 _keys = check_keys
