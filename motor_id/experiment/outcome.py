@@ -39,8 +39,8 @@ EXIT_ERROR = 5
 """An unexpected error stopped the experiment (0 was commanded)."""
 
 
-def identify(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
-             progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
+                       progress: Callable[[str], object] | None = None) -> dict[str, Any]:
     """The analysis report of the experiment's recording, as ``report.json`` holds it.
 
     Parameters
@@ -159,14 +159,14 @@ def failure_report(reason: str, settings: ExperimentSettings) -> dict[str, Any]:
                            'input_kind': settings.input_kind}}
 
 
-def try_identify(rec: Recording | None, settings: ExperimentSettings, jobs: int = 1,
-                 progress: Callable[[str], object] | None = None) -> dict[str, Any]:
-    """:func:`identify`, or a :func:`failure_report` naming why it could not run."""
+def try_analyze(rec: Recording | None, settings: ExperimentSettings, jobs: int = 1,
+                progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+    """:func:`analyze_experiment`, or a :func:`failure_report` naming why it could not run."""
     if rec is None:
         return failure_report('too few samples were recorded to identify anything',
                               settings)
     try:
-        report = identify(rec, settings, jobs, progress)
+        report = analyze_experiment(rec, settings, jobs, progress)
     except MotorIdError as exc:
         return failure_report(f'the analysis failed: {exc}', settings)
     report['identified'] = identified(report)
@@ -225,7 +225,7 @@ def _finish(session: ExperimentSession, failure: str | None, signum: int | None,
         return EXIT_CONFIG
     if not session.settings.identify:
         return EXIT_ERROR if errored else EXIT_SAFETY if log.safety_stop else EXIT_OK
-    report = try_identify(rec, session.settings, jobs or usable_cores(), say)
+    report = try_analyze(rec, session.settings, jobs or usable_cores(), say)
     write_report(report, session.out)
     if report.get('identified'):
         say('feedforward: ' + feedforward_line(report))
