@@ -121,7 +121,7 @@ def test_analysis_of_an_arm_recovers_kg_offset_kv_ks_and_beats_no_mechanism(arm)
     # error 0.010 against 1.008 of the speed's spread)
     plain = _analyse(arm.recording, 'simple')
     assert rep.heldout['final_error'] < 0.1 * plain.heldout['final_error']
-    assert plain.simulation['rmse']['position'] > 5 * rep.simulation['rmse']['position']
+    assert plain.simulation.rmse['position'] > 5 * rep.simulation.rmse['position']
 
 
 @pytest.mark.slow

@@ -231,17 +231,17 @@ def test_stage_finds_asymmetric_viscous_friction_it_did_not_generate():
     start = SavedModel('torque', {'J': 2.5, 'B': 13.0}, {'coulomb_friction': {'T_c': 2.0}},
                        'start')
     sim = simulation_stage(rec, start, init_samples=20)
-    assert sim['channels'] == ['position', 'speed']
-    assert 'asymmetric_friction' in sim['chosen'].split('+')
-    assert 'asymmetric_friction' in sim['model']['effects']
-    check_friction(sim['friction'])
-    heldout = {c['name']: c['heldout_rmse']['position'] for c in sim['candidates']}
+    assert sim.channels == ('position', 'speed')
+    assert 'asymmetric_friction' in sim.chosen.split('+')
+    assert 'asymmetric_friction' in sim.model.effects
+    check_friction(sim.friction)
+    heldout = {c.name: c.heldout_rmse['position'] for c in sim.candidates}
     assert heldout['coulomb_friction+asymmetric_friction'] < 0.2 * heldout['coulomb_friction']
     # on another record of the same axis: better than the start and than the best
     # symmetric model the stage fitted
-    chosen = SavedModel.from_report({'parameters': {}, 'simulation': sim})
-    symmetric = next(c for c in sim['candidates'] if c['name'] == 'coulomb_friction')
-    symmetric = SavedModel('torque', symmetric['parameters'], symmetric['effects'])
+    chosen = SavedModel.from_report({'parameters': {}, 'simulation': sim.to_dict()})
+    symmetric = next(c for c in sim.candidates if c.name == 'coulomb_friction')
+    symmetric = SavedModel('torque', symmetric.parameters, symmetric.effects)
     best = position_rmse(chosen, other)
     assert best < 0.2 * position_rmse(start, other)
     assert best < 0.2 * position_rmse(symmetric, other)
@@ -492,7 +492,7 @@ def test_stage_on_two_processes_gives_what_it_gives_on_one():
     rec = axis_record(21).slice(0, 3000)
     start = SavedModel('torque', {'J': 2.5, 'B': 13.0}, {'coulomb_friction': {'T_c': 2.0}},
                        'start')
-    one, two = (json.dumps(simulation_stage(rec, start, init_samples=20, jobs=j),
+    one, two = (json.dumps(simulation_stage(rec, start, init_samples=20, jobs=j).to_dict(),
                            sort_keys=True, default=str) for j in (1, 2))
     assert one == two
     assert '"chosen": "coulomb_friction' in one

@@ -13,6 +13,7 @@ import pytest
 from motor_id.analysis.frames import frame_evidence, fresh_mask
 from motor_id.analysis.report import DiscrepancyReport
 from motor_id.analysis.simulation_fit import simulation_stage
+from motor_id.analysis.simulation_result import DerivedEstimate, SimulationStage, StageEstimates
 from motor_id.data.sysid import load_sysid
 from motor_id.identify.validation import SavedModel
 from motor_id.testing.sysid_log import DEFAULT_MOTOR as MOTOR
@@ -88,34 +89,39 @@ def test_speed_only_stage_reports_what_the_data_determine(tmp_path, seed):
                                    'L_m': 3 * MOTOR.L, 'R_m': MOTOR.R},
                        {'coulomb_friction': {'T_c': 0.2 * MOTOR.K / MOTOR.R}}, 'test')
     sim = simulation_stage(rec, start, 20)
-    est = sim['estimates']
+    est = sim.estimates
     for name in ('J', 'B', 'L_m', 'K_T', 'K_b'):
-        assert not est['parameters'][name]['determined']
-        assert est['parameters'][name]['std'] is None
-    combos = {c['name']: c for c in est['combinations']}
+        assert not est.parameters[name].determined
+        assert est.parameters[name].std is None
+    combos = {c.name: c for c in est.combinations}
     for key in ('kS', 'kV', 'kA'):
         c = combos[key]
-        assert c['std'] > 0 and math.isfinite(c['std'])
+        assert c.std > 0 and math.isfinite(c.std)
         # determined where the error bar is within half the value (the fit's rule);
         # otherwise the interval the data allow holds the truth (kA on seed 1: the
         # halves give 0.0021 and 0.0018, the whole record 0.00055)
-        assert c['determined'] == (c['std'] <= 0.5 * abs(c['value'])), c
-        if not c['determined']:
-            assert c['interval'][0] <= ff[key] <= c['interval'][1], (key, c, ff)
-        assert abs(c['value'] - ff[key]) <= 3 * c['std'] + 0.02 * abs(ff[key]), (key, c, ff)
-    assert any(ev['found'] for ev in sim['held_readings'].values())
+        assert c.determined == (c.std <= 0.5 * abs(c.value)), c
+        if not c.determined:
+            assert c.interval[0] <= ff[key] <= c.interval[1], (key, c, ff)
+        assert abs(c.value - ff[key]) <= 3 * c.std + 0.02 * abs(ff[key]), (key, c, ff)
+    assert any(ev.found for ev in sim.held_readings.values())
 
 
 def test_the_analysis_report_carries_the_chosen_models_feedforward_block():
     """kS, kV, kA of the simulation-error model as the fit's controller block has them;
     one over half its own value in error bar is not determined: null, with the interval
     the data allow."""
-    combos = [{'name': 'kV', 'value': 0.0175, 'std': 1e-4, 'determined': True},
-              {'name': 'kA', 'value': 1e-5, 'std': 1e-4, 'determined': False,
-               'interval': [-1.9e-4, 2.1e-4], 'note': 'not determined by this record'}]
+    combos = (DerivedEstimate(name='kV', value=0.0175, std_model=1e-4, std=1e-4,
+                              determined=True),
+              DerivedEstimate(name='kA', value=1e-5, std_model=1e-4, std=1e-4,
+                              determined=False, interval=(-1.9e-4, 2.1e-4),
+                              note='not determined by this record'))
+    sim = SimulationStage(channels=('speed',), init_samples=20, blocks=(), heldout_blocks=(),
+                          min_gain=0.05, held_readings={}, candidates=(),
+                          chosen='coulomb_friction',
+                          estimates=StageEstimates(combinations=combos))
     rep = DiscrepancyReport('coulomb_friction', [], False, [], {}, {}, {}, {}, {}, 'voltage',
-                            ('speed',), simulation={'chosen': 'coulomb_friction',
-                                                    'estimates': {'combinations': combos}})
+                            ('speed',), simulation=sim)
     ff = rep.to_dict()['controller']['feedforward']
     assert ff['kV'] == {'value': 0.0175, 'std': 1e-4, 'unit': 'V s/rad'}
     assert ff['kA']['value'] is None and ff['kA']['std'] is None
@@ -142,15 +148,15 @@ def test_stage_names_a_start_latency_only_where_the_drive_has_one(tmp_path, late
                                    'L_m': 3 * MOTOR.L, 'R_m': MOTOR.R},
                        {'coulomb_friction': {'T_c': 0.2 * MOTOR.K / MOTOR.R}}, 'test')
     sim = simulation_stage(rec, start, 20, halves=False)
-    tried = {c['name']: c for c in sim['candidates']}
+    tried = {c.name: c for c in sim.candidates}
     assert 'coulomb_friction+start_latency' in tried   # the input leaves zero: tried
     if latency:
-        assert 'start_latency' in sim['chosen'].split('+'), sim['chosen']
-        d = sim['model']['effects']['start_latency']['d']
+        assert 'start_latency' in sim.chosen.split('+'), sim.chosen
+        d = sim.model.effects['start_latency']['d']
         assert abs(d - latency / 0.005) <= 3, d
-        assert sim['gains']['start_latency'] > 0.3
+        assert sim.gains['start_latency'] > 0.3
     else:
-        assert 'start_latency' not in sim['chosen'].split('+'), sim['chosen']
+        assert 'start_latency' not in sim.chosen.split('+'), sim.chosen
 
 
 # ------------------------------------------------------------------ repeats: measured data
@@ -169,7 +175,7 @@ def test_emps_halves_agree_within_the_error_bars_each_reports():
                        {'coulomb_friction': {'T_c': 21.74},
                         'load_torque': {'T_L': -3.56}}, 'equation error')
     n = len(rec)
-    stages = [simulation_stage(part, start, 20)
+    stages = [simulation_stage(part, start, 20).to_dict()
               for part in (rec.slice(0, n // 2), rec.slice(n // 2, n))]
     for st in stages:
         # an effect the stage adds does something: one of its parameters is determined

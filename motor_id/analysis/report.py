@@ -5,12 +5,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import math
 import os
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
+from motor_id.analysis.records import jsonable
 from motor_id.contracts import units_of
 from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
+
+if TYPE_CHECKING:
+    from motor_id.analysis.simulation_result import SimulationStage
 
 
 @dataclass
@@ -98,7 +102,7 @@ class DiscrepancyReport:
     seconds: float = 0.0
     adequate: bool = True
     warnings: list = field(default_factory=list)
-    simulation: dict | None = None
+    simulation: SimulationStage | None = None
     linear: bool = False
     runs: tuple[RunScore, ...] = ()
     mechanism: str = 'simple'
@@ -124,7 +128,7 @@ class DiscrepancyReport:
         if self.inverse_dynamics is not None:
             d['inverse_dynamics'] = self.inverse_dynamics
         if self.simulation is not None:
-            d['simulation'] = self.simulation
+            d['simulation'] = self.simulation.to_dict()
         controller = self.controller()
         if controller is not None:
             d['controller'] = controller
@@ -140,28 +144,28 @@ class DiscrepancyReport:
         bars, as the fit's block has them (``{value, std}``; a constant the record does
         not determine has ``value`` and ``std`` null, its ``particular_value``, the
         ``interval`` the data allow and why); None without that model."""
-        sim = self.simulation or {}
-        combos = (sim.get('estimates') or {}).get('combinations')
-        if not combos:
+        sim = self.simulation
+        combos = sim.estimates.combinations if sim and sim.estimates else None
+        if not sim or not combos:
             return None
         ff: dict[str, Any] = {}
         u = units_of(self.input_kind, self.linear)
         units = {'kS': u['kS'], 'kV': u['kV'], 'kA': u['kA'], 'kS-': u['kS'], 'kV-': u['kV'],
                  'kG': u['kS'], **{p.role: p.unit for _, p in role_params('offset')}}
         for c in combos:
-            if c.get('determined', True):
-                ff[c['name']] = {'value': c['value'], 'std': c['std']}
+            if c.determined:
+                ff[c.name] = {'value': c.value, 'std': c.std}
             else:
-                ff[c['name']] = {'value': None, 'std': None, 'particular_value': c['value'],
-                                 'interval': c.get('interval'), 'note': c.get('note')}
-            ff[c['name']]['unit'] = units.get(c['name'])
+                ff[c.name] = {'value': None, 'std': None, 'particular_value': c.value,
+                              'interval': jsonable(c.interval), 'note': c.note or None}
+            ff[c.name]['unit'] = units.get(c.name)
         source = ('the simulation-error model (simulation.model): kS = V_b + T_c R_m / K_T, '
                   'kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T')
         if 'kG' in ff:
             source += (', kG = T_g R_m / K_T: V = kS sgn(w) + kG cos(theta + offset) + kV w '
                        '+ kA dw/dt' if 'offset' in ff else
                        ', kG = T_g R_m / K_T: V = kS sgn(w) + kG + kV w + kA dw/dt')
-        return {'feedforward': ff, 'model': sim.get('chosen'), 'mechanism': self.mechanism,
+        return {'feedforward': ff, 'model': sim.chosen, 'mechanism': self.mechanism,
                 'source': source}
 
     def summary(self) -> str:
@@ -182,48 +186,47 @@ class DiscrepancyReport:
         return '\n'.join(lines)
 
 
-def _simulation_lines(sim: dict[str, Any] | None,
+def _simulation_lines(sim: SimulationStage | None,
                       units: dict[str, str] | None = None) -> list[str]:
     """The simulation-error stage: held readings, each candidate's held-out RMSE, the
     chosen model's gains, and its estimates with their error bars."""
     if not sim:
         return []
-    lines = [f'simulation error ({", ".join(sim["channels"])}; each block from its first '
-             f'{sim["init_samples"]} samples, or from rest), held-out RMSE:']
-    for ch, ev in (sim.get('held_readings') or {}).items():
-        if ev.get('found'):
-            lines.append(f'  held readings on {ch}: {ev["reason"]}; scored at the fresh '
+    lines = [f'simulation error ({", ".join(sim.channels)}; each block from its first '
+             f'{sim.init_samples} samples, or from rest), held-out RMSE:']
+    for ch, ev in sim.held_readings.items():
+        if ev.found:
+            lines.append(f'  held readings on {ch}: {ev.reason}; scored at the fresh '
                          'samples only')
-    for c in sim['candidates']:
-        err = ', '.join(f'{ch} {v:.4g}' for ch, v in c['heldout_rmse'].items()) \
-            or c.get('failed', '')
-        mark = '*' if c['name'] == sim['chosen'] else ' '
-        lines.append(f'  {mark} {c["name"]:<58} {err}')
-    if sim.get('gains'):
+    for c in sim.candidates:
+        err = ', '.join(f'{ch} {v:.4g}' for ch, v in c.heldout_rmse.items()) or c.failed
+        mark = '*' if c.name == sim.chosen else ' '
+        lines.append(f'  {mark} {c.name:<58} {err}')
+    if sim.gains:
         lines.append('  gains on the held-out blocks: ' + ', '.join(
-            f'{k} {100 * v:.1f} %' for k, v in sim['gains'].items()))
-    est = sim.get('estimates') or {}
-    if sim.get('model') and est.get('parameters'):
+            f'{k} {100 * v:.1f} %' for k, v in sim.gains.items()))
+    est = sim.estimates
+    if sim.model and est and est.parameters:
         lines.append('  chosen, refitted on every block (error bars: the largest of '
                      'Gauss-Newton, block sandwich and halves):')
-        for name, e in est['parameters'].items():
+        for name, e in est.parameters.items():
             lines.append(f'    {name:<28} ' + (
-                f'{e["value"]:.5g} +- {e["std"]:.3g}' if e['determined'] else
-                f'{"-":>10}  not determined ({e.get("note", "")})'))
-        for key in ('combinations', 'friction'):
-            if est.get(key):
-                lines.append('  ' + ('SysId constants: ' if key == 'combinations' else
-                                     'friction by direction: ') + ', '.join(
-                    f'{e["name"]} {e["value"]:.4g} +- {e["std"]:.2g}'
-                    + (f' {(units or {})[e["name"]]}' if e['name'] in (units or {}) else '')
-                    + ('' if e.get('determined', True) else f' ({e["note"]})')
-                    for e in est[key]))
-    elif sim.get('model'):
-        vals = {**sim['model']['parameters'],
-                **{f'{e}.{p}': v for e, d in sim['model']['effects'].items()
+                f'{e.value:.5g} +- {e.std:.3g}' if e.determined else
+                f'{"-":>10}  not determined ({e.note})'))
+        for title, derived in (('SysId constants: ', est.combinations),
+                               ('friction by direction: ', est.friction)):
+            if derived:
+                lines.append('  ' + title + ', '.join(
+                    f'{e.name} {e.value:.4g} +- {e.std:.2g}'
+                    + (f' {(units or {})[e.name]}' if e.name in (units or {}) else '')
+                    + ('' if e.determined else f' ({e.note})')
+                    for e in derived))
+    elif sim.model:
+        vals = {**sim.model.parameters,
+                **{f'{e}.{p}': v for e, d in sim.model.effects.items()
                    for p, v in d.items()}}
         lines.append('  chosen, refitted on every block (no error bars: '
-                     f'{est.get("failed", "not computed")}): ' + ', '.join(
+                     f'{(est.failed if est else "") or "not computed"}): ' + ', '.join(
                          f'{k} {v:.5g}' for k, v in vals.items()))
     return lines
 

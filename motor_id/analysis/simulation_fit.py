@@ -23,11 +23,10 @@ dynamics estimate) and this one; ``motor-id validate`` simulates with this one.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 import itertools
-import math
 import multiprocessing
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,6 +38,7 @@ from motor_id.analysis.simulation_problem import (
     sim_channels,
     SimulationProblem,
 )
+from motor_id.analysis.simulation_result import SimCandidate, SimulationStage, StageEstimates
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.analysis.workers import _worker_start, longest_first
 from motor_id.effects import EFFECTS, role_value
@@ -54,34 +54,6 @@ PROFILE_NFEV = 15
 """Residual evaluations of each brief refit of the delay profile."""
 MAX_DELAY_S = 0.3
 """Longest input delay the stage tries [s] (and at most a fifth of the shortest block)."""
-
-
-@dataclass
-class SimCandidate:
-    """One model fitted on simulation error."""
-
-    name: str
-    parameters: dict[str, float]
-    effects: dict[str, dict[str, float]]
-    train_rmse: dict[str, float] = field(default_factory=dict)
-    heldout_rmse: dict[str, float] = field(default_factory=dict)
-    heldout_cost: float = math.inf
-    nfev: int = 0
-    failed: str = ''
-    polished_from: str = ''
-    """A larger candidate this one was refitted from (:func:`_polish`), if any."""
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return {'name': self.name, 'parameters': self.parameters, 'effects': self.effects,
-                'train_rmse': self.train_rmse, 'heldout_rmse': self.heldout_rmse,
-                'heldout_cost': _finite(self.heldout_cost), 'nfev': self.nfev,
-                **({'failed': self.failed} if self.failed else {}),
-                **({'polished_from': self.polished_from} if self.polished_from else {})}
-
-
-def _finite(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None
 
 
 def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:
@@ -171,8 +143,9 @@ class StageSetup:
 def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                      n_blocks: int = 6, min_gain: float = 0.05,
                      progress: Callable[[str], object] | None = None,
-                     halves: bool = True, jobs: int = 1) -> dict[str, Any]:
-    """Fit ``model`` and its refinements by simulation error; the JSON block.
+                     halves: bool = True, jobs: int = 1) -> SimulationStage:
+    """Fit ``model`` and its refinements by simulation error (the report's
+    ``simulation`` block).
 
     Parameters
     ----------
@@ -194,13 +167,10 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
 
     Returns
     -------
-    dict
-        ``channels``, ``init_samples``, ``blocks``, ``heldout_blocks``,
-        ``held_readings`` (the evidence per channel), ``candidates`` (each fitted on the
-        training blocks, scored on the held-out ones), ``chosen``, ``model`` (the chosen
-        model refitted on every block: ``input_kind``, ``parameters``, ``effects``),
-        ``estimates`` (values, error bars, determinacy), ``rmse`` (its RMSE on every
-        block).
+    SimulationStage
+        The blocks, the held readings per channel, the candidates (each fitted on the
+        training blocks, scored on the held-out ones), the chosen one refitted on every
+        block with its estimates (values, error bars, determinacy) and RMSE.
     """
     say = progress or (lambda _msg: None)
     blocks = make_blocks(rec, n_blocks, init_samples)
@@ -227,7 +197,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         for extra, (cand, z, prob) in zip(families, _fit_families(setup, model, families,
                                                                    fitted, jobs), strict=True):
             cands.append(cand)
-            if cand.failed or not math.isfinite(cand.heldout_cost):
+            if not cand.scored:
                 continue
             fitted[extra] = (cand.heldout_cost, _values(prob, z))
             if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
@@ -240,16 +210,12 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         if stage == 'singles':   # judged against the base as polished by them all
             helpful = [e for e, c in single_costs.items()
                        if c < gain_needed * cands[0].heldout_cost]
-    out: dict[str, Any] = {
-        'method': 'least squares on the simulation error of each block, simulated from '
-        'the input alone from a state set by its first samples',
-        'channels': list(sim_channels(rec)), 'init_samples': init_samples,
-        'blocks': [list(b) for b in blocks], 'heldout_blocks': [list(b) for b in held],
-        'min_gain': min_gain,
-        'held_readings': {ch: ev.to_dict() for ch, ev in frames.items()}}
+    shared = SimulationStage(channels=tuple(sim_channels(rec)), init_samples=init_samples,
+                             blocks=tuple(blocks), heldout_blocks=tuple(held),
+                             min_gain=min_gain, held_readings=frames, candidates=())
     if best is None:
-        return {**out, 'candidates': [c.to_dict() for c in cands], 'chosen': None,
-                'model': None, 'failed': 'no model could be fitted by simulation error'}
+        return replace(shared, candidates=tuple(cands),
+                       failed='no model could be fitted by simulation error')
     chosen, best_z, best_prob = best
     if fresh:
         cands.append(_every_sample(setup, best_prob, chosen))
@@ -265,14 +231,11 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         try:
             estimates = stage_estimates(best_prob, z, blocks, halves, say)
         except FIT_ERRORS as exc:
-            estimates = {'failed': f'no error bars: {type(exc).__name__}: {exc}'}
-    return {**out, 'candidates': [c.to_dict() for c in cands], 'chosen': chosen.name,
-            'gains': _gains(cands, chosen),
-            'model': {'input_kind': model.input_kind, 'parameters': params,
-                      'effects': effects},
-            'estimates': estimates,
-            'friction': friction_summary(params, effects, model.input_kind),
-            'rmse': rmse}
+            estimates = StageEstimates(failed=f'no error bars: {type(exc).__name__}: {exc}')
+    return replace(shared, candidates=tuple(cands), chosen=chosen.name,
+                   gains=_gains(cands, chosen),
+                   model=SavedModel(model.input_kind, params, effects), estimates=estimates,
+                   friction=friction_summary(params, effects, model.input_kind), rmse=rmse)
 
 
 def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, float]:
@@ -280,7 +243,7 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
     removes, ``1 - cost with / cost without`` (from the candidate without it). Held
     readings are a fact of the values (:mod:`.frames`), not a gain; the candidate
     ``... (every sample)`` shows the chosen model fitted on every sample as logged."""
-    by_name = {c.name: c for c in cands if not c.failed and math.isfinite(c.heldout_cost)}
+    by_name = {c.name: c for c in cands if c.scored}
     parts = chosen.name.split('+')
     out: dict[str, float] = {}
     for e in parts:
@@ -357,7 +320,7 @@ def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandida
     plain = SimulationProblem(setup.rec, prob.model, setup.init_samples, prob.free)
     name = chosen.name + ' (every sample)'
     setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
-    cand = SimCandidate(name, {}, {})
+    cand = SimCandidate(name=name)
     try:
         with np.errstate(all='ignore'):
             z, cand.nfev = plain.fit(setup.train)
@@ -435,7 +398,7 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
     name = '+'.join(e for e in prob.model.effects if EFFECTS[e].category == 'dynamic'
                     or e in PROFILED) or 'linear'
     setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
-    cand = SimCandidate(name, {}, {})
+    cand = SimCandidate(name=name)
     z = np.array([(warm or {}).get(n, v) for n, v in zip(prob.free, prob.start(),
                                                           strict=True)])
     try:

@@ -32,12 +32,19 @@ determine, WPILib SysId's ``kS`` (per direction), ``kV`` and ``kA``, with error 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 import math
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.analysis.friction import folded_load, friction_summary
+from motor_id.analysis.simulation_result import (
+    DerivedEstimate,
+    ESTIMATES_METHOD,
+    ParameterEstimate,
+    StageEstimates,
+)
 from motor_id.effects import EFFECTS, role_keys, role_value
 from motor_id.identify.determinacy import MAX_RELATIVE_STD
 from motor_id.identify.uncertainty import (
@@ -149,7 +156,7 @@ def _si(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
 def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
              halves: tuple[np.ndarray, np.ndarray] | None,
              fn: Callable[[dict[str, float], dict[str, dict[str, float]]],
-                          Mapping[str, float] | None]) -> list[dict[str, Any]]:
+                          Mapping[str, float] | None]) -> list[DerivedEstimate]:
     """Quantities ``fn(params, effects)`` of the model with delta-method error bars,
     floored by the halves' spread as the parameters are; one whose error bar is over
     :data:`~motor_id.identify.determinacy.MAX_RELATIVE_STD` of its value is not
@@ -163,20 +170,20 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
     ha = hb = None
     if halves is not None:
         ha, hb = values(halves[0]), values(halves[1])
-    out: list[dict[str, Any]] = []
+    out: list[DerivedEstimate] = []
     for key, val in base.items():
         std = std_model[key]
-        entry: dict[str, Any] = {'name': key, 'value': float(val), 'std_model': std,
-                                 'determined': True}
+        pair = None
         if ha is not None and hb is not None:
-            entry['halves'] = [ha[key], hb[key]]
+            pair = (ha[key], hb[key])
             std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
-        entry['std'] = std
+        entry = DerivedEstimate(name=key, value=float(val), std_model=std_model[key],
+                                determined=True, halves=pair, std=std)
         if key in ANGLES and std <= MAX_ANGLE_STD:
             pass   # an angle: its error bar, not its value, says what the data determine
         elif not std <= MAX_RELATIVE_STD * abs(val):
             lo, hi = float(val - 2 * std), float(val + 2 * std)
-            entry.update(determined=False, interval=[lo, hi], note=(
+            entry = replace(entry, determined=False, interval=(lo, hi), note=(
                 f'not determined by this record: its error bar is '
                 f'{"over 1000" if not std <= 10 * abs(val) else f"{100 * std / abs(val):.0f}"} '
                 f'% of the value (data allow about {lo:.3g} .. {hi:.3g})'))
@@ -186,16 +193,15 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
 
 def stage_estimates(prob: SimulationProblem, z: np.ndarray,
                     blocks: Sequence[tuple[int, int]], halves: bool = True,
-                    say: Callable[[str], object] | None = None) -> dict[str, Any]:
+                    say: Callable[[str], object] | None = None) -> StageEstimates:
     """Values, error bars and determinacy of the free parameters at ``z`` (see the
     module notes); for a speed-only voltage plant also kS, kV, kA.
 
     Returns
     -------
-    dict
-        ``parameters``: ``{name: {value, std, std_model, halves, determined, note}}``
-        (SI; effect parameters as ``effect.param``), ``combinations`` (a list like the
-        fit's), ``method``.
+    StageEstimates
+        ``parameters`` by name (SI; effect parameters as ``effect.param``),
+        ``combinations`` (a voltage plant's SysId constants), ``friction``.
     """
     say = say or (lambda _msg: None)
     r = prob.residuals(z[None, :], blocks)[0]
@@ -221,51 +227,43 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
     hb = _si(prob, half[1]) if half is not None else None
     speed_only = prob.kind == 'voltage' and not prob.rec.has_current
     physical = set(prob.physical_indices())
-    params: dict[str, dict[str, Any]] = {}
+    params: dict[str, ParameterEstimate] = {}
     for j, name in enumerate(prob.free):
         v = values[name]
         log = j in physical
         std_m = abs(v) * std_z[j] if log else std_z[j]
         std = abs(v) * std_final[j] if log else std_final[j]
-        entry: dict[str, Any] = {'value': v, 'std': float(std), 'std_model': float(std_m),
-                                 'determined': bool(seen[j])}
-        if ha is not None and hb is not None:
-            entry['halves'] = [ha[name], hb[name]]
+        determined, note = bool(seen[j]), ''
         if speed_only and (log or _torque_scaled(name)):
-            entry['determined'] = False
-            entry['note'] = ('speed alone determines kS, kV and kA, not this (K_T is held '
-                             'at the equation-error value)')
+            determined = False
+            note = ('speed alone determines kS, kV and kA, not this (K_T is held at the '
+                    'equation-error value)')
         elif not seen[j]:
-            entry['note'] = 'the simulation error does not see it apart from the others'
-        if not entry['determined']:
-            entry['std'] = None
-        params[name] = entry
+            note = 'the simulation error does not see it apart from the others'
+        params[name] = ParameterEstimate(
+            value=v, std=float(std) if determined else None, std_model=float(std_m),
+            determined=determined, note=note,
+            halves=(ha[name], hb[name]) if ha is not None and hb is not None else None)
     if folded_load(prob.model.effects):
         for name in (role_keys(prob.model.effects, 'kS', 'torque')
                      + role_keys(prob.model.effects, 'kS_extra_negative')):
-            if name in params and params[name]['determined']:
-                params[name].update(determined=False, std=None, note=(
+            if name in params and params[name].determined:
+                params[name] = replace(params[name], determined=False, std=None, note=(
                     'only as Fc+ and Fc- (see friction): a constant load folds into them'))
-        params[role_keys(prob.model.effects, 'load')[0]] = {
-            'value': role_value(prob.model.effects, 'load'), 'std': None,
-            'std_model': None, 'determined': False,
-            'note': 'held at the equation-error value: a constant load and asymmetric '
+        params[role_keys(prob.model.effects, 'load')[0]] = ParameterEstimate(
+            value=role_value(prob.model.effects, 'load'), std=None, std_model=None,
+            determined=False,
+            note='held at the equation-error value: a constant load and asymmetric '
             'Coulomb levels act alike (only Fc+ = T_c + T_L and Fc- = T_c + dT_c - T_L '
-            'are determined)'}
+            'are determined)')
     for name in ('K_T',) if speed_only else ():
-        params[name] = {'value': prob.model.parameters[name], 'std': None,
-                        'std_model': None, 'determined': False,
-                        'note': 'held at the equation-error value (speed alone cannot '
-                        'tell it)'}
-    out: dict[str, Any] = {
-        'method': 'the largest of the Gauss-Newton, the block-sandwich and the halves '
-        'standard deviations (halves: |a - b| / 2 of the refits on each half of the '
-        'blocks)',
-        'parameters': params}
-    if prob.kind == 'voltage':
-        out['combinations'] = _derived(prob, z, cov, half, feedforward_of)
+        params[name] = ParameterEstimate(
+            value=prob.model.parameters[name], std=None, std_model=None, determined=False,
+            note='held at the equation-error value (speed alone cannot tell it)')
+    combinations = (tuple(_derived(prob, z, cov, half, feedforward_of))
+                    if prob.kind == 'voltage' else None)
     friction = _derived(prob, z, cov, half, lambda p, e: friction_summary(
         p, e, prob.kind))
-    if friction and not speed_only:
-        out['friction'] = friction
-    return out
+    return StageEstimates(method=ESTIMATES_METHOD, parameters=params,
+                          combinations=combinations,
+                          friction=tuple(friction) if friction and not speed_only else ())
