@@ -259,11 +259,11 @@ class IdentifierNode(Node):
 
     def _on_identify(self, request: Trigger.Request,
                      response: Trigger.Response) -> Trigger.Response:
-        response.success, response.message = self.identify()
+        response.success, response.message = self.fit_window()
         return response
 
     def _on_period(self) -> None:
-        ok, text = self.identify()
+        ok, text = self.fit_window()
         if not ok and 'already running' not in text:
             self.get_logger().warning(f'periodic identification: {text}')
 
@@ -294,16 +294,16 @@ class IdentifierNode(Node):
             pub.publish(msg)
 
     # ------------------------------------------------------------------ work
-    def identify(self) -> tuple[bool, str]:
+    def fit_window(self) -> tuple[bool, str]:
         """Fit the buffered window; return ``(success, message)``. Never raises."""
         if not self._fit_lock.acquire(blocking=False):
             return False, 'a fit is already running; try again when it finishes'
         try:
-            return self._identify()
+            return self._fit_window()
         finally:
             self._fit_lock.release()
 
-    def _identify(self) -> tuple[bool, str]:
+    def _fit_window(self) -> tuple[bool, str]:
         p = {s.name: self.get_parameter(s.name).value for s in PARAMETERS}
         started = time.perf_counter()
         try:
