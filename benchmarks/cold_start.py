@@ -50,7 +50,7 @@ def progress(gen, gens, best):
 t0, c0 = time.perf_counter(), time.process_time()
 idf = Identifier(R_m=float(sys.argv[3]), random_state=0).fit(rec, progress=progress)
 first = (stamps[0][0] - t0, stamps[0][1] - c0)
-print(json.dumps({'warm_up': warm, 'ga_seconds': idf.result_.ga['seconds'],
+print(json.dumps({'warm_up': warm, 'ga_seconds': idf.result_.ga.seconds,
                   'generations': len(stamps), 'first_wall': first[0], 'first_cpu': first[1],
                   'rest_wall': stamps[-1][0] - stamps[0][0],
                   'ga_cpu': stamps[-1][1] - c0, 'fit_seconds': idf.result_.seconds}))

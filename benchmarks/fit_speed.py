@@ -197,7 +197,7 @@ def run_seed(seed, n, budget, blas_one=None):
     xf = np.array([values[k] for k in obj.names])
     row = _record('motor_id Identifier.fit (GA+polish)', obj, truth, xf,
                   idf.result_.seconds, idf.evaluations, polish=False)
-    row['ga_seconds'] = idf.result_.ga['seconds']
+    row['ga_seconds'] = idf.result_.ga.seconds
     rows.append(row)
     for r in rows:
         r['seed'] = seed

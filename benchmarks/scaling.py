@@ -14,9 +14,9 @@ def _fit(rec, population, generations, repeats):
     for k in range(repeats):
         idf = Identifier(population=population, generations=generations, random_state=k,
                          **PAPER_SETUP).fit(rec)
-        ga_s.append(idf.result_.ga['seconds'])
+        ga_s.append(idf.result_.ga.seconds)
         total_s.append(idf.result_.seconds)
-        evals = idf.result_.ga['evaluations']
+        evals = idf.result_.ga.evaluations
     return min(ga_s), min(total_s), evals
 
 

@@ -15,12 +15,12 @@ Defaults are the paper's: population 20, crossover 0.75, mutation 0.04, 160 gene
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from motor_id.errors import ConfigError
+from motor_id.records import Record
 
 SELECTIONS = ('ranking', 'tournament')
 
@@ -81,19 +81,14 @@ class Bounds:
         return np.clip((z - lo) / (hi - lo), 0.0, 1.0)
 
 
-@dataclass
-class GenerationRecord:
-    """What one generation looked like."""
+@dataclass(frozen=True)
+class GenerationRecord(Record):
+    """What one generation looked like (``to_dict()``: these keys in this order)."""
 
     generation: int
     best_cost: float
     mean_cost: float
-    best: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return {'generation': self.generation, 'best_cost': self.best_cost,
-                'mean_cost': self.mean_cost, 'best': self.best}
+    best: dict[str, float] = field(default_factory=dict)
 
 
 class GeneticAlgorithm:
@@ -237,9 +232,10 @@ class GeneticAlgorithm:
         """Ask the loop to stop after the current generation."""
         self._cancelled = True
 
-    def stop(self) -> dict[str, Any]:
-        """Return a dict of stop reasons (empty while the run should go on)."""
-        reasons = {}
+    def stop(self) -> dict[str, int]:
+        """Return a dict of stop reasons (empty while the run should go on): the number of
+        ``generations`` reached, ``cancelled`` (True)."""
+        reasons: dict[str, int] = {}
         if self.generation_ >= self.generations:
             reasons['generations'] = self.generations
         if self._cancelled:

@@ -2,13 +2,34 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motor_id.records import Record
+
 Z99 = 2.576
+
+
+@dataclass(frozen=True)
+class ChannelFit(Record):
+    """Fit %, RMS error and residual diagnostics of one output channel
+    (:func:`channel_metrics`; ``to_dict()``: these keys in this order)."""
+
+    fit_percent: float
+    rms: float
+    n_samples: int
+    max_lag: int
+    band: float
+    autocorrelation: list[float]
+    cross_correlation: list[float]
+    autocorrelation_outside: float
+    cross_correlation_outside: float
+    white: bool
+    independent: bool
 
 
 def normalised_fit(y: ArrayLike, y_hat: ArrayLike) -> float:
@@ -65,14 +86,13 @@ def residual_diagnostics(residual: ArrayLike, u: np.ndarray, max_lag: int = 25
 
 
 def channel_metrics(y: ArrayLike, y_hat: ArrayLike, u: np.ndarray, max_lag: int = 25
-                    ) -> dict[str, Any]:
+                    ) -> ChannelFit:
     """Fit %, RMS error and residual diagnostics of one output channel."""
     y = np.asarray(y, dtype=float)
     e = y - np.asarray(y_hat, dtype=float)
-    out: dict[str, Any] = {'fit_percent': normalised_fit(y, y_hat),
-                           'rms': float(np.sqrt(np.mean(e * e))), 'n_samples': int(y.size)}
-    out.update(residual_diagnostics(e, u, max_lag))
-    return out
+    return ChannelFit(fit_percent=normalised_fit(y, y_hat),
+                      rms=float(np.sqrt(np.mean(e * e))), n_samples=int(y.size),
+                      **residual_diagnostics(e, u, max_lag))
 
 
 def noise_floor(y: ArrayLike) -> float:

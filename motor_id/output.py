@@ -15,6 +15,7 @@ from motor_id.contracts import channel_units, linear_unit, UNITS, units_of
 from motor_id.effects import EFFECTS
 
 if TYPE_CHECKING:
+    from motor_id.ga import GenerationRecord
     from motor_id.identify.result import IdentificationResult
 
 
@@ -195,7 +196,7 @@ def plot_fit(result: IdentificationResult, path: str | os.PathLike[str],
     """
     plt, fig, axes = _figure(3, 2, (13, 11))
     _plot_outputs(result, axes[0], linear)
-    _plot_ga(result.ga.get('history', []), axes[1])
+    _plot_ga(result.ga.history, axes[1])
     _plot_residuals(result, axes[2])
     fig.suptitle(title or f'motor_id fit ({result.method})')
     fig.tight_layout()
@@ -214,7 +215,7 @@ def _plot_outputs(result: IdentificationResult, row: Any, linear: bool = False) 
         ax.plot(t, pred[ch + '_measured'], lw=1.0, label='measured')
         ax.plot(t, pred[ch], lw=1.0, ls='--', label='model')
         ax.set_title(f'{ch}: measured vs model (fit '
-                     f'{result.fit["channels"][ch]["fit_percent"]:.2f} %)')
+                     f'{result.fit.channels[ch].fit_percent:.2f} %)')
         ax.set_xlabel('time [s]')
         ax.set_ylabel(f'{ch} [{units.get(ch, "")}]')
         ax.legend(loc='best')
@@ -226,12 +227,12 @@ def _plot_outputs(result: IdentificationResult, row: Any, linear: bool = False) 
         ax.set_ylabel(f'input [{units["voltage"]}]')
 
 
-def _plot_ga(hist: list[dict[str, Any]], row: Any) -> None:
+def _plot_ga(hist: list[GenerationRecord], row: Any) -> None:
     ax = row[0]
     if hist:
-        gens = [h['generation'] for h in hist]
-        for n in list(hist[-1]['best']):
-            vals = np.array([h['best'][n] for h in hist])
+        gens = [h.generation for h in hist]
+        for n in list(hist[-1].best):
+            vals = np.array([h.best[n] for h in hist])
             final = vals[-1] if vals[-1] != 0 else 1.0
             ax.plot(gens, vals / final, label=n)
         ax.set_yscale('log')
@@ -240,8 +241,8 @@ def _plot_ga(hist: list[dict[str, Any]], row: Any) -> None:
     ax.set_xlabel('generation')
     ax = row[1]
     if hist:
-        ax.semilogy(gens, [h['best_cost'] for h in hist], label='best')
-        ax.semilogy(gens, [h['mean_cost'] for h in hist], label='mean', alpha=0.7)
+        ax.semilogy(gens, [h.best_cost for h in hist], label='best')
+        ax.semilogy(gens, [h.mean_cost for h in hist], label='mean', alpha=0.7)
         ax.legend(loc='best')
     ax.set_title('GA fitness (normalised MSE)')
     ax.set_xlabel('generation')
@@ -251,14 +252,14 @@ def _plot_residuals(result: IdentificationResult, row: Any) -> None:
     channels = list(result.channels)
     for k, ch in enumerate(channels[:2]):
         ax = row[k]
-        m = result.fit['channels'][ch]
-        lags = np.arange(1, len(m['autocorrelation']) + 1)
-        ax.stem(lags, m['autocorrelation'], linefmt='C0-', markerfmt='C0o', basefmt=' ',
+        m = result.fit.channels[ch]
+        lags = np.arange(1, len(m.autocorrelation) + 1)
+        ax.stem(lags, m.autocorrelation, linefmt='C0-', markerfmt='C0o', basefmt=' ',
                 label='residual autocorrelation')
-        xl = np.arange(len(m['cross_correlation']))
-        ax.plot(xl, m['cross_correlation'], 'C1s', ms=3, label='input cross-correlation')
-        ax.axhline(m['band'], color='r', ls=':', lw=1)
-        ax.axhline(-m['band'], color='r', ls=':', lw=1, label='99 % band')
+        xl = np.arange(len(m.cross_correlation))
+        ax.plot(xl, m.cross_correlation, 'C1s', ms=3, label='input cross-correlation')
+        ax.axhline(m.band, color='r', ls=':', lw=1)
+        ax.axhline(-m.band, color='r', ls=':', lw=1, label='99 % band')
         ax.set_title(f'{ch} residual diagnostics')
         ax.set_xlabel('lag [samples]')
         ax.legend(loc='best', fontsize=8)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import copy
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 from typing import Any
 
@@ -240,8 +240,8 @@ def alias_guard(rec: Recording, identifier: Identifier, settings: Identifier
     scale_effect_search(rec, refit)
     with np.errstate(all='ignore'):
         refit.fit(rec)
-    before = identifier.result_.fit['channels']['speed']['fit_percent']
-    after = refit.result_.fit['channels']['speed']['fit_percent']
+    before = identifier.result_.fit.channels['speed'].fit_percent
+    after = refit.result_.fit.channels['speed'].fit_percent
     out = {'aliased_pair_hz': hz, 'nyquist_hz': 0.5 / T, 'fit_percent': before,
            'refit_fit_percent': after, 'L_m_bounds': list(refit.bounds['L_m'])}
     if after >= before - 0.05 and aliased_poles(refit.result_, T) is None:
@@ -255,10 +255,9 @@ def alias_guard(rec: Recording, identifier: Identifier, settings: Identifier
             f'period: speed fit {after:.2f} % (was {before:.2f} %)')
     else:
         out['kept'] = 'first fit'
-        for c in identifier.result_.identifiable_combinations:
-            if c['name'] == 'kA':
-                c['determined'] = False
-                c['note'] = 'the fitted poles alias at this sample period'
+        identifier.result_.identifiable_combinations = [
+            replace(c, determined=False, note='the fitted poles alias at this sample period')
+            if c.name == 'kA' else c for c in identifier.result_.identifiable_combinations]
         identifier.result_.warnings.append(
             f'the fitted poles oscillate at {hz:.3g} Hz, above the Nyquist frequency '
             f'{0.5 / T:.3g} Hz of the samples: they alias, and kA is not to be trusted '

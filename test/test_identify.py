@@ -24,21 +24,21 @@ def test_paper_method_reports_three_combinations_and_varies_by_seed():
     results = [Identifier(method='paper', R_m=2.3, random_state=s).fit(rec).result_
                for s in range(3)]
     for r in results:
-        assert r.identifiability['rank'] == 3
-        assert r.identifiability['n_free'] == 5
+        assert r.identifiability.rank == 3
+        assert r.identifiability.n_free == 5
         for name in FIVE:
             assert r.parameters[name].determined is False
             assert r.parameters[name].value is None
         assert len(r.undetermined_directions) == 2
         assert 'not determined by this data' in r.summary()
-        assert [c['name'] for c in r.identifiable_combinations] == [
+        assert [c.name for c in r.identifiable_combinations] == [
             'K_T/(J*L_m)', 'R_m/L_m + B/J', '(R_m*B + K_T*K_b)/(J*L_m)', 'kV', 'kA']
     J = np.array([r.parameters['J'].particular_value for r in results])
     assert np.ptp(np.log(J)) > np.log(1.2)  # raw J differs by > 20 % between seeds
     truth = {'K_T/(J*L_m)': 0.66 / (0.052 * 0.0345)}
     for r in results:  # the determined combination is close for every seed
         c = r.identifiable_combinations[0]
-        assert rel_err(c['value'], truth['K_T/(J*L_m)']) < 0.08
+        assert rel_err(c.value, truth['K_T/(J*L_m)']) < 0.08
 
 
 def test_speed_only_fit_reports_sysid_kv_ka_with_error_bars_that_cover_the_truth():
@@ -51,7 +51,7 @@ def test_speed_only_fit_reports_sysid_kv_ka_with_error_bars_that_cover_the_truth
     for seed in (1, 2, 3):
         rec = paper_recording(with_current=False, speed_noise=0.005, seed=seed)
         r = Identifier(R_m=2.3, random_state=0).fit(rec).result_
-        c = {d['name']: d for d in r.identifiable_combinations}
+        c = {d.name: d.to_dict() for d in r.identifiable_combinations}
         for k in ('kV', 'kA'):
             assert rel_err(c[k]['value'], truth[k]) < 0.01, (seed, k, c[k])
             assert abs(c[k]['value'] - truth[k]) < 3 * c[k]['std'], (seed, k, c[k])
@@ -65,8 +65,8 @@ def test_zoh_recovers_all_five_with_current_and_tie():
     estimated under its prior) within 1 %."""
     rec = paper_recording(params=SI_MOTOR)
     r = Identifier(method='zoh', R_m=2.3, random_state=0).fit(rec).result_
-    assert r.identifiability['rank'] == 5 and r.identifiability['fully_determined']
-    assert r.identifiability['r_m_determined_by_data']
+    assert r.identifiability.rank == 5 and r.identifiability.fully_determined
+    assert r.identifiability.r_m_determined_by_data
     for name in FIVE + ('R_m',):
         e = r.parameters[name]
         assert e.determined
@@ -97,9 +97,9 @@ def test_tie_on_the_papers_motor_scales_j_and_kt(clean_paper):
 def test_speed_and_current_without_tie_leave_one_direction():
     rec = paper_recording(params=SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=2)
     r = Identifier(R_m=2.3, tie=False, random_state=0).fit(rec).result_
-    assert r.identifiability['rank'] == 5 and r.identifiability['n_free'] == 6  # R_m free
+    assert r.identifiability.rank == 5 and r.identifiability.n_free == 6  # R_m free
     assert r.parameters['L_m'].determined and r.parameters['K_b'].determined
-    assert r.parameters['R_m'].determined and r.identifiability['r_m_determined_by_data']
+    assert r.parameters['R_m'].determined and r.identifiability.r_m_determined_by_data
     for name in ('J', 'K_T', 'B'):
         assert not r.parameters[name].determined
 
@@ -107,7 +107,7 @@ def test_speed_and_current_without_tie_leave_one_direction():
 def test_a_known_value_determines_the_rest():
     rec = paper_recording(params=SI_MOTOR, with_current=False, speed_noise=0.002, seed=3)
     r = Identifier(R_m=2.3, tie=True, fixed={'J': 0.052}, random_state=0).fit(rec).result_
-    assert r.identifiability['fully_determined']
+    assert r.identifiability.fully_determined
     assert r.parameters['J'].assumed
     for name in ('K_T', 'L_m'):
         assert rel_err(r.parameters[name].value, getattr(SI_MOTOR, name)) < 0.02
@@ -146,7 +146,7 @@ def test_progress_and_cancel():
         return gen >= 10
     r = Identifier(R_m=2.3, random_state=0).fit(rec, progress=progress).result_
     assert seen == list(range(1, 11))
-    assert r.ga['generations'] == 10 and r.ga['stop'] == {'cancelled': True}
+    assert r.ga.generations == 10 and r.ga.stop == {'cancelled': True}
 
 
 def test_json_shape():
@@ -231,8 +231,7 @@ def test_r_m_is_estimated_from_current_within_1_percent():
     assert 'warm motor' in res['note']
     assert re.search(r'R_m: given 2.3 Ohm, the data say 2.4\d* \+- [\d.e-]+ Ohm \(\+4\.\d %: '
                      'a warm motor', r.summary())
-    assert 'prior' in r.identifiability['prior'] and r.identifiability[
-        'r_m_determined_by_data']
+    assert 'prior' in r.identifiability.prior and r.identifiability.r_m_determined_by_data
     assert 'r_m_sensitivity' not in r.to_dict()
 
 
@@ -246,7 +245,7 @@ def test_r_m_estimate_on_a_hidden_case(seed):
     assert rel_err(given, truth) > 0.02
     r = Identifier(R_m=given, random_state=0).fit(rec).result_
     assert rel_err(r.parameters['R_m'].value, truth) < 0.01
-    assert r.resistance['note'] != 'consistent with the given value'
+    assert r.resistance.note != 'consistent with the given value'
 
 
 def ode_recording(params, noise, seed):
@@ -290,8 +289,8 @@ def test_fixed_r_m_stays_as_given():
     rec = paper_recording(params=WARM, speed_noise=0.01, current_noise=0.01, seed=11)
     r = Identifier(R_m=5.0, fixed={'R_m': 2.41}, random_state=0).fit(rec).result_
     assert r.parameters['R_m'].assumed and r.parameters['R_m'].value == 2.41
-    assert r.resistance['estimated'] is False and 'fixed' in r.resistance['note']
-    assert r.identifiability['n_free'] == 4
+    assert r.resistance.estimated is False and 'fixed' in r.resistance.note
+    assert r.identifiability.n_free == 4
     assert set(r.r_m_sensitivity) == {'J', 'K_T', 'K_b', 'B', 'L_m'}
 
 
@@ -301,7 +300,7 @@ def test_r_m_sensitivity_without_current_predicts_a_refit():
     kw = dict(tie=True, fixed={'J': 0.052}, random_state=0)
     a = Identifier(R_m=2.3, **kw).fit(rec).result_
     b = Identifier(R_m=2.3 * 1.01, **kw).fit(rec).result_
-    assert a.resistance['estimated'] is False and 'no current' in a.resistance['note']
+    assert a.resistance.estimated is False and 'no current' in a.resistance.note
     sens = a.to_dict()['r_m_sensitivity']
     assert set(sens) == {'K_T', 'K_b', 'B', 'L_m'}
     for name in ('K_T', 'B', 'L_m'):
@@ -317,12 +316,12 @@ def test_r_m_tolerance_sets_the_prior_width():
         Identifier(R_m=2.3, R_m_tolerance=0).fit(rec)
     loose = Identifier(R_m=2.3, R_m_tolerance=0.1, random_state=0).fit(rec).result_
     assert loose.to_dict()['assumptions']['R_m_prior']['std'] == pytest.approx(0.23)
-    assert loose.resistance['estimated']
+    assert loose.resistance.estimated
     # a prior 1e-4 wide carries more than the data: the given value is used, and said
     tight = Identifier(R_m=2.3, R_m_tolerance=1e-4, random_state=0).fit(rec).result_
     assert tight.parameters['R_m'].value == pytest.approx(2.3, rel=1e-12)
-    assert not tight.resistance['estimated']
-    assert 'the data do not determine R_m' in tight.resistance['note']
+    assert not tight.resistance.estimated
+    assert 'the data do not determine R_m' in tight.resistance.note
     assert any('do not determine R_m' in w for w in tight.warnings)
 
 
@@ -374,14 +373,14 @@ def test_extreme_units_are_rescaled_and_fit_the_same(factor):
     big = Recording(rec.time, rec.input * factor, rec.speed * factor,
                     rec.current * factor, 'voltage', {})
     r = Identifier(R_m=2.3, random_state=0).fit(big).result_
-    assert r.units is not None and r.units['exponents']['speed'] != 0
+    assert r.units is not None and r.units.exponents['speed'] != 0
     for name in FIVE + ('R_m',):
         assert r.parameters[name].value == pytest.approx(base.parameters[name].value,
                                                          rel=1e-6), name
         assert r.parameters[name].std == pytest.approx(base.parameters[name].std, rel=1e-4)
-    assert r.fit['channels']['speed']['rms'] == pytest.approx(
-        factor * base.fit['channels']['speed']['rms'], rel=1e-6)
-    assert np.isfinite(r.fit['channels']['speed']['fit_percent'])
+    assert r.fit.channels['speed'].rms == pytest.approx(
+        factor * base.fit.channels['speed'].rms, rel=1e-6)
+    assert np.isfinite(r.fit.channels['speed'].fit_percent)
 
 
 @pytest.mark.parametrize('factor', [1e9, 1e-5])
@@ -392,7 +391,7 @@ def test_time_in_extreme_units_scales_j_and_l(factor):
     base = Identifier(R_m=2.3, random_state=0).fit(rec).result_
     ns = Recording(rec.time * factor, rec.input, rec.speed, rec.current, 'voltage', {})
     r = Identifier(R_m=2.3, random_state=0).fit(ns).result_
-    assert r.units['exponents']['time'] != 0
+    assert r.units.exponents['time'] != 0
     for name in FIVE + ('R_m',):
         scale = factor if name in ('J', 'L_m') else 1.0
         assert r.parameters[name].value == pytest.approx(
@@ -453,7 +452,7 @@ def test_a_hobby_motor_below_the_default_box_is_fitted_in_a_widened_box():
         assert d[name]['at_bound'] is False, name
         assert d[name]['value'] == pytest.approx(truth, rel=0.05), name
     assert 'searched again in' in est.result_.summary()
-    assert est.result_.fit['widened']['J'][0] == pytest.approx(1e-9)
+    assert est.result_.fit.widened['J'][0] == pytest.approx(1e-9)
     fixed_box = Identifier(R_m=7.0, random_state=0, bounds={'J': (1e-6, 10.0)}).fit(rec)
     assert 'J' not in fixed_box.widened_  # a range the caller gave is never widened
     assert fixed_box.result_.to_dict()['parameters']['J']['at_bound'] is True
@@ -514,8 +513,8 @@ def test_error_bars_are_gauss_newton_on_clean_data_and_the_sandwich_on_a_misfit(
     correlated residuals and the larger of the two."""
     clean = paper_recording(params=SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=3)
     r = Identifier(R_m=2.3, random_state=0).fit(clean).result_
-    assert r.identifiability['error_bars'].startswith('Gauss-Newton')
+    assert r.identifiability.error_bars.startswith('Gauss-Newton')
     misfit = paper_recording(params=SI_MOTOR, speed_noise=0.005, current_noise=0.01, seed=3,
                              effects={'coulomb_friction': {'T_c': 0.05}})
     m = Identifier(R_m=2.3, random_state=0).fit(misfit).result_
-    assert 'sandwich' in m.identifiability['error_bars']
+    assert 'sandwich' in m.identifiability.error_bars

@@ -135,8 +135,8 @@ def test_an_inductance_below_the_sample_period_is_a_bound_not_a_value():
     res = _fit(_fast_electrical_case('real'), R_m=8.0)
     L = res.parameters['L_m']
     assert not L.determined and L.value is None
-    assert L.bound['upper'] < 8.0 * 0.02      # below R T: the time constant is < T
-    assert L.bound['upper'] > 8e-4 * 0.5      # and it does not exclude the truth
+    assert L.bound.upper < 8.0 * 0.02      # below R T: the time constant is < T
+    assert L.bound.upper > 8e-4 * 0.5      # and it does not exclude the truth
     assert 'electrical time constant' in L.reason
     assert res.parameters['J'].determined     # the mechanics are still determined
 
@@ -146,7 +146,7 @@ def test_a_current_the_model_cannot_explain_carries_no_resistance():
     fits = {r: _fit(rec, R_m=r) for r in (3.0, 30.0)}
     for r, res in fits.items():
         assert res.channels == ('speed',)
-        assert not res.resistance['estimated']
+        assert not res.resistance.estimated
         assert res.parameters['R_m'].value == pytest.approx(r)
         assert any('current' in w and 'R_m' in w for w in res.warnings)
 
@@ -165,7 +165,7 @@ def test_the_seed_moves_no_estimate_beyond_its_error_bar():
 def test_the_initial_speed_stays_within_the_noise_of_the_first_sample(motor):
     rec = _dunker(ID_FILE, motor)            # the robot starts at rest
     res = _fit(rec, effects={'coulomb_friction': {}}, free_effects=['coulomb_friction.T_c'])
-    x0 = res.fit['initial_state']['x0:speed']
+    x0 = res.fit.initial_state['x0:speed']
     assert abs(x0 - rec.speed[0]) <= initial_tolerance(rec.speed) * (1 + 1e-9)
 
 
@@ -283,7 +283,7 @@ def test_two_recordings_fit_together_with_an_initial_state_each():
     joint = Recording.concatenate([a, b])
     assert joint.segment_ranges == [(0, len(a)), (len(a), len(a) + len(b))]
     res = _fit(joint)
-    assert set(res.fit['initial_state']) == {'x0[0]:speed', 'x0[1]:speed'}
+    assert set(res.fit.initial_state) == {'x0[0]:speed', 'x0[1]:speed'}
     alone = [_fit(r) for r in (a, b)]
     for p in ('J', 'B'):
         lo = min(f.parameters[p].value for f in alone)
@@ -303,7 +303,7 @@ def test_a_huge_relative_std_gives_a_finite_interval():
     warnings = practical(params, 0.01, {'speed': 0.01}, None)
     b = params['B']
     assert not b.determined and b.value is None and warnings
-    lo, hi = b.bound['interval']
+    lo, hi = b.bound.interval
     assert 0 < lo < 2e-6 < hi and math.isfinite(hi)
 
 

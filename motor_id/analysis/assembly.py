@@ -61,7 +61,7 @@ def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
         idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)
     diag, points = _diagnostics(ctx, full_base, full, chosen, base)
     bres = full_base.result_
-    baseline = {'parameters': bres.to_dict()['parameters'], 'fit': bres.fit,
+    baseline = {'parameters': bres.to_dict()['parameters'], 'fit': bres.fit.to_dict(),
                 'heldout_error': base.heldout_error}
     split = ctx.split
     plot_data = {'time': rec.time, 'channels': split.channels, 'ys': split.ys,
@@ -87,7 +87,8 @@ def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None,
     chosen_d: dict[str, Any] = {
         'name': dyn, 'estimator': 'output error (simulation)',
         'effects': dict(chosen.effects),   # the base's: a mechanism's gravity, or none
-        'fit': full.result_.fit if (full is not None and chosen is not base) else None}
+        'fit': full.result_.fit.to_dict() if (full is not None and chosen is not base)
+        else None}
     if full is not None and (chosen is not base or base.effects):
         chosen_d['effects'] = {e: {p: (v['value'] if isinstance(v, dict) else v)
                                    for p, v in vals.items()}

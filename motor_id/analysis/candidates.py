@@ -207,7 +207,7 @@ class CandidateFitter:
                                               'determined': True, 'grid': True}
         s = ModelScore(name=name, effects=eff, parameters=params, heldout_error=e_te,
                        train_error=e_tr, n_extra=n_extra, physical=dict(est.params_),
-                       x0=dict(res.fit.get('initial_state', {})),
+                       x0=dict(res.fit.initial_state),
                        prediction={'preds': preds, 'sub': sub},
                        seconds=time.perf_counter() - t0)
         s.at_bound = self._at_bound(est, eff)

@@ -5,13 +5,22 @@ fitted problem."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.identify import determinacy, uncertainty
 from motor_id.identify.problem import IdentificationProblem
-from motor_id.identify.result import Estimate
+from motor_id.identify.result import (
+    Assumptions,
+    Estimate,
+    FitQuality,
+    GaSummary,
+    ParameterCovariance,
+    Prior,
+    Resistance,
+)
 from motor_id.identify.space import SPEED_ONLY_R_M, TORQUE_FREE
 from motor_id.metrics import channel_metrics
 from motor_id.model import PARAM_NAMES
@@ -62,31 +71,33 @@ def effects_block(problem: IdentificationProblem, x_best: np.ndarray, std_z: np.
 def fit_block(rec: Recording, problem: IdentificationProblem, x_best: np.ndarray,
                sigma: Sequence[float],
                pred: np.ndarray, names: list[str], state_names: list[str]
-               ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+               ) -> tuple[FitQuality, dict[str, np.ndarray]]:
     """Per-channel fit metrics (in the data's units) and the predictions."""
     un = problem.units
-    fit: dict[str, Any] = {'channels': {}, 'noise_std': {}}
+    channels, noise_std = {}, {}
     prediction: dict[str, np.ndarray] = {'time': rec.time, 'input': rec.input}
     i = 0
     for ch, n, sg in zip(problem.channels, problem.n_per, sigma, strict=True):
         m = channel_metrics(problem.y[i:i + n], pred[i:i + n], problem.input)
-        m['rms'] = float(un.physical_signal(m['rms'], ch))
-        fit['channels'][ch] = m
-        fit['noise_std'][ch] = float(un.physical_signal(sg, ch))
+        channels[ch] = replace(m, rms=float(un.physical_signal(m.rms, ch)))
+        noise_std[ch] = float(un.physical_signal(sg, ch))
         prediction[ch] = un.physical_signal(pred[i:i + n], ch)
         prediction[ch + '_measured'] = getattr(rec, ch)
         i += n
-    fit['cost'] = float(np.mean(((pred - problem.y) * problem.weights) ** 2))
-    fit['initial_state'] = {n: float(un.physical_signal(x_best[names.index(n)],
-                                                        n.split(':')[1]))
-                            for n in state_names}
+    fit = FitQuality(
+        channels=channels, noise_std=noise_std,
+        cost=float(np.mean(((pred - problem.y) * problem.weights) ** 2)),
+        initial_state={n: float(un.physical_signal(x_best[names.index(n)], n.split(':')[1]))
+                       for n in state_names})
     return fit, prediction
 
 
-def prior_verdict(problem: IdentificationProblem, z_best: np.ndarray) -> dict[str, Any]:
-    """What R_m's prior does to the identifiability verdict (empty without a prior)."""
+def prior_verdict(problem: IdentificationProblem, z_best: np.ndarray
+                  ) -> tuple[str | None, bool | None]:
+    """What R_m's prior does to the identifiability verdict: ``(prior, by_data)``, the
+    ``prior`` and ``r_m_determined_by_data`` of the verdict (None, None without a prior)."""
     if problem.r_m_prior is None:
-        return {}
+        return None, None
     j = problem.r_m_prior[0]
     by_data = bool(uncertainty.structural(problem, z_best, prior=False)[3][j])
     given, tol = problem.R_m_given, problem.R_m_tolerance
@@ -94,11 +105,11 @@ def prior_verdict(problem: IdentificationProblem, z_best: np.ndarray) -> dict[st
             '(one extra residual); ' +
             ('the data alone determine it (steady states V = R_m i + K_b w)' if by_data
              else 'the data alone do not determine it: the prior does'))
-    return {'prior': text, 'r_m_determined_by_data': by_data}
+    return text, by_data
 
 
 def covariance_block(problem: IdentificationProblem, params: dict[str, Estimate],
-                      names: list[str], cov: np.ndarray) -> dict[str, Any] | None:
+                      names: list[str], cov: np.ndarray) -> ParameterCovariance | None:
     """``parameter_covariance`` over the determined estimated plant parameters (SI)."""
     index: dict[str, int] = {}
     values: dict[str, float] = {}
@@ -122,21 +133,22 @@ def sensitivity_block(problem: IdentificationProblem, params: dict[str, Estimate
     return out
 
 
-def assumptions_block(problem: IdentificationProblem) -> dict[str, Any]:
+def assumptions_block(problem: IdentificationProblem) -> Assumptions:
     """``assumptions``: what the fit took as given (R_m, its prior, K_T = K_b, fixed values,
     the discretisation), SI."""
     fixed = {k: problem.units.to_physical(k, v) for k, v in problem.fixed.items()}
-    return {'R_m': fixed.get('R_m'), 'R_m_given': problem.R_m_given,
-            'R_m_prior': None if problem.r_m_prior is None else {
-                'mean': problem.R_m_given,
-                'std': problem.R_m_tolerance * cast(float, problem.R_m_given)},
-            'K_T_eq_K_b': bool(problem.tie),
-            'fixed': {k: v for k, v in fixed.items() if k != 'R_m'},
-            'discretisation': problem.discretisation}
+    return Assumptions(
+        R_m=fixed.get('R_m'), R_m_given=problem.R_m_given,
+        R_m_prior=None if problem.r_m_prior is None else Prior(
+            mean=problem.R_m_given,
+            std=problem.R_m_tolerance * cast(float, problem.R_m_given)),
+        K_T_eq_K_b=bool(problem.tie),
+        fixed={k: v for k, v in fixed.items() if k != 'R_m'},
+        discretisation=problem.discretisation)
 
 
 def resistance_block(problem: IdentificationProblem, params: dict[str, Estimate],
-                     fixed_by_caller: bool) -> dict[str, Any]:
+                     fixed_by_caller: bool) -> Resistance:
     """``resistance`` of a voltage plant: the given R_m, the estimate and what it says
     (``fixed_by_caller``: R_m was among the caller's fixed values)."""
     given = cast(float, problem.R_m_given)  # a voltage plant's
@@ -148,13 +160,13 @@ def resistance_block(problem: IdentificationProblem, params: dict[str, Estimate]
                   'r_m_sensitivity for what an error in it does'
         else:
             why = 'the paper method holds R_m fixed'
-        return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
-                'estimated': False, 'note': why}
+        return Resistance(given=given, estimate=given, std=None, relative_change=0.0,
+                          estimated=False, note=why)
     e = params['R_m']
     if e.value is None:
-        return {'given': given, 'estimate': given, 'std': None, 'relative_change': 0.0,
-                'estimated': False, 'note': e.reason or 'not determined',
-                'prior_std': problem.R_m_tolerance * given}
+        return Resistance(given=given, estimate=given, std=None, relative_change=0.0,
+                          estimated=False, note=e.reason or 'not determined',
+                          prior_std=problem.R_m_tolerance * given)
     rel = e.value / given - 1.0
     prior_std = problem.R_m_tolerance
     if e.std is None or e.std > 0.5 * prior_std * given:
@@ -167,9 +179,8 @@ def resistance_block(problem: IdentificationProblem, params: dict[str, Estimate]
         note = 'below the given value: a cold motor, or a wrong --resistance?'
     if e.at_bound:
         note += '; at its search bound'
-    return {'given': given, 'estimate': e.value, 'std': e.std, 'relative_change': rel,
-            'estimated': True, 'note': note,
-            'prior_std': prior_std * given}
+    return Resistance(given=given, estimate=e.value, std=e.std, relative_change=rel,
+                      estimated=True, note=note, prior_std=prior_std * given)
 
 
 def unseen_resistance(result: IdentificationResult, given: float | None) -> None:
@@ -179,26 +190,23 @@ def unseen_resistance(result: IdentificationResult, given: float | None) -> None
             f'speed transfer function, which are the same at any R_m; fitted at an '
             f'internal {SPEED_ONLY_R_M:g} Ohm')
     result.parameters['R_m'] = Estimate(particular_value=SPEED_ONLY_R_M, reason=note)
-    result.resistance = {'given': given, 'estimate': None, 'std': None,
-                         'relative_change': None, 'estimated': False, 'enters': False,
-                         'internal': SPEED_ONLY_R_M,
-                         'note': note + ('' if given is None else
-                                         f'; the given {given:g} Ohm is not used')}
+    result.resistance = Resistance(
+        given=given, estimate=None, std=None, relative_change=None, estimated=False,
+        enters=False, internal=SPEED_ONLY_R_M,
+        note=note + ('' if given is None else f'; the given {given:g} Ohm is not used'))
     result.r_m_sensitivity = None
 
 
 def ga_block(problem: IdentificationProblem, ga: GeneticAlgorithm | None,
-             ga_seconds: float) -> dict[str, Any]:
+             ga_seconds: float) -> GaSummary:
     """``ga``: the GA's settings, stop reason and history (best parameters SI)."""
     if ga is None:
-        return {'generations': 0, 'evaluations': 0, 'seconds': ga_seconds,
-                'history': []}
-    history = [h.to_dict() for h in ga.history_]
+        return GaSummary(generations=0, evaluations=0, seconds=ga_seconds)
+    history = list(ga.history_)
     if problem.units.rescaled:
-        for h in history:
-            h['best'] = {k: problem.units.to_physical(k, v) for k, v in h['best'].items()}
-    return {'generations': ga.generation_, 'evaluations': ga.evaluations_,
-            'seconds': ga_seconds, 'best_cost': ga.best_cost_,
-            'stop': {k: v for k, v in ga.stop().items()},
-            'population': ga.population, 'crossover': ga.crossover,
-            'mutation': ga.mutation, 'history': history}
+        history = [replace(h, best={k: problem.units.to_physical(k, v)
+                                    for k, v in h.best.items()}) for h in history]
+    return GaSummary(generations=ga.generation_, evaluations=ga.evaluations_,
+                     seconds=ga_seconds, best_cost=ga.best_cost_, stop=dict(ga.stop()),
+                     population=ga.population, crossover=ga.crossover,
+                     mutation=ga.mutation, history=history)

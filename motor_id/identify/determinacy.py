@@ -11,11 +11,12 @@ bound where the data give one), and into the report's ``adequate`` flag and warn
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 import math
-from typing import Any
 
 import numpy as np
 
+from motor_id.identify.result import Bound, Estimate
 from motor_id.metrics import noise_floor
 
 MAX_RELATIVE_STD = 0.5
@@ -74,7 +75,7 @@ def inductance_bound(L_m: float, R_m: float, period: float, noise: float) -> flo
     return limit if L_m < limit else None
 
 
-def mark_undetermined(est: Any, reason: str, bound: dict[str, Any] | None = None) -> None:
+def mark_undetermined(est: Estimate, reason: str, bound: Bound | None = None) -> None:
     """Turn an :class:`~motor_id.identify.result.Estimate` into "not determined"."""
     if est.value is not None:
         est.particular_value = est.value
@@ -86,8 +87,8 @@ def mark_undetermined(est: Any, reason: str, bound: dict[str, Any] | None = None
         est.bound = bound
 
 
-def practical(params: dict[str, Any], period: float, noise: dict[str, Any], R_m: float | None
-              ) -> list[str]:
+def practical(params: Mapping[str, Estimate], period: float, noise: Mapping[str, float],
+              R_m: float | None) -> list[str]:
     """Mark parameters the record does not determine in practice; return warnings.
 
     Parameters
@@ -103,14 +104,14 @@ def practical(params: dict[str, Any], period: float, noise: dict[str, Any], R_m:
     """
     warnings = []
     L = params.get('L_m')
-    if L is not None and L.determined and not L.assumed and R_m:
+    if L is not None and L.value is not None and L.determined and not L.assumed and R_m:
         ch = 'current' if 'current' in noise else 'speed'
         upper = inductance_bound(L.value, R_m, period, noise[ch])
         if upper is not None:
             text = (f'L_m < {upper:.3g} H: the electrical time constant '
                     f'({L.value / R_m:.2g} s) is below the sample period ({period:.3g} s); '
                     f'its transient is gone within one sample')
-            mark_undetermined(L, text, {'upper': upper})
+            mark_undetermined(L, text, Bound(upper=upper))
             warnings.append(text)
     for name, e in params.items():
         if not e.determined or e.assumed or e.value is None or e.std is None:
@@ -122,7 +123,7 @@ def practical(params: dict[str, Any], period: float, noise: dict[str, Any], R_m:
             hi = e.value * math.exp(spread) if e.value > 0 else e.value + 2 * e.std
             text = (f'{name} is not determined by this record: its relative error bar is '
                     f'{100 * rel:.0f} % (data allow about {lo:.3g} .. {hi:.3g})')
-            mark_undetermined(e, text, {'interval': [lo, hi]})
+            mark_undetermined(e, text, Bound(interval=(lo, hi)))
             warnings.append(text)
     return warnings
 
@@ -130,7 +131,7 @@ def practical(params: dict[str, Any], period: float, noise: dict[str, Any], R_m:
 HINT = 'look for what the record contains that the model lacks (motor-id analyze)'
 
 
-def adequacy(fit_percent: dict[str, Any], primary: str = 'speed',
+def adequacy(fit_percent: Mapping[str, float | None], primary: str = 'speed',
              hint: str = HINT) -> tuple[bool, list[str]]:
     """``(adequate, warnings)`` from the fit % of each channel.
 

@@ -4,13 +4,20 @@ identifiability, the determinacy verdicts and warnings, and the bootstrap interv
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.identify import blocks, determinacy, uncertainty
 from motor_id.identify.problem import IdentificationProblem
-from motor_id.identify.result import Estimate, IdentificationResult
+from motor_id.identify.result import (
+    Estimate,
+    GaSummary,
+    Identifiability,
+    IdentificationResult,
+    Refinement,
+)
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -60,7 +67,7 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
     # that the report never calls residuals white in one place and correlated in another
     n_data = sum(problem.n_per)
     white = uncertainty.residuals_white(r_w[:n_data], problem.n_per, w[:n_data]) and \
-        all(m.get('white', True) for m in fit['channels'].values())
+        all(m.white for m in fit.channels.values())
     cov = uncertainty.combine(cov_gn, cov_rob, white)
     lg = problem.log_mask(len(names))
     std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
@@ -68,20 +75,21 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
     bound[:problem.bounds.dim] = uncertainty.at_bound(problem, z_best)
     params = blocks.estimates(problem, names, x_best, std_z, lg, determined, bound)
     undetermined, _ = uncertainty.undetermined_directions(names, Vn, determined, lg)
-    idf = {'rank': rank - len(state_names), 'n_free': len(names) - len(state_names),
-           'free': names[:len(names) - len(state_names)], 'nuisance': state_names,
-           'condition': cond,
-           'basis': 'transfer-function coefficients (structural); covariance from '
-                    'output sensitivities on the identifiable subspace',
-           'fully_determined': rank == len(names),
-           'tie_K_T_eq_K_b': bool(problem.tie), 'channels': list(problem.channels),
-           'error_bars': 'Gauss-Newton (the residuals are white)' if white else
-                         'the larger of Gauss-Newton and block sandwich (the residuals are '
-                         'correlated)'}
-    idf.update(blocks.prior_verdict(problem, z_best))
+    prior, by_data = blocks.prior_verdict(problem, z_best)
+    idf = Identifiability(
+        rank=rank - len(state_names), n_free=len(names) - len(state_names),
+        free=names[:len(names) - len(state_names)], nuisance=state_names, condition=cond,
+        basis='transfer-function coefficients (structural); covariance from output '
+              'sensitivities on the identifiable subspace',
+        fully_determined=rank == len(names), tie_K_T_eq_K_b=bool(problem.tie),
+        channels=list(problem.channels),
+        error_bars='Gauss-Newton (the residuals are white)' if white else
+                   'the larger of Gauss-Newton and block sandwich (the residuals are '
+                   'correlated)',
+        prior=prior, r_m_determined_by_data=by_data)
     warnings = _honesty(rec, problem, params)
     adequate, why = determinacy.adequacy(
-        {ch: m['fit_percent'] for ch, m in fit['channels'].items()})
+        {ch: m.fit_percent for ch, m in fit.channels.items()})
     if not adequate:
         for e in params.values():
             if not e.assumed and e.determined:
@@ -91,12 +99,13 @@ def build_result(rec: Recording, problem: IdentificationProblem, x_best: np.ndar
         method=problem.method, input_kind=problem.kind, channels=problem.channels,
         parameters=params,
         identifiable_combinations=uncertainty.combinations(problem, z_best, cov),
-        undetermined_directions=undetermined, identifiability=idf, fit=fit, ga={},
-        refinement={}, assumptions=blocks.assumptions_block(problem),
+        undetermined_directions=undetermined, identifiability=idf, fit=fit,
+        ga=GaSummary(generations=0, evaluations=0, seconds=0.0), refinement=Refinement(),
+        assumptions=blocks.assumptions_block(problem),
         effects=blocks.effects_block(problem, x_best, std_z, determined, bound),
         prediction=prediction, parameter_covariance=blocks.covariance_block(
             problem, params, names, cov),
-        units=problem.units.to_dict())
+        units=problem.units.rescaling())
     if problem.kind == 'voltage':
         result.resistance = blocks.resistance_block(problem, params, r_m_fixed_by_caller)
         if problem.r_m_prior is None:
@@ -130,4 +139,4 @@ def bootstrap_intervals(problem: IdentificationProblem, result: IdentificationRe
             lo, hi = np.percentile(col, 2.5), np.percentile(col, 97.5)
             e.ci95 = (problem.units.to_physical(src, float(lo)),
                       problem.units.to_physical(src, float(hi)))
-    result.refinement['bootstrap'] = int(n)
+    result.refinement = replace(result.refinement, bootstrap=int(n))

@@ -7,6 +7,7 @@ in a widened box, a settling refit); the search itself is :mod:`.optimize`, the 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
+from dataclasses import replace
 import math
 import time
 from typing import Any, TYPE_CHECKING
@@ -18,6 +19,7 @@ from motor_id.errors import IdentificationError, MotorIdError
 from motor_id.identify import blocks, determinacy, estimates, optimize, uncertainty
 from motor_id.identify.optimize import Progress
 from motor_id.identify.problem import IdentificationProblem
+from motor_id.identify.result import ValueStd
 from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.model import PARAM_NAMES
 
@@ -206,12 +208,12 @@ class Identifier:
                 return
             again = self._variant(bounds={**(self.bounds or {}), **self.widened_, **sides})
             again._fit(rec, progress, sample_weight)
-            if not again.result_.fit['cost'] <= self.result_.fit['cost']:
+            if not again.result_.fit.cost <= self.result_.fit.cost:
                 return
             self._adopt(again, 'history_')
             self.widened_.update(sides)
-            self.result_.fit['widened'] = {k: [float(lo), float(hi)]
-                                           for k, (lo, hi) in self.widened_.items()}
+            self.result_.fit = replace(self.result_.fit, widened={
+                k: (float(lo), float(hi)) for k, (lo, hi) in self.widened_.items()})
 
     def _settle(self, rec: Recording, progress: Progress | None,
                 sample_weight: ArrayLike | None) -> None:
@@ -226,27 +228,28 @@ class Identifier:
         res = self.result_
         notes: list[str] = []
         channels, fixed = self.channels, dict(self.fixed or {})
-        cur = res.fit['channels'].get('current')
+        cur = res.fit.channels.get('current')
         if cur is not None and self.channels is None and rec.current is not None:
             levels = determinacy.channel_levels(rec.current)
             why: str | None
             if levels < determinacy.MIN_LEVELS:
                 why = f'the current takes only {levels} distinct values'
-            elif not cur['fit_percent'] >= determinacy.CHANNEL_FIT:
-                why = f'the model explains {cur["fit_percent"]:.1f} % of the current'
+            elif not cur.fit_percent >= determinacy.CHANNEL_FIT:
+                why = f'the model explains {cur.fit_percent:.1f} % of the current'
             else:
                 why = None
             if why:
                 channels = ('speed',)
                 notes.append(f'{why}: it cannot carry R_m or L_m; fitted on the speed '
                              'alone with R_m at the given value')
-        r = res.resistance or {}
-        if channels is self.channels and r.get('estimated') and (
-                r.get('std') is None or r['std'] > PRIOR_DOMINATES * r['prior_std']
-                or not res.identifiability.get('r_m_determined_by_data', True)):
-            fixed['R_m'] = r['given']
+        r = res.resistance
+        if channels is self.channels and r is not None and r.estimated and (
+                r.std is None or r.prior_std is None or r.std > PRIOR_DOMINATES * r.prior_std
+                or res.identifiability.r_m_determined_by_data is False) and \
+                r.given is not None:
+            fixed['R_m'] = r.given
             notes.append(f'the data do not determine R_m; the given value '
-                         f'{r["given"]:.4g} Ohm is used')
+                         f'{r.given:.4g} Ohm is used')
         if not notes:
             return
         start = {k: v for k, v in self.params_.items() if v is not None}
@@ -256,9 +259,8 @@ class Identifier:
         res2 = again.result_
         res2.ga, res2.warnings = res.ga, notes + res2.warnings
         if res2.resistance is not None and 'R_m' in fixed and 'R_m' not in (self.fixed or {}):
-            res2.resistance['note'] = notes[-1]
-            res2.resistance['data_estimate'] = {'value': r.get('estimate'),
-                                                'std': r.get('std')}
+            res2.resistance = replace(res2.resistance, note=notes[-1], data_estimate=ValueStd(
+                value=None if r is None else r.estimate, std=None if r is None else r.std))
         self._adopt(again)
 
     def _variant(self, **changes: Any) -> Identifier:

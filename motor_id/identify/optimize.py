@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 import time
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
@@ -13,6 +13,7 @@ from motor_id.errors import ConfigError, IdentificationError
 from motor_id.ga import GeneticAlgorithm
 from motor_id.identify import uncertainty
 from motor_id.identify.problem import IdentificationProblem
+from motor_id.identify.result import Refinement
 
 Progress = Callable[[int, int, float], object]
 """``progress(generation, generations, best_cost)``; returning True cancels the GA."""
@@ -59,19 +60,19 @@ def run_ga(problem: IdentificationProblem, rng: np.random.Generator,
 
 def refine(problem: IdentificationProblem, ga: GeneticAlgorithm | None, best: np.ndarray, *,
            method: str, refine_starts: int, reweight: int, max_nfev: int
-           ) -> tuple[np.ndarray, dict[str, Any]]:
+           ) -> tuple[np.ndarray, Refinement]:
     """Least squares from the GA's best individuals (not for ``paper``).
 
     Returns
     -------
     z_best : ndarray
         The best search vector; with the initial state unless ``method`` is ``paper``.
-    info : dict
+    info : Refinement
         The result's ``refinement`` block.
     """
     z_best = problem.to_z(best)
     if method == 'paper':
-        return z_best, {'used': False}
+        return z_best, Refinement(used=False)
     # the refinement also estimates the initial state (nuisance parameters):
     # starting from a noisy first sample would bias the fit
     z_best = np.concatenate([z_best, problem.x0])
@@ -97,5 +98,5 @@ def refine(problem: IdentificationProblem, ga: GeneticAlgorithm | None, best: np
         z_best = sol.x
         if prev - 2 * sol.cost <= 1e-9 * prev:
             break
-    return z_best, {'used': True, 'starts': len(starts), 'nfev': int(sol.nfev),
-                    'status': int(sol.status), 'message': str(sol.message)}
+    return z_best, Refinement(used=True, starts=len(starts), nfev=int(sol.nfev),
+                              status=int(sol.status), message=str(sol.message))

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 import math
-from typing import Any, cast, TYPE_CHECKING
+from typing import cast, TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.effects import role_keys, role_value
+from motor_id.identify.result import Combination, ParameterCovariance, UndeterminedDirection
 from motor_id.metrics import correlation
 
 if TYPE_CHECKING:
@@ -245,12 +246,12 @@ def combine(cov_gn: np.ndarray, cov_rob: np.ndarray, white: bool = False) -> np.
 
 def undetermined_directions(names: Sequence[str], Vn: np.ndarray, determined: np.ndarray,
                             log_mask: np.ndarray
-                            ) -> tuple[list[dict[str, Any]], tuple[list[str], list[str]]]:
+                            ) -> tuple[list[UndeterminedDirection], tuple[list[str], list[str]]]:
     """The unseen directions with one free "pivot" parameter each (QR column pivoting).
 
     Returns
     -------
-    directions : list of dict
+    directions : list of UndeterminedDirection
     choice : (list, list)
         The pivot names and the other undetermined names.
     """
@@ -263,13 +264,13 @@ def undetermined_directions(names: Sequence[str], Vn: np.ndarray, determined: np
     basis = Vn @ np.linalg.inv(Vn[piv])
     pivots = [names[j] for j in piv]
     others = [n for j, n in enumerate(names) if j not in piv and not determined[j]]
-    out: list[dict[str, Any]] = []
+    out: list[UndeterminedDirection] = []
     for k, v in enumerate(basis.T):
         comp = {names[j]: round(float(c), 4) for j, c in enumerate(v) if abs(c) > 1e-6}
         desc = ' '.join(f'{n}^{c:+.3g}' if log_mask[names.index(n)] else f'{n}{c:+.3g}'
                         for n, c in comp.items() if abs(c) >= 1e-3)
-        out.append({'free': pivots[k], 'exponents': comp,
-                    'description': f'multiply {desc} by any common factor'})
+        out.append(UndeterminedDirection(free=pivots[k], exponents=comp,
+                                         description=f'multiply {desc} by any common factor'))
     return out, (pivots, others)
 
 
@@ -355,7 +356,7 @@ def delta_method(fn: Callable[[np.ndarray], Mapping[str, float]], z: np.ndarray,
 
 
 def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.ndarray
-                 ) -> list[dict[str, Any]]:
+                 ) -> list[Combination]:
     """The transfer-function coefficients (SI), with delta-method standard errors; for a
     voltage plant fitted on speed alone also SysId's kV and kA (:func:`feedforward`) and,
     with a static-friction effect, kS (:func:`feedforward_of`)."""
@@ -377,8 +378,8 @@ def combinations(problem: IdentificationProblem, z_best: np.ndarray, cov: np.nda
         return out
 
     base, std = delta_method(values, z_best, cov, len(problem.free))
-    return [{'name': key, 'value': float(val), 'std': max(std[key], 1e-6 * abs(float(val))),
-             'determined': True} for key, val in base.items()]
+    return [Combination(name=key, value=float(val),
+                        std=max(std[key], 1e-6 * abs(float(val)))) for key, val in base.items()]
 
 
 def _effects_at(problem: IdentificationProblem, z: np.ndarray) -> dict[str, dict[str, float]]:
@@ -422,7 +423,7 @@ def r_m_sensitivity(problem: IdentificationProblem, z: np.ndarray, weights: np.n
 
 
 def parameter_covariance(names: Sequence[str], values: Mapping[str, float], cov: np.ndarray,
-                         index: Mapping[str, int]) -> dict[str, Any] | None:
+                         index: Mapping[str, int]) -> ParameterCovariance | None:
     """Covariance of the determined estimated physical parameters in linear SI units.
 
     Parameters
@@ -441,7 +442,7 @@ def parameter_covariance(names: Sequence[str], values: Mapping[str, float], cov:
     idx = [index[n] for n in names]
     scale = np.array([values[n] for n in names])
     m = cov[np.ix_(idx, idx)] * np.outer(scale, scale)
-    return {'names': list(names), 'matrix': m.tolist()}
+    return ParameterCovariance(names=list(names), matrix=m.tolist())
 
 
 def bootstrap(problem: IdentificationProblem, z_best: np.ndarray, weights: np.ndarray, n_boot: int,

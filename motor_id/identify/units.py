@@ -11,12 +11,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 import math
-from typing import Any, overload, TYPE_CHECKING
+from typing import overload, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.errors import DataError, IdentificationError
+from motor_id.identify.result import Rescaling
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -140,10 +141,10 @@ class InternalUnits:
         out: np.ndarray = np.ldexp(np.asarray(x, dtype=float), self.exponents[quantity])
         return out
 
-    def to_dict(self) -> dict[str, Any] | None:
-        """JSON block, or None when nothing was rescaled."""
+    def rescaling(self) -> Rescaling | None:
+        """The result's ``units`` block, or None when nothing was rescaled."""
         if not self.rescaled:
             return None
-        return {'note': 'the data were rescaled internally by powers of two (extreme '
-                        "units); every reported number is in the data's own units",
-                'exponents': dict(self.exponents)}
+        return Rescaling(note='the data were rescaled internally by powers of two (extreme '
+                              "units); every reported number is in the data's own units",
+                         exponents=dict(self.exponents))
