@@ -92,8 +92,8 @@ SPREAD_BLOCKS = (3, 4, 6, 9, 12)
 
 def inverse_dynamics_model(rec: Recording) -> SavedModel:
     """The reference model's structure fitted by inverse dynamics on ``rec`` alone."""
-    p = {k: v['value'] for k, v in inverse_dynamics(
-        rec, ('coulomb_friction', 'load_torque'))['parameters'].items()}
+    p = {k: v.value for k, v in inverse_dynamics(
+        rec, ('coulomb_friction', 'load_torque')).parameters.items()}
     return SavedModel('torque', {'J': p['J'], 'B': p['B']},
                       {'coulomb_friction': {'T_c': p['coulomb_friction.T_c']},
                        'load_torque': {'T_L': p['load_torque.T_L']}},

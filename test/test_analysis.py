@@ -93,10 +93,10 @@ def test_heating_is_told_from_a_brush_drop_by_the_electrical_equation():
              'brush_drop': {'V_b': 0.4}, 'dead_zone': {'V_dz': 0.8}}
     for name, params in cases.items():
         ev = electrical_evidence(_sim({name: params}, u, seed=6))
-        assert ev['favoured'] == name, (name, ev['explained'])
+        assert ev.favoured == name, (name, ev.explained)
     clean = electrical_evidence(_sim({}, u, seed=6))
-    assert clean['favoured'] is None
-    assert clean['R_m_base'] == pytest.approx(2.3, rel=0.02)
+    assert clean.favoured is None
+    assert clean.R_m_base == pytest.approx(2.3, rel=0.02)
 
 
 # --------------------------------------------------------------- failures
@@ -214,7 +214,7 @@ def test_emps_friction_with_offset_and_published_parameters(emps_report):
     combo = next(e for e in rep.effects if e.name == rep.chosen['name'])
     assert combo.gain > 0.6
     assert all(c['marginal'] > 0.05 for c in combo.components.values())
-    idim = {k: v['value'] for k, v in rep.inverse_dynamics['parameters'].items()}
+    idim = {k: v.value for k, v in rep.inverse_dynamics.parameters.items()}
     oe = {k: v['value'] for k, v in rep.chosen['output_error_parameters'].items()}
     head = {k: rep.parameters[k]['value'] for k in EMPS_PUBLISHED}
     print(f'\nEMPS {rep.verdict}: gain {100 * combo.gain:.1f} %; estimator '
@@ -229,7 +229,7 @@ def test_emps_friction_with_offset_and_published_parameters(emps_report):
     assert head['load_torque.T_L'] == pytest.approx(EMPS_PUBLISHED['load_torque.T_L'],
                                                     rel=0.1)
     assert idim == {k: head[k] for k in idim}
-    assert rep.inverse_dynamics['relative_error'] < 0.05
+    assert rep.inverse_dynamics.relative_error < 0.05
 
 
 def test_dunker_shows_coulomb_friction_and_its_speed_grid():
@@ -242,9 +242,9 @@ def test_dunker_shows_coulomb_friction_and_its_speed_grid():
     assert 0.005 < rep.parameters['coulomb_friction.T_c']['value'] < 0.011
     assert 1e-5 < rep.parameters['B']['value'] < 5e-5
     assert rep.measurement['input']['found']  # the current (the input) on a 25.6 mA grid
-    ms = rep.diagnostics['steady_state']
-    assert ms['positive']['zero_speed_input'] > 0.004
-    assert ms['negative']['zero_speed_input'] < -0.004
+    ms = rep.diagnostics.steady_state
+    assert ms.positive.zero_speed_input > 0.004
+    assert ms.negative.zero_speed_input < -0.004
 
 
 def test_clean_torque_plant_gives_none():

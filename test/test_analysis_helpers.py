@@ -43,8 +43,8 @@ def test_binned_means_attribute_a_sign_offset_to_the_sign():
     x = rng.standard_normal(2000)
     r = 0.5 * np.sign(x) + 0.05 * rng.standard_normal(x.size)
     out = binned_means(r, {'x': x, 'sign(x)': x})
-    assert out['sign(x)']['explained'] == pytest.approx(1.0, abs=0.02)
-    assert out['sign(x)']['means'][0] == pytest.approx(-0.5, abs=0.01)
+    assert out['sign(x)'].explained == pytest.approx(1.0, abs=0.02)
+    assert out['sign(x)'].means[0] == pytest.approx(-0.5, abs=0.01)
 
 
 def test_steady_state_map_shows_the_friction_offset():
@@ -52,9 +52,8 @@ def test_steady_state_map_shows_the_friction_offset():
                              T, bipolar_steps(T, 9.0))
     summary = map_summary(steady_state_map(rec))
     # zero speed needs R T_c / K_T = 0.35 V on each side (plateaus settle to ~1 %)
-    assert summary['positive']['zero_speed_input'] == pytest.approx(0.1 * 2.3 / 0.66, rel=0.1)
-    assert summary['negative']['zero_speed_input'] == pytest.approx(-0.1 * 2.3 / 0.66,
-                                                                    rel=0.1)
+    assert summary.positive.zero_speed_input == pytest.approx(0.1 * 2.3 / 0.66, rel=0.1)
+    assert summary.negative.zero_speed_input == pytest.approx(-0.1 * 2.3 / 0.66, rel=0.1)
 
 
 def test_inverse_dynamics_recovers_a_simulated_torque_plant():
@@ -63,12 +62,12 @@ def test_inverse_dynamics_recovers_a_simulated_torque_plant():
     truth = {'coulomb_friction': {'T_c': 5.0}, 'load_torque': {'T_L': -1.0}}
     rec = simulate_recording(Plant(MotorParams(J=10.0, B=20.0), 'torque', truth), t, u)
     out = inverse_dynamics(rec)
-    p = {k: v['value'] for k, v in out['parameters'].items()}
+    p = {k: v.value for k, v in out.parameters.items()}
     assert p['J'] == pytest.approx(10.0, rel=0.01)
     assert p['B'] == pytest.approx(20.0, rel=0.01)
     assert p['coulomb_friction.T_c'] == pytest.approx(5.0, rel=0.02)
     assert p['load_torque.T_L'] == pytest.approx(-1.0, rel=0.02)
-    assert out['physical']
+    assert out.physical
 
 
 def test_every_dynamic_effect_has_a_start_grid_and_search_range_on_the_data_scale():

@@ -26,7 +26,7 @@ from motor_id.analysis.candidates import CandidateFitter
 from motor_id.analysis.context import RecordContext
 from motor_id.analysis.diagnostics import map_summary, steady_state_map
 from motor_id.analysis.heldout import HeldOutSplit
-from motor_id.analysis.inverse_dynamics import electrical_evidence
+from motor_id.analysis.inverse_dynamics import electrical_evidence, ElectricalEvidence
 from motor_id.analysis.measurement import find_measurement_effects
 from motor_id.analysis.search import CandidateSearch
 from motor_id.analysis.simulation_fit import simulation_stage
@@ -206,12 +206,12 @@ class DiscrepancyAnalysis:
             self._say(f'  {m.name}: values on a grid of {m.q:.5g} (coherence '
                       f'{m.evidence.coherence:.3f}, p = {m.evidence.p_value:.2g})')
         split = HeldOutSplit(rec, self.n_blocks, quant)
-        electrical: dict[str, Any] | None = None
+        electrical: ElectricalEvidence | None = None
         if rec.input_kind == 'voltage' and rec.has_current:
             try:
                 electrical = electrical_evidence(rec)
             except FIT_ERRORS as exc:
-                electrical = {'failed': str(exc), 'favoured': None}
+                electrical = ElectricalEvidence(failed=str(exc))
         max_delay = self.max_delay if self.max_delay is not None else \
             default_max_delay(len(rec))
         fitter = CandidateFitter(rec, split, self._resistance(rec), self.random_state,
@@ -241,7 +241,7 @@ class DiscrepancyAnalysis:
         f.scales = data_scales(rec, base.physical, r_m, float(rec.time[-1] - rec.time[0]),
                                float(np.median(np.diff(rec.time))), f.max_delay, counted)
         if ctx.electrical:
-            f.extra_starts = dict(ctx.electrical.get('start', {}))
+            f.extra_starts = dict(ctx.electrical.start)
         base.significant = False
         # a grid that cannot rank its points gets spread starts only when the linear
         # model leaves structure to explain (on a clean record they cost time for nothing)

@@ -10,13 +10,20 @@ warnings the record gives.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.analysis import outcome, selection
 from motor_id.analysis.candidates import dynamic_effects
-from motor_id.analysis.diagnostics import map_summary, residual_block, steady_state_map
+from motor_id.analysis.diagnostics import (
+    map_summary,
+    residual_block,
+    ResidualBlock,
+    steady_state_map,
+    SteadyPoint,
+)
 from motor_id.analysis.report import DiscrepancyReport
 from motor_id.effects import EFFECTS
 from motor_id.identify import determinacy
@@ -24,6 +31,7 @@ from motor_id.metrics import normalised_fit
 
 if TYPE_CHECKING:
     from motor_id.analysis.context import RecordContext
+    from motor_id.analysis.inverse_dynamics import InverseDynamicsFit
     from motor_id.analysis.report import ModelScore
     from motor_id.identify import Identifier
 
@@ -56,7 +64,7 @@ def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
     names = ([] if chosen is base else [dyn]) + [m.name for m in ctx.measurement]
     verdict = '+'.join(names) if names else 'none'
     chosen_d = _chosen_block(chosen, base, full, dyn)
-    idyn: dict[str, Any] | None = None
+    idyn: InverseDynamicsFit | None = None
     if rec.input_kind == 'torque':
         idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)
     diag, points = _diagnostics(ctx, full_base, full, chosen, base)
@@ -113,26 +121,22 @@ def _heldout_block(ctx: RecordContext, base: ModelScore, chosen: ModelScore, n_b
 
 def _diagnostics(ctx: RecordContext, full_base: Identifier, full: Identifier | None,
                  chosen: ModelScore, base: ModelScore
-                 ) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+                 ) -> tuple[ResidualBlock, list[SteadyPoint]]:
     """Residual diagnostics before and after, the noise floors and the steady-state map
     with the linear and the chosen model's mean speed on each plateau."""
     rec, split = ctx.rec, ctx.split
     after = full.result_.prediction if (full is not None and chosen is not base) \
         else None
     diag = residual_block(rec, split.channels, full_base.result_.prediction, after)
-    diag['noise_floor'] = split.floor
-    diag['channel_noise_floor'] = split.channel_floors
-    if ctx.electrical is not None:
-        diag['electrical'] = ctx.electrical
-    points = steady_state_map(rec)
     k = split.channels.index('speed')
-    for p in points:
-        a, b = p['start'], p['stop']
-        p['speed_linear'] = float(np.mean(full_base.result_.prediction['speed'][a:b]))
-        if chosen is not base:
-            p['speed_chosen'] = float(np.mean(chosen.prediction['preds'][k][a:b]))
-    diag['steady_state'] = {**map_summary(points), 'points': points}
-    return diag, points
+    linear = full_base.result_.prediction['speed']
+    points = [replace(p, speed_linear=float(np.mean(linear[p.start:p.stop])),
+                      speed_chosen=None if chosen is base else
+                      float(np.mean(chosen.prediction['preds'][k][p.start:p.stop])))
+              for p in steady_state_map(rec)]
+    return replace(diag, noise_floor=split.floor, channel_noise_floor=split.channel_floors,
+                   electrical=ctx.electrical,
+                   steady_state=replace(map_summary(points), points=tuple(points))), points
 
 
 def _adequacy(ctx: RecordContext, chosen: ModelScore, verdict: str, params: dict[str, Any]

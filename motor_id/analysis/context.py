@@ -15,6 +15,7 @@ from typing import Any, TYPE_CHECKING
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
     from motor_id.analysis.heldout import HeldOutSplit
+    from motor_id.analysis.inverse_dynamics import ElectricalEvidence
     from motor_id.analysis.measurement import MeasurementEffect
     from motor_id.recording import Recording
 
@@ -34,7 +35,7 @@ class RecordContext:
         Measurement effects (value grids) found in the values themselves.
     measurement_evidence : dict
         The evidence of every measurement channel (grid found or not).
-    electrical : dict or None
+    electrical : ElectricalEvidence or None
         The electrical equation's evidence (voltage plants with the current measured).
     at_once : bool
         The speed answers input steps within one sample (no delay of 2 or more).
@@ -51,7 +52,7 @@ class RecordContext:
     fitter: CandidateFitter
     measurement: list[MeasurementEffect]
     measurement_evidence: dict[str, Any]
-    electrical: dict[str, Any] | None
+    electrical: ElectricalEvidence | None
     at_once: bool
     one_way: bool
     steady: tuple[float, float] | None

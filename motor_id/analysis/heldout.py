@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 import math
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from motor_id.analysis.records import JsonRecord
 from motor_id.errors import ConfigError
 from motor_id.metrics import noise_floor
 
@@ -50,8 +52,19 @@ def heldout_mask(n: int, n_blocks: int = 10, every: int = 3, first: int = 2
 
 
 
+@dataclass(frozen=True, kw_only=True)
+class BinnedMeans(JsonRecord):
+    """Mean residual per bin of one variable (bins with samples only); ``explained`` is
+    the share of the residual variance that the binned means account for (0..1)."""
+
+    centers: list[float]
+    means: list[float]
+    counts: list[int]
+    explained: float
+
+
 def binned_means(residual: ArrayLike, variables: Mapping[str, ArrayLike], n_bins: int = 8
-                 ) -> dict[str, dict[str, Any]]:
+                 ) -> dict[str, BinnedMeans]:
     """Mean residual per bin of each explanatory variable.
 
     Parameters
@@ -65,12 +78,11 @@ def binned_means(residual: ArrayLike, variables: Mapping[str, ArrayLike], n_bins
     Returns
     -------
     dict
-        Name -> ``{'centers', 'means', 'counts', 'explained'}``; ``explained`` is the
-        share of the residual variance that the binned means account for (0..1).
+        Name -> :class:`BinnedMeans`.
     """
     r = np.asarray(residual, dtype=float)
     var = float(np.var(r))
-    out: dict[str, dict[str, Any]] = {}
+    out: dict[str, BinnedMeans] = {}
     for name, x in variables.items():
         x = np.asarray(x, dtype=float)
         if name.startswith('sign('):
@@ -90,8 +102,8 @@ def binned_means(residual: ArrayLike, variables: Mapping[str, ArrayLike], n_bins
         fitted = np.nan_to_num(means)[labels]
         explained = float(np.var(fitted) / var) if var > 0 else 0.0
         keep = counts > 0
-        out[name] = {'centers': centers[keep].tolist(), 'means': means[keep].tolist(),
-                     'counts': counts[keep].tolist(), 'explained': explained}
+        out[name] = BinnedMeans(centers=centers[keep].tolist(), means=means[keep].tolist(),
+                                counts=counts[keep].tolist(), explained=explained)
     return out
 
 

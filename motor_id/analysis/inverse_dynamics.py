@@ -10,15 +10,59 @@ shape of the voltage each one removes.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
+import math
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
+from motor_id.analysis.records import JsonRecord, omit_if_failed, optional
 from motor_id.effects import EFFECTS, role_params
 from motor_id.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
+
+
+@dataclass(frozen=True, kw_only=True)
+class RegressionEstimate(JsonRecord):
+    """A least-squares coefficient and its standard deviation."""
+
+    value: float
+    std: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class InverseDynamicsFit(JsonRecord):
+    """The mechanical equation error's estimate (:func:`inverse_dynamics`), or why it
+    failed: ``parameters`` (J, B and ``effect.param``), ``relative_error`` (norm of the
+    equation residual over norm of the filtered input), the filter ``cutoff`` [Hz], the
+    input ``delay`` [samples]; ``physical``: no negative inertia or friction."""
+
+    failed: str = optional('', when='empty')
+    parameters: dict[str, RegressionEstimate] = optional({}, when=omit_if_failed)
+    cutoff: float = optional(math.nan, when=omit_if_failed)
+    delay: int = optional(0, when=omit_if_failed)
+    physical: bool = optional(False, when=omit_if_failed)
+    relative_error: float = optional(math.nan, when=omit_if_failed)
+    model: str = optional('', when=omit_if_failed)
+
+
+@dataclass(frozen=True, kw_only=True)
+class ElectricalEvidence(JsonRecord):
+    """What the electrical equation error says (:func:`electrical_evidence`), or why it
+    failed: the share of the base equation error each term removes (``explained``), the
+    ``favoured`` term (or None), the ``parameter`` of each term's best grid point, R_m
+    under the favoured term and without a term, each term's effect ``start``."""
+
+    failed: str = optional('', when='empty')
+    explained: dict[str, float] = optional({}, when=omit_if_failed)
+    favoured: str | None = None
+    parameter: dict[str, float | None] = optional({}, when=omit_if_failed)
+    R_m: float = optional(math.nan, when=omit_if_failed)
+    R_m_base: float = optional(math.nan, when=omit_if_failed)
+    start: dict[str, dict[str, float]] = optional({}, when=omit_if_failed)
+    model: str = optional('', when=omit_if_failed)
 
 
 def _filter(dt: float, cutoff: float) -> Any:
@@ -29,7 +73,7 @@ def _filter(dt: float, cutoff: float) -> Any:
 
 def inverse_dynamics(rec: Recording, terms: Sequence[str] | None = None,
                      cutoff: float | None = None, delay: int = 0, min_speed: float = 0.02
-                     ) -> dict[str, Any]:
+                     ) -> InverseDynamicsFit:
     """Equation-error (inverse dynamics) least squares for a torque-input plant.
 
     Fits ``u = J dw/dt + B w + T_c sgn(w) + T_L + k_q w|w|`` (the terms asked for: each
@@ -55,9 +99,7 @@ def inverse_dynamics(rec: Recording, terms: Sequence[str] | None = None,
 
     Returns
     -------
-    dict
-        ``parameters`` (J, B and ``effect.param`` values), ``relative_error`` (norm of the
-        equation residual over norm of the filtered input), ``cutoff``.
+    InverseDynamicsFit
     """
     from scipy.signal import filtfilt
 
@@ -88,15 +130,15 @@ def inverse_dynamics(rec: Recording, terms: Sequence[str] | None = None,
     res = y - X @ theta
     cov = np.linalg.pinv(X.T @ X) * float(res @ res) / max(y.size - theta.size, 1)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    params = {k: {'value': float(v), 'std': float(s)}
+    params = {k: RegressionEstimate(value=float(v), std=float(s))
               for k, v, s in zip(cols, theta, std, strict=True)}
     physical = bool(theta[0] > 0 and theta[1] >= 0 and all(
-        params[k]['value'] >= 0 for k in params if k in _NON_NEGATIVE))
-    return {'parameters': params, 'cutoff': cutoff, 'delay': int(delay),
-            'physical': physical,
-            'relative_error': float(np.linalg.norm(res) / (np.linalg.norm(y) or 1.0)),
-            'model': 'u = J dw/dt + B w' + ''.join(MECHANICAL_TERMS[k].text for k in terms
-                                                    if k in MECHANICAL_TERMS)}
+        params[k].value >= 0 for k in params if k in _NON_NEGATIVE))
+    return InverseDynamicsFit(
+        parameters=params, cutoff=cutoff, delay=int(delay), physical=physical,
+        relative_error=float(np.linalg.norm(res) / (np.linalg.norm(y) or 1.0)),
+        model='u = J dw/dt + B w' + ''.join(MECHANICAL_TERMS[k].text for k in terms
+                                            if k in MECHANICAL_TERMS))
 
 
 MECHANICAL_TERMS = {n: spec.mechanical_term for n, spec in EFFECTS.items()
@@ -128,7 +170,7 @@ def _electrical_columns(rec: Recording) -> dict[str, list[tuple[float | None, np
             if spec.electrical_term}
 
 
-def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str, Any]:
+def electrical_evidence(rec: Recording, cutoff: float | None = None) -> ElectricalEvidence:
     """Which voltage-side effect the electrical equation error points to, and R_m.
 
     Regresses the filtered voltage on the filtered current, its derivative and the
@@ -147,12 +189,11 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
 
     Returns
     -------
-    dict
-        ``explained`` (share of the base equation error each term removes),
-        ``favoured`` (the term that removes clearly most, or None), ``R_m`` (the
-        resistance estimate under the favoured term, else the base one), ``R_m_base``,
-        ``parameter`` (tau_th or V_dz of the best grid point), ``start`` (each term's
-        effect parameters from the regression: refinement starts).
+    ElectricalEvidence
+        ``favoured``: the term that removes clearly most, or None; ``R_m``: the
+        resistance estimate under the favoured term, else the base one; ``parameter``:
+        tau_th or V_dz of the best grid point; ``start``: each term's effect parameters
+        from the regression (refinement starts).
     """
     from scipy.signal import filtfilt
 
@@ -195,10 +236,11 @@ def electrical_evidence(rec: Recording, cutoff: float | None = None) -> dict[str
     order = sorted(explained, key=lambda k: -explained[k])
     top, second = explained[order[0]], explained[order[1]]
     favoured = order[0] if top >= 0.2 and top >= 1.5 * second + 0.05 else None
-    return {'explained': explained, 'favoured': favoured, 'parameter': best,
-            'R_m': R[favoured] if favoured else float(th0[0]), 'R_m_base': float(th0[0]),
-            'start': {k: v for k, v in starts.items() if v and explained[k] > 0},
-            'model': 'V = R_m i + L_m di/dt + K_b w [+ term]'}
+    return ElectricalEvidence(
+        explained=explained, favoured=favoured, parameter=best,
+        R_m=R[favoured] if favoured else float(th0[0]), R_m_base=float(th0[0]),
+        start={k: v for k, v in starts.items() if v and explained[k] > 0},
+        model='V = R_m i + L_m di/dt + K_b w [+ term]')
 
 
 def _lstsq(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:

@@ -8,7 +8,7 @@ from typing import Any, cast, TYPE_CHECKING
 import numpy as np
 
 from motor_id.analysis.candidates import dynamic_effects, grid_only
-from motor_id.analysis.inverse_dynamics import inverse_dynamics
+from motor_id.analysis.inverse_dynamics import inverse_dynamics, InverseDynamicsFit
 from motor_id.effects import EFFECTS, role_value
 from motor_id.errors import FIT_ERRORS
 
@@ -70,7 +70,7 @@ def parameters(chosen: ModelScore, base: ModelScore, full: Identifier | None
 
 def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
                     chosen_d: dict[str, Any]
-                    ) -> tuple[dict[str, Any], dict[str, Any], dict[str, Any]]:
+                    ) -> tuple[InverseDynamicsFit, dict[str, Any], dict[str, Any]]:
     """Equation-error estimate; the headline for a closed-loop record.
 
     In closed loop the input depends on the measured output, and a free-run
@@ -84,13 +84,12 @@ def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
     try:
         idyn = inverse_dynamics(rec, terms, delay=delay)
     except FIT_ERRORS as exc:
-        return {'failed': str(exc)}, params, chosen_d
-    if rec.meta.get('closed_loop') and idyn['physical'] and \
-            idyn['relative_error'] < 0.1:
+        return InverseDynamicsFit(failed=str(exc)), params, chosen_d
+    if rec.meta.get('closed_loop') and idyn.physical and idyn.relative_error < 0.1:
         chosen_d['output_error_parameters'] = {k: dict(params[k]) for k in
-                                               idyn['parameters'] if k in params}
-        for k, v in idyn['parameters'].items():
-            params[k] = {'value': v['value'], 'std': v['std'], 'determined': True}
+                                               idyn.parameters if k in params}
+        for k, v in idyn.parameters.items():
+            params[k] = {'value': v.value, 'std': v.std, 'determined': True}
         chosen_d['estimator'] = ('inverse dynamics (equation error): the record is '
                                  'closed loop')
     return idyn, params, chosen_d

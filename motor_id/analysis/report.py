@@ -14,6 +14,8 @@ from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
 
 if TYPE_CHECKING:
+    from motor_id.analysis.diagnostics import ResidualBlock
+    from motor_id.analysis.inverse_dynamics import InverseDynamicsFit
     from motor_id.analysis.simulation_result import SimulationStage
 
 
@@ -91,13 +93,13 @@ class DiscrepancyReport:
     parameters: dict
     baseline: dict
     chosen: dict
-    diagnostics: dict
+    diagnostics: ResidualBlock
     heldout: dict
     input_kind: str
     channels: tuple
     measurement: dict = field(default_factory=dict)
     failed: list = field(default_factory=list)
-    inverse_dynamics: dict | None = None
+    inverse_dynamics: InverseDynamicsFit | None = None
     plot_data: dict = field(default_factory=dict, repr=False)
     seconds: float = 0.0
     adequate: bool = True
@@ -120,13 +122,13 @@ class DiscrepancyReport:
              'chosen': self.chosen,
              'measurement': self.measurement,
              'failed': self.failed,
-             'diagnostics': self.diagnostics,
+             'diagnostics': jsonable(self.diagnostics),
              'heldout': self.heldout,
              'input_kind': self.input_kind,
              'channels': list(self.channels),
              'seconds': self.seconds}
         if self.inverse_dynamics is not None:
-            d['inverse_dynamics'] = self.inverse_dynamics
+            d['inverse_dynamics'] = self.inverse_dynamics.to_dict()
         if self.simulation is not None:
             d['simulation'] = self.simulation.to_dict()
         controller = self.controller()
@@ -244,30 +246,30 @@ def _fit_lines(rep: DiscrepancyReport) -> list[str]:
     return lines
 
 
-def _diagnostic_lines(diag: dict[str, Any]) -> list[str]:
+def _diagnostic_lines(diag: ResidualBlock) -> list[str]:
     lines: list[str] = []
-    for ch, dd in diag['residual'].items():
-        lines.append(f'  {ch} residual: {100 * dd["autocorrelation_outside"]:.0f} % of '
-                     f'autocorrelation lags and {100 * dd["cross_correlation_outside"]:.0f}'
+    for ch, dd in diag.residual.items():
+        lines.append(f'  {ch} residual: {100 * dd.autocorrelation_outside:.0f} % of '
+                     f'autocorrelation lags and {100 * dd.cross_correlation_outside:.0f}'
                      f' % of input cross-correlation lags outside the 99 % band')
-        top = sorted(diag['binned'][ch].items(), key=lambda kv: -kv[1]['explained'])[:3]
+        top = sorted(diag.binned[ch].items(), key=lambda kv: -kv[1].explained)[:3]
         lines.append('    binned means explain ' + ', '.join(
-            f'{k} {100 * v["explained"]:.0f} %' for k, v in top) + ' of its variance')
-    ms = diag['steady_state']
-    if ms.get('n_points'):
+            f'{k} {100 * v.explained:.0f} %' for k, v in top) + ' of its variance')
+    ms = diag.steady_state
+    if ms and ms.n_points:
         parts: list[str] = []
-        for side in ('positive', 'negative'):
-            if side in ms:
-                z = ms[side]['zero_speed_input']
-                parts.append(f'{side} side: speed = {ms[side]["slope"]:.4g} u '
-                             f'{ms[side]["intercept"]:+.4g}' +
+        for side, fit in (('positive', ms.positive), ('negative', ms.negative)):
+            if fit is not None:
+                z = fit.zero_speed_input
+                parts.append(f'{side} side: speed = {fit.slope:.4g} u '
+                             f'{fit.intercept:+.4g}' +
                              ('' if z is None else f' (zero at u = {z:.4g})'))
-        lines.append(f'  steady-state map: {ms["n_points"]} plateau(s)' +
+        lines.append(f'  steady-state map: {ms.n_points} plateau(s)' +
                      (('; ' + '; '.join(parts)) if parts else ''))
-    el = diag.get('electrical')
-    if el and el.get('favoured'):
-        lines.append(f'  electrical equation error favours {el["favoured"]} among '
-                     f'{", ".join(sorted(el["explained"]))}')
+    el = diag.electrical
+    if el and el.favoured:
+        lines.append(f'  electrical equation error favours {el.favoured} among '
+                     f'{", ".join(sorted(el.explained))}')
     return lines
 
 
@@ -336,15 +338,15 @@ def _parameter_lines(rep: DiscrepancyReport) -> list[str]:
             std = '' if v.get('std') is None else f' +- {v["std"]:.3g}'
             lines.append(f'  {k:<24}{v["value"]:>14.6g}{std}')
     idm = rep.inverse_dynamics
-    if idm:
-        lines.append(f'inverse dynamics (equation error, {idm["model"]}, filter '
-                     f'{idm["cutoff"]:.3g} Hz): relative error '
-                     f'{100 * idm["relative_error"]:.2f} %' +
-                     ('' if idm['physical'] else
+    if idm and not idm.failed:
+        lines.append(f'inverse dynamics (equation error, {idm.model}, filter '
+                     f'{idm.cutoff:.3g} Hz): relative error '
+                     f'{100 * idm.relative_error:.2f} %' +
+                     ('' if idm.physical else
                       '; NOT physical (negative inertia or friction): the derivative '
                       'of this speed is too noisy or too coarsely sampled'))
-        for k, v in idm['parameters'].items():
-            lines.append(f'  {k:<24}{v["value"]:>14.6g} +- {v["std"]:.3g}')
+        for k, v in idm.parameters.items():
+            lines.append(f'  {k:<24}{v.value:>14.6g} +- {v.std:.3g}')
     return lines
 
 
@@ -395,11 +397,11 @@ def _plot_residual(ax: Any, report: DiscrepancyReport, k: int, ch: str) -> None:
 def _plot_map(ax: Any, report: DiscrepancyReport) -> None:
     pts = report.plot_data['points']
     if pts:
-        u = [p['input'] for p in pts]
-        ax.plot(u, [p['speed'] for p in pts], 'o', label='measured plateaus')
-        ax.plot(u, [p['speed_linear'] for p in pts], 'x', label='linear model')
-        if 'speed_chosen' in pts[0]:
-            ax.plot(u, [p['speed_chosen'] for p in pts], '+', ms=10,
+        u = [p.input for p in pts]
+        ax.plot(u, [p.speed for p in pts], 'o', label='measured plateaus')
+        ax.plot(u, [p.speed_linear for p in pts], 'x', label='linear model')
+        if pts[0].speed_chosen is not None:
+            ax.plot(u, [p.speed_chosen for p in pts], '+', ms=10,
                     label=report.chosen['name'])
         ax.legend(loc='best', fontsize=8)
     ax.set_title('steady-state map')

@@ -21,7 +21,9 @@ import numpy as np
 from motor_id.effects import Confusion, EFFECTS
 
 if TYPE_CHECKING:
+    from motor_id.analysis.diagnostics import SteadyStateMap
     from motor_id.analysis.heldout import HeldOutSplit
+    from motor_id.analysis.inverse_dynamics import ElectricalEvidence
     from motor_id.analysis.report import ModelScore
     from motor_id.recording import Recording
 
@@ -146,16 +148,16 @@ def one_direction(rec: Recording) -> bool:
     return pos >= 0.97 or pos <= 0.03
 
 
-def steady_offset(summary: Mapping[str, Any]) -> tuple[float, float] | None:
+def steady_offset(summary: SteadyStateMap) -> tuple[float, float] | None:
     """The zero-speed inputs of the steady-state map when they point to static friction
     (or a dead band): positive on the positive side and negative on the negative side.
 
     Returns ``(u_pos, u_neg)`` or None.
     """
-    pos, neg = summary.get('positive'), summary.get('negative')
+    pos, neg = summary.positive, summary.negative
     if not pos or not neg:
         return None
-    up, un = pos.get('zero_speed_input'), neg.get('zero_speed_input')
+    up, un = pos.zero_speed_input, neg.zero_speed_input
     if up is None or un is None or not (up > 0 > un):
         return None
     return up, un
@@ -178,14 +180,14 @@ def _blind_heldout(score: ModelScore, ref: ModelScore, split: HeldOutSplit, min_
 
 def pick_single(singles: Sequence[ModelScore], catalogue: Sequence[str],
                 structure: Callable[[ModelScore], bool], ambiguity: float,
-                electrical: Mapping[str, Any] | None = None) -> ModelScore | None:
+                electrical: ElectricalEvidence | None = None) -> ModelScore | None:
     """The chosen one-effect model, or None.
 
     The best significant single by held-out error; when even it leaves structure,
     error differences within ``ambiguity`` reflect the misfit, so the more common effect
     (catalogue order) is named. Among the effects the electrical equation error tells
     apart (heating, brush drop, dead zone: each with an ``electrical_term``) its verdict
-    (``electrical['favoured']``) decides when it is one of the significant candidates.
+    (``electrical.favoured``) decides when it is one of the significant candidates.
     """
     sig = [s for s in singles if s.significant]
     if not sig:
@@ -194,7 +196,7 @@ def pick_single(singles: Sequence[ModelScore], catalogue: Sequence[str],
     if structure(chosen):
         ties = [s for s in sig if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error]
         chosen = min(ties, key=lambda s: catalogue.index(s.name))
-    fav = (electrical or {}).get('favoured')
+    fav = electrical.favoured if electrical is not None else None
     trio = [n for n, spec in EFFECTS.items() if spec.electrical_term]
     if fav and chosen.name in trio and fav != chosen.name:
         alt = [s for s in sig if s.name == fav]
