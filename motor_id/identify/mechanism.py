@@ -3,12 +3,13 @@ fitted with the plant (an elevator's constant load, an arm's T_g cos(theta + off
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.effects import EFFECTS, mechanism_effect
-from motor_id.errors import DataError
+from motor_id.errors import DataError, IdentificationError
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -35,22 +36,17 @@ def check_mechanism(rec: Recording, mechanism: str) -> str:
     return gravity
 
 
-def position_start(rec: Recording, effect: str, torque_per_input: float,
-                   cutoff: float | None = None) -> dict[str, float]:
-    """An effect's parameters from the position regressors of its entry
-    (:attr:`~motor_id.effects.EffectSpec.position_term`: a joint's gravity), by the
-    equation error ``u = kS sgn(w) + kV w + kA dw/dt + ...`` in input units (WPILib
-    SysId's model), each run filtered on its own: the start of the fit.
+def equation_error(rec: Recording, effect: str,
+                   cutoff: float | None = None) -> np.ndarray:
+    """WPILib SysId's equation-error fit with a joint's gravity: ``[kS, kV, kA, *coef]`` of
+    ``u = kS sgn(w) + kV w + kA dw/dt + coef . columns(position)`` in input units, each run
+    filtered on its own (a fourth-order Butterworth at ``cutoff`` [Hz], default a tenth of
+    the Nyquist frequency).
 
-    Parameters
-    ----------
-    rec : Recording
-        With the position measured.
-    effect : str
-    torque_per_input : float
-        Torque per input unit: K_T / R_m for a voltage plant, 1 for a torque plant.
-    cutoff : float, optional
-        Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
+    Raises
+    ------
+    DataError
+        No position, or every run too short for the filter.
     """
     from scipy.signal import butter, filtfilt
 
@@ -72,29 +68,101 @@ def position_start(rec: Recording, effect: str, torque_per_input: float,
     if not rows:
         raise DataError('the runs are too short for an equation-error start')
     theta, *_ = np.linalg.lstsq(np.concatenate(rows), np.concatenate(ys), rcond=None)
+    return np.asarray(theta, dtype=float)
+
+
+def position_start(rec: Recording, effect: str, torque_per_input: float,
+                   cutoff: float | None = None,
+                   theta: np.ndarray | None = None) -> dict[str, float]:
+    """An effect's parameters from the position regressors of its entry
+    (:attr:`~motor_id.effects.EffectSpec.position_term`: a joint's gravity), by the
+    equation error of :func:`equation_error`: the start of the fit.
+
+    Parameters
+    ----------
+    rec : Recording
+        With the position measured.
+    effect : str
+    torque_per_input : float
+        Torque per input unit: K_T / R_m for a voltage plant, 1 for a torque plant.
+    cutoff : float, optional
+        Filter cut-off [Hz]; default a tenth of the Nyquist frequency.
+    theta : ndarray, optional
+        :func:`equation_error`'s result, where it was computed already.
+    """
+    if theta is None:
+        theta = equation_error(rec, effect, cutoff)
     spec = EFFECTS[effect]
+    term = spec.position_term
+    assert term is not None   # equation_error checked it
     return {k: float(np.clip(v, spec.param(k).low, spec.param(k).high))
             for k, v in term.params(theta[3:], torque_per_input).items()}
+
+
+def plant_start(rec: Recording, effect: str, theta: np.ndarray, fitted: Mapping[str, float],
+                effects: Mapping[str, Any]) -> dict[str, float] | None:
+    """A whole start from the equation error ``theta`` (:func:`equation_error`): the plant,
+    Coulomb friction (where the model has it) and the gravity, at the fitted K_T and R_m
+    (K_b below kV / 2) and the electrical time constant a twentieth of a sample period
+    (speed alone does not see them); None where kV or kA is not positive.
+
+    The plant fitted without gravity is no start for a joint whose gravity outweighs its
+    friction: an elevator that falls when the input is off drives that fit to the edges
+    of its box (kS 1.6 +- 14 V, kG 2.5 +- 22 V for 0.1 and 1.0 on a SysId routine).
+    """
+    kS, kV, kA = (float(x) for x in theta[:3])
+    if not (kV > 0 and kA > 0):
+        return None
+    if rec.input_kind == 'voltage':
+        R, K = fitted.get('R_m') or 1.0, fitted.get('K_T') or 1.0
+        K_b = min(fitted.get('K_b') or K, kV / 2.0)
+        per = K / R
+        start = {'K_T': K, 'K_b': K_b, 'R_m': R, 'B': (kV - K_b) * per, 'J': kA * per,
+                 'L_m': 0.05 * rec.sample_period * R}
+    else:
+        per = 1.0
+        start = {'J': kA, 'B': kV}
+    if 'coulomb_friction' in effects:
+        start['coulomb_friction.T_c'] = max(kS, 0.0) * per
+    start |= {f'{effect}.{k}': v for k, v in position_start(rec, effect, per,
+                                                             theta=theta).items()}
+    return start
 
 
 def with_gravity(fitted: Identifier, rec: Recording, mechanism: str,
                  sample_weight: ArrayLike | None = None, **changes: Any) -> Identifier:
     """``fitted`` (an Identifier fitted on ``rec``) refitted with the gravity of
-    ``mechanism`` in the model, from its equation-error start and the fitted parameters
-    (with its other settings, but ``changes``); ``fitted`` itself for ``'simple'``."""
+    ``mechanism`` in the model (with its other settings, but ``changes``); ``fitted``
+    itself for ``'simple'``.
+
+    Two starts, the better fit kept: the fitted plant with the gravity of the equation
+    error, and the whole equation-error model (:func:`plant_start`).
+    """
     gravity = check_mechanism(rec, mechanism)
     if not gravity:
         return fitted
     p = {k: v for k, v in fitted.params_.items() if v is not None}
     K, R = p.get('K_T'), p.get('R_m')   # None where the data do not determine it
     per_input = K / R if K and R and rec.input_kind == 'voltage' else 1.0
-    start = position_start(rec, gravity, per_input)
+    theta = equation_error(rec, gravity)
+    start = position_start(rec, gravity, per_input, theta=theta)
     keys = {f'{gravity}.{k}': v for k, v in start.items()}
     effects = {**(fitted.effects or {}), gravity: start}
     free = [*(fitted.free_effects or ()), *keys]
-    est = fitted._variant(effects=effects, free_effects=free,
-                          start={**p, **keys}, use_ga=False,   # own refit of its settings
-                          **changes)
-    with np.errstate(all='ignore'):
-        est.fit(rec, sample_weight=sample_weight)
-    return est
+    best: Identifier | None = None
+    whole = plant_start(rec, gravity, theta, p, effects)
+    for begin in ({**p, **keys}, *(() if whole is None else ({**p, **whole},))):
+        est = fitted._variant(effects=effects, free_effects=free, start=begin,
+                              use_ga=False, **changes)   # own refit of its settings
+        try:
+            with np.errstate(all='ignore'):
+                est.fit(rec, sample_weight=sample_weight)
+        except IdentificationError:
+            if begin is not None and best is None and whole is None:
+                raise
+            continue
+        if best is None or est.result_.fit.cost < best.result_.fit.cost:
+            best = est
+    if best is None:
+        raise IdentificationError(f'the fit with the {gravity} diverged from every start')
+    return best
