@@ -19,8 +19,14 @@ robots of its fleet).
    fleet) or 7 (an 8-robot fleet), one per robot. Per cell: the median number of recordings
    from the onset to the first flag (the onset recording counting 1), the share flagged
    by the 30th recording, and the share dated right on the whole history (steps: within
-   one recording of the onset; ramps: -1..+4).
-2. **False alarms.** Clean fleets of 4 robots x 2 wheels, a year of daily recordings;
+   one recording of the onset; ramps: -1..+4); and a new robot commissioned among 3
+   siblings with ``JOINED`` days of history (the scatter known from its first day).
+   The share of changes at the 2nd recording flagged by the 10th and the 30th.
+2. **Operator fleets**, changes not planted by hand: fleets of 4 robots x 2 wheels x
+   10-12 days with 3 drifts drawn by ``random_drifts`` (on the 2nd to the 7th
+   recording) from a seed drawn afresh at each run (``--seed`` repeats one), through
+   ``fleet_findings`` as ``motor-id fleet`` runs it.
+3. **False alarms.** Clean fleets of 4 robots x 2 wheels, a year of daily recordings;
    a motor-year is a false alarm when any of its parameters (J, K_T, B, L_m, R_m; K_b is
    K_T's twin) is flagged at any recording of the year. Siblings by name (3 each), by one
    ``type:`` (7 each; a robot's two wheels share its temperature, so their differences
@@ -30,6 +36,7 @@ robots of its fleet).
 
 import argparse
 import json
+import secrets
 import sys
 import time
 
@@ -43,38 +50,42 @@ KINDS = (('R_m', 0.05, 'step'), ('R_m', 0.08, 'step'), ('R_m', 0.12, 'step'),
          ('K_T', -0.05, 'step'), ('R_m', 0.12, 'ramp'), ('B', 0.60, 'ramp'))
 POSITIONS = (1, 2, 3, 4, 6, 8, 12, 18, 25)
 DAYS = 30
+JOINED = 60
+"""Days of the siblings' histories before a new robot's first recording."""
 
 
-def _history(rule, truths, parameter, rng):
-    """A prepared history (motor_id.fleet.drift.Series) of one motor's parameter."""
+def _history(rule, truths, parameter, rng, first=0):
+    """A prepared history (motor_id.fleet.drift.Series) of one motor's parameter, from
+    day ``first`` on."""
     from motor_id.fleet.drift import series
-    x = np.array([getattr(m, parameter) for m in truths])
+    x = np.array([getattr(m, parameter) for m in truths])[first:]
     s = FIT_ERROR[parameter]
     x = x * (1 + rng.normal(0, s, x.size))
-    days = [f'{d:04d}' for d in range(x.size)]
+    days = [f'{d:04d}' for d in range(first, first + x.size)]
     return series(days, x, x * s)
 
 
-def detection(rule, reps, siblings, seed=1):
-    """Rows of the detection table: one per kind, a cell per onset position."""
+def detection(rule, reps, siblings, seed=1, joined=0, kinds=KINDS):
+    """Rows of the detection table: one per kind, a cell per onset position (the
+    drifting motor's robot ``joined`` days after its siblings' first recording)."""
     from motor_id.testing.fleet_gen import Drift, FleetSpec, motor_truths
     rng = np.random.default_rng(seed)
     rows = []
-    for param, size, kind in KINDS:
+    for param, size, kind in kinds:
         row = {'change': f'{param} {size * 100:+.0f} % {kind}'}
         dated_ok = flagged = total = early = 0
         for onset in POSITIONS:
             delays = []
             for _ in range(reps):
-                spec = FleetSpec(robots=siblings + 1, motors=('wheel',), days=DAYS,
-                                 drifts=(Drift('robot_00', 'wheel', param, size, onset, kind,
-                                               ramp_days=5),),
+                spec = FleetSpec(robots=siblings + 1, motors=('wheel',), days=DAYS + joined,
+                                 drifts=(Drift('robot_00', 'wheel', param, size,
+                                               onset + joined, kind, ramp_days=5),),
                                  seed=int(rng.integers(2 ** 31)))
                 truths = motor_truths(spec, rng)
-                hist = [_history(rule, truths[k], param, rng) for k in sorted(truths)]
+                hist = [_history(rule, truths[k], param, rng, joined if j == 0 else 0)
+                        for j, k in enumerate(sorted(truths))]
                 pool = rule.pool(hist)
-                scores = rule.alarms(hist[0], pool)
-                hit = np.flatnonzero(scores > rule.threshold)
+                hit = np.flatnonzero(rule.flags(hist[0], pool))
                 early += bool(hit.size and hit[0] < onset)
                 after = hit[hit >= onset]
                 delays.append(int(after[0]) - onset + 1 if after.size else np.inf)
@@ -89,11 +100,66 @@ def detection(rule, reps, siblings, seed=1):
                 dated_ok += near is not None and lo <= near <= hi
             med = float(np.median(delays))
             row[f'p{onset}'] = f'{med:.0f}' if np.isfinite(med) else '-'
+            if onset == POSITIONS[0]:
+                row['first10'] = float(np.mean(np.array(delays) <= 10 - onset))
+                row['first30'] = float(np.mean(np.isfinite(delays)))
         row['flagged'] = flagged / total
         row['dated'] = dated_ok / max(flagged, 1)
         row['early'] = early
         rows.append(row)
     return rows
+
+
+OPERATOR_DRIFTS = (('K_T', -0.08), ('R_m', 0.12), ('B', 0.6), ('R_m', 0.08), ('K_T', -0.05))
+"""What ``operator_fleets`` draws from (sign kept, size scaled by 0.8-1.2)."""
+
+
+def operator_fleets(rule, fleets, seed):
+    """Fleets as an operator gets them: 4 robots x 2 wheels x 10-12 daily recordings,
+    3 drifts drawn by :func:`motor_id.testing.fleet_gen.random_drifts` (motor, parameter
+    and size from ``OPERATOR_DRIFTS``, step or 5-day ramp, onset on the 2nd to the 7th
+    recording), every estimate of every parameter through
+    :func:`motor_id.fleet.history.fleet_findings` (the command's own path). ``seed``
+    is not one the rule was tuned on. Returns the counts."""
+    from motor_id.fleet.history import fleet_findings
+    from motor_id.testing.fleet_gen import FleetSpec, motor_truths, random_drifts, score_detection
+    rng = np.random.default_rng(seed)
+    got = {'drifts': 0, 'flagged': 0, 'dated': 0, 'first_week': 0, 'first_week_flagged': 0,
+           'wrong_parameter': 0, 'clean_series': 0, 'false': 0, 'detect': [],
+           'missed': []}
+    for _ in range(fleets):
+        spec = FleetSpec(robots=4, days=int(rng.integers(10, 13)),
+                         seed=int(rng.integers(2 ** 31)))
+        spec = FleetSpec(robots=4, days=spec.days, seed=spec.seed,
+                         drifts=random_drifts(spec, rng, 3, OPERATOR_DRIFTS, first=1, last=6))
+        truths = motor_truths(spec, rng)
+        rows = []
+        for (robot, motor), days in truths.items():
+            for day, m in enumerate(days):
+                row = {'robot': robot, 'motor': motor, 'recording': f'{robot}/{day}',
+                       'start_time': f'2026-01-{day + 1:02d}T10:00:00Z', 'adequate': True}
+                for p, err in FIT_ERROR.items():
+                    v = getattr(m, p) * (1 + rng.normal(0, err))
+                    row.update({p: v, f'{p}_std': v * err, f'{p}_determined': True})
+                rows.append(row)
+        spec = FleetSpec(robots=4, days=spec.days, seed=spec.seed, drifts=spec.drifts,
+                         start='2026-01-01')
+        found, false, clean = score_detection(spec, fleet_findings(rows, rule).drift)
+        for dr, r in zip(spec.drifts, found, strict=True):
+            got['drifts'] += 1
+            got['first_week'] += dr.onset <= 6
+            got['flagged'] += r['flagged']
+            got['first_week_flagged'] += r['flagged'] and dr.onset <= 6
+            lo, hi = (-1, 4) if dr.kind == 'ramp' else (-1, 1)
+            got['dated'] += r['flagged'] and lo <= r['dated'] <= hi
+            got['wrong_parameter'] += r['other_flags'] != '-'
+            if r['flagged']:
+                got['detect'].append(r['detect'])
+            else:
+                got['missed'].append(f'{r["drift"]} @{dr.onset + 1} of {spec.days}')
+        got['clean_series'] += clean
+        got['false'] += len(false)
+    return got
 
 
 def false_alarms(rule, fleets, robots, days=365, seed=2, by_type=False):
@@ -114,7 +180,7 @@ def false_alarms(rule, fleets, robots, days=365, seed=2, by_type=False):
                 hist = [_history(rule, truths[k], param, rng) for k in keys]
                 pool = rule.pool(hist, [k[0] for k in keys])
                 for k, h in zip(keys, hist, strict=True):
-                    hit = bool(np.nanmax(rule.alarms(h, pool)) > rule.threshold)
+                    hit = bool(rule.flags(h, pool).any())
                     hit_motor[k] |= hit
                     param_flags += hit
                     per_param[param] += hit
@@ -157,7 +223,7 @@ def _upper95(k, n):
     return float(stats.chi2.ppf(0.95, 2 * (k + 1)) / 2 / n)
 
 
-def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
+def run(quick=False, reps=None, motor_years=None, op_seed=None, stream=sys.stdout):
     """Run everything; returns the record (tables and targets)."""
     from common import target
 
@@ -169,7 +235,14 @@ def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
     reps = reps or (6 if quick else 60)
     t0 = time.perf_counter()
     say(f'detection: {len(KINDS)} kinds x {len(POSITIONS)} positions x {reps} histories ...')
-    det = {n: detection(rule, reps, n) for n in ((3,) if quick else (3, 7))}
+    det = {f'{n} siblings': detection(rule, reps, n) for n in ((3,) if quick else (3, 7))}
+    say(f'detection: a new robot among 3 siblings with {JOINED} days of history ...')
+    det[f'a new robot, 3 siblings with {JOINED} days of history'] = detection(
+        rule, reps, 3, joined=JOINED)
+    op_seed = secrets.randbits(31) if op_seed is None else op_seed
+    n_op = 20 if quick else 300
+    say(f'operator fleets: {n_op} fleets, seed {op_seed} ...')
+    op = operator_fleets(rule, n_op, op_seed)
     t_det = time.perf_counter() - t0
     n_fleet = max(1, (motor_years or (40 if quick else 800)) // 8)
     say(f'false alarms: {n_fleet} clean fleets x 8 wheels x 365 days ...')
@@ -191,11 +264,29 @@ def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
                         'param_flags': f['param_flags'],
                         'params': ', '.join(f'{p} {v}' for p, v in f['per_param'].items())})
     cols = [('change', 'change', 's'), *((f'p{p}', f'@{p + 1}', 's') for p in POSITIONS),
+            ('first10', f'@{POSITIONS[0] + 1} by 10th', '.0%'),
+            ('first30', f'@{POSITIONS[0] + 1} by {DAYS}th', '.0%'),
             ('flagged', 'flagged', '.0%'), ('dated', 'dated', '.0%'),
             ('early', 'flags before onset', 'd')]
     tables = [{'title': f'recordings to detect (median; "@k": the change from the k-th '
-                        f'recording of {DAYS}), {n} siblings', 'columns': cols, 'rows': rows}
+                        f'recording of {DAYS}), {n}', 'columns': cols, 'rows': rows}
               for n, rows in det.items()]
+    detect = np.array(op['detect'])
+    tables.append({
+        'title': f'operator fleets (not tuned on: seed {op_seed}): 4 robots x 2 wheels x '
+                 '10-12 days, 3 drifts each drawn by random_drifts on the 2nd-7th recording',
+        'columns': [('fleets', 'fleets', 'd'), ('drifts', 'drifts', 'd'),
+                    ('flagged', 'flagged', 'd'), ('dated', 'dated right', 'd'),
+                    ('median', 'recordings to detect (median)', '.0f'),
+                    ('p90', '(90 %)', '.0f'), ('wrong', 'other parameters flagged', 'd'),
+                    ('clean', 'clean histories', 'd'), ('false', 'flagged', 'd'),
+                    ('missed', 'missed', 's')],
+        'rows': [{'fleets': n_op, 'drifts': op['drifts'], 'flagged': op['flagged'],
+                  'dated': op['dated'],
+                  'median': float(np.median(detect)) if detect.size else float('nan'),
+                  'p90': float(np.percentile(detect, 90)) if detect.size else float('nan'),
+                  'wrong': op['wrong_parameter'], 'clean': op['clean_series'],
+                  'false': op['false'], 'missed': '; '.join(op['missed'])}]})
     tables.append({'title': 'false alarms (a year of daily recordings per motor)',
                    'columns': [('what', 'what', 's'), ('motor_years', 'motor-years', '.0f'),
                                ('flagged', 'flagged', 'd'),
@@ -215,19 +306,24 @@ def run(quick=False, reps=None, motor_years=None, stream=sys.stdout):
     rate = fa_rows[0]['per100']
     big = [r for n, rows in det.items() for r in rows if '12' in r['change'] or 'B' in
            r['change']]
+    op_rate = op['flagged'] / max(op['drifts'], 1)
     targets = [
         target('false alarms per 100 motor-years (4-robot fleets)', rate, '<= 1',
                rate <= 1.0),
         target('12 % steps and B ramps flagged by the 30th recording',
                min(r['flagged'] for r in big) * 100, '100 %',
                all(r['flagged'] == 1.0 for r in big), '%'),
+        target('operator fleets: drifts flagged', op_rate * 100, '(issue: every one)',
+               None, '%'),
+        target('operator fleets: clean histories flagged', op['false'], '0',
+               op['false'] == 0, ''),
         target('dated right (steps +-1, ramps -1..+4), 12 % steps and B ramps',
                min(r['dated'] for r in big) * 100, '>= 95 %',
                all(r['dated'] >= 0.95 for r in big), '%'),
     ]
     return {'title': TITLE, 'status': 'ok', 'tables': tables, 'targets': targets,
             'settings': {'rule': rule.to_dict(), 'reps': reps, 'days': DAYS,
-                         'fit_error': FIT_ERROR},
+                         'fit_error': FIT_ERROR, 'operator_seed': op_seed},
             'seconds': {'detection': t_det, 'false_alarms': t_fa}}
 
 
@@ -253,9 +349,12 @@ def main(argv=None):
     p.add_argument('--quick', action='store_true', help='a small smoke run (not a measure)')
     p.add_argument('--reps', type=int, help='histories per cell of the detection table')
     p.add_argument('--motor-years', type=int, help='clean motor-years in fleets')
+    p.add_argument('--seed', type=int, help='seed of the operator fleets (default: drawn '
+                   'afresh each run, and printed)')
     p.add_argument('--json', metavar='OUT', help='write the record as JSON')
     args = p.parse_args(argv)
-    rec = run(quick=args.quick, reps=args.reps, motor_years=args.motor_years)
+    rec = run(quick=args.quick, reps=args.reps, motor_years=args.motor_years,
+              op_seed=args.seed)
     _print(rec)
     if args.json:
         with open(args.json, 'w', encoding='utf-8') as fh:

@@ -27,7 +27,12 @@ changes themselves), so ``var(y_i) = tau^2 + s_i^2`` while nothing changes.
    estimate off from both neighbours by more than ``outlier`` standard deviations of a
    difference, in the same direction, is a gross error left out (``outliers``); the
    latest estimate, off from the one before by as much, waits for the next recording.
-4. **More changes.** Binary segmentation: each side of a change is tested again with
+4. **The first week.** The splits with at most ``early`` recordings before them are also
+   held to ``early_threshold``: their first regime is fixed, so each one's statistic
+   settles as the history grows, and these few need no allowance for the many splits
+   and looks of a long history. A change at the 2nd recording (one recording before it)
+   is found when it is a few day-to-day scatters, not only beyond ``threshold``.
+5. **More changes.** Binary segmentation: each side of a change is tested again with
    the same threshold, so a later second change (or an earlier one) is found too.
    Changes in the same direction with at most ``ramp_gap`` recordings between them are
    one ramp: ``since`` its first recording after the change began, ``until`` the
@@ -49,16 +54,10 @@ from numpy.typing import NDArray
 
 from motor_id.errors import ConfigError
 from motor_id.fleet.scatter import Scatter, ScatterPool
+from motor_id.fleet.segment import best_split, change_groups, level_of, shape_change
 
 MIN_RECORDINGS = 3
 """Recordings before the test runs: 1 before a change and 2 after it."""
-RAMP_SEARCH = 10
-"""A ramp's onset and end are searched this many recordings around the change points."""
-RAMP_CHI2 = 9.0
-"""A ramp is reported instead of a step when it fits better by this much (weighted sum
-of squares, in variances: about p = 0.003 for one more parameter)."""
-
-
 @dataclass(frozen=True)
 class Series:
     """One parameter's history prepared for the test: kept estimates only.
@@ -182,6 +181,10 @@ class DriftFinding:
     score : float or None
         The test's normal score on the whole history (largest over the splits).
     threshold : float
+    early_score : float or None
+        The normal score of the largest split with at most ``DriftRule.early``
+        recordings before it (a change in the first week).
+    early_threshold : float
     change_points : tuple of ChangePoint
     outliers : tuple of int
         Positions left out as gross errors (or the latest, waiting for the next).
@@ -202,6 +205,8 @@ class DriftFinding:
     dof: float | None = None
     score: float | None = None
     threshold: float = 0.0
+    early_score: float | None = None
+    early_threshold: float = 0.0
     change_points: tuple[ChangePoint, ...] = ()
     outliers: tuple[int, ...] = ()
     reason: str | None = None
@@ -234,6 +239,15 @@ class DriftRule:
     sibling_threshold : float
         Normal score beyond which a motor is reported against its siblings
         (:mod:`motor_id.fleet.siblings`).
+    early : int
+        The splits with at most this many recordings before them (a change by the
+        ``early + 1``-th recording: the first week) are also held to ``early_threshold``.
+    early_threshold : float
+        Normal score beyond which the largest of those early splits flags a change. A
+        split's statistic with k recordings before it settles as the history grows (its
+        first regime is fixed), so these few splits need no allowance for the many splits
+        and looks of a long history, and a change in the first week, with one or two
+        recordings before it, is found (docs/fleet.md: the false alarms it costs).
     """
 
     threshold: float = 5.3
@@ -241,12 +255,16 @@ class DriftRule:
     outlier: float = 4.0
     ramp_gap: int = 3
     sibling_threshold: float = 3.5
+    early: int = 6
+    early_threshold: float = 4.0
 
     def __post_init__(self) -> None:
-        v = self.ramp_gap
-        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-            raise ConfigError(f'drift: ramp_gap must be a whole number >= 0, got {v!r}')
-        for name in ('threshold', 'floor', 'outlier', 'sibling_threshold'):
+        for name in ('ramp_gap', 'early'):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ConfigError(f'drift: {name} must be a whole number >= 0, got {v!r}')
+        for name in ('threshold', 'floor', 'outlier', 'sibling_threshold',
+                     'early_threshold'):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
                                            and v > 0):
@@ -298,16 +316,18 @@ class DriftRule:
             x = float(np.exp(h.y[0]))
             return DriftFinding(detected=False, n=n, reason='held at one value (not '
                                 'estimated)', baseline=x, latest=x, change=0.0,
-                                threshold=self.threshold)
+                                threshold=self.threshold,
+                                early_threshold=self.early_threshold)
         sc = (pool or self.pool([h])).at(h.times[-1] if n else None)
         if n < MIN_RECORDINGS or sc.dof <= 0:
-            return _untested(h, sc, self.threshold, f'{n} estimate(s); the test needs '
+            return _untested(h, sc, self, f'{n} estimate(s); the test needs '
                              f'{MIN_RECORDINGS}')
         used = _screen(h.y, h.rel, sc.tau, self.outlier)
         return _segment(self, h, used, sc, pool)
 
-    def alarms(self, h: Series, pool: ScatterPool | None = None) -> NDArray[np.float64]:
-        """The test's normal score at each recording, on the data known then.
+    def alarms(self, h: Series, pool: ScatterPool | None = None
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The test's normal scores at each recording, on the data known then.
 
         Parameters
         ----------
@@ -316,29 +336,39 @@ class DriftRule:
 
         Returns
         -------
-        ndarray
-            One score per kept estimate: the score of the test run when it arrived (NaN
-            before the 3rd); the history drifts from the first above ``threshold``.
+        score, early_score : ndarray
+            One per kept estimate: the scores (:attr:`DriftFinding.score` and
+            ``early_score``) of the test run when it arrived (NaN before the 3rd).
         """
         pool = pool or self.pool([h])
         n = int(h.y.size)
-        out = np.full(n, np.nan)
+        out = np.full((2, n), np.nan)
         looks = np.arange(MIN_RECORDINGS - 1, n)
         scs = [pool.at(h.times[last]) for last in looks]
         tau = np.array([sc.tau for sc in scs])
         dof = np.array([sc.dof for sc in scs])
         for lo in range(0, looks.size, 256):      # blocks of looks: n x n arrays
             sl = slice(lo, lo + 256)
-            out[looks[sl]] = _look_scores(h.y, h.rel, looks[sl], tau[sl], dof[sl],
-                                          self.outlier)
-        return out
+            got = _look_scores(h.y, h.rel, looks[sl], tau[sl], dof[sl], self.outlier,
+                               self.early)
+            out[0, looks[sl]], out[1, looks[sl]] = got
+        return out[0], out[1]
+
+    def flags(self, h: Series, pool: ScatterPool | None = None) -> NDArray[np.bool_]:
+        """Whether the test flags a change at each recording, on the data known then
+        (:meth:`alarms` against ``threshold`` and ``early_threshold``)."""
+        score, early = self.alarms(h, pool)
+        with np.errstate(invalid='ignore'):
+            return (score > self.threshold) | (early > self.early_threshold)
 
 
 def _look_scores(y: NDArray[np.float64], rel: NDArray[np.float64], looks: NDArray[np.intp],
-                 tau: NDArray[np.float64], dof: NDArray[np.float64], outlier: float
-                 ) -> NDArray[np.float64]:
-    """The first stage's normal score at each look (row), all splits at once: what
-    :func:`_screen` and :func:`_best_split` give on each prefix ``y[:look + 1]``."""
+                 tau: NDArray[np.float64], dof: NDArray[np.float64], outlier: float,
+                 early: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The first stage's normal scores at each look (row), all splits at once: what
+    :func:`_screen` and :func:`~motor_id.fleet.segment.best_split` give on each prefix
+    ``y[:look + 1]``, over every split and over the splits with at most ``early``
+    estimates before them."""
     from scipy import special
     n = int(looks.max()) + 1
     y, rel = y[:n], rel[:n]
@@ -364,10 +394,12 @@ def _look_scores(y: NDArray[np.float64], rel: NDArray[np.float64], looks: NDArra
     with np.errstate(divide='ignore', invalid='ignore'):
         t = (sa / wa - sb / wb) / np.sqrt(1.0 / wa + 1.0 / wb)
     t = np.where(ok, np.abs(t), -np.inf)
-    best = t.max(axis=1)
-    p = np.where(np.isfinite(best), special.stdtr(dof, -np.maximum(best, 0.0)), np.nan)
-    score = -special.ndtri(np.maximum(p, 1e-300))
-    return np.where((dof > 0) & np.isfinite(best), score, np.nan)
+    scores = []
+    for best in (t.max(axis=1), np.where(nb <= early, t, -np.inf).max(axis=1)):
+        p = np.where(np.isfinite(best), special.stdtr(dof, -np.maximum(best, 0.0)), np.nan)
+        score = -special.ndtri(np.maximum(p, 1e-300))
+        scores.append(np.where((dof > 0) & np.isfinite(best), score, np.nan))
+    return scores[0], scores[1]
 
 
 def normal_score(t: float, dof: float) -> float:
@@ -378,17 +410,19 @@ def normal_score(t: float, dof: float) -> float:
     return float(-special.ndtri(max(p, 1e-300)))
 
 
-def _untested(h: Series, sc: Scatter, threshold: float, reason: str) -> DriftFinding:
+def _untested(h: Series, sc: Scatter, rule: DriftRule, reason: str) -> DriftFinding:
     n = int(h.y.size)
     if not n:
-        return DriftFinding(detected=False, n=0, reason=reason, threshold=threshold)
+        return DriftFinding(detected=False, n=0, reason=reason, threshold=rule.threshold,
+                            early_threshold=rule.early_threshold)
     w = 1.0 / (sc.tau ** 2 + h.rel ** 2)
     m = float(np.sum(w * h.y) / np.sum(w))
     base, last = math.exp(m), math.exp(float(h.y[-1]))
     return DriftFinding(detected=False, n=n, reason=reason, baseline=base, latest=last,
                         change=last / base - 1.0, level=base,
                         level_std=float(1.0 / math.sqrt(np.sum(w))), scatter=sc.tau,
-                        dof=sc.dof, threshold=threshold)
+                        dof=sc.dof, threshold=rule.threshold,
+                        early_threshold=rule.early_threshold)
 
 
 def _screen(y: NDArray[np.float64], rel: NDArray[np.float64], tau: float,
@@ -409,101 +443,33 @@ def _screen(y: NDArray[np.float64], rel: NDArray[np.float64], tau: float,
     return np.flatnonzero(keep)
 
 
-def _split_stats(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int,
-                 first: bool) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """The splits k allowed in ``y[a:b]`` and their ``T_k``."""
-    lo = 1 if first else 2
-    ks = np.arange(a + lo, b - 1)
-    if ks.size == 0:
-        return ks, np.zeros(0)
-    cw = np.cumsum(w[a:b])
-    cs = np.cumsum(w[a:b] * y[a:b])
-    wb, sb = cw[ks - a - 1], cs[ks - a - 1]
-    wa, sa = cw[-1] - wb, cs[-1] - sb
-    return ks, (sa / wa - sb / wb) / np.sqrt(1.0 / wa + 1.0 / wb)
-
-
-def _best_split(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int,
-                first: bool) -> tuple[int, float] | None:
-    ks, t = _split_stats(y, w, a, b, first)
-    if not ks.size:
-        return None
-    j = int(np.argmax(np.abs(t)))
-    return int(ks[j]), float(t[j])
-
-
-def _binseg(y: NDArray[np.float64], w: NDArray[np.float64], dof: float, threshold: float
-            ) -> tuple[list[tuple[int, float]], float | None]:
+def _binseg(y: NDArray[np.float64], w: NDArray[np.float64], dof: float, rule: DriftRule
+            ) -> tuple[list[tuple[int, float]], float | None, float | None]:
     """Change points (position in ``y``, score) by binary segmentation; and the first
-    stage's score."""
+    stage's score over every split and over the early splits."""
     found: list[tuple[int, float]] = []
     first_score: float | None = None
+    early_score: float | None = None
     todo = [(0, int(y.size))]
     while todo:
         a, b = todo.pop()
-        best = _best_split(y, w, a, b, first=a == 0)
+        best = best_split(y, w, a, b, first=a == 0)
         if best is None:
             continue
         score = normal_score(best[1], dof)
+        early = best_split(y, w, a, b, first=True, most=rule.early) if a == 0 else None
+        escore = normal_score(early[1], dof) if early is not None else None
         if a == 0 and b == y.size:
-            first_score = score
-        if score > threshold:
-            found.append((best[0], score))
-            todo += [(a, best[0]), (best[0], b)]
-    return sorted(found), first_score
-
-
-def _level(y: NDArray[np.float64], w: NDArray[np.float64], a: int, b: int
-           ) -> tuple[float, float]:
-    """Weighted mean of ``y[a:b]`` and its standard error."""
-    ww = w[a:b]
-    return float(np.sum(ww * y[a:b]) / np.sum(ww)), float(1.0 / math.sqrt(np.sum(ww)))
-
-
-def _groups(cps: list[tuple[int, float]], y: NDArray[np.float64], w: NDArray[np.float64],
-            gap: int) -> list[list[tuple[int, float]]]:
-    """Change points in the same direction with at most ``gap`` recordings between them."""
-    bounds = [0] + [c for c, _ in cps] + [int(y.size)]
-    means = [_level(y, w, bounds[j], bounds[j + 1])[0] for j in range(len(bounds) - 1)]
-    out: list[list[tuple[int, float]]] = []
-    for j, cp in enumerate(cps):
-        sign = means[j + 1] > means[j]
-        if out and cp[0] - out[-1][-1][0] <= gap and \
-                (means[j] > means[j - 1]) == sign:
-            out[-1].append(cp)
+            first_score, early_score = score, escore
+        if score > rule.threshold:
+            cut = best[0]
+        elif early is not None and escore is not None and escore > rule.early_threshold:
+            cut, score = early[0], escore
         else:
-            out.append([cp])
-    return out
-
-
-def _shape(y: NDArray[np.float64], w: NDArray[np.float64], a: int, first: int, last: int,
-           b: int) -> tuple[int, int]:
-    """Onset and end of a change between the regimes ``a..first`` and ``last..b``: a
-    step at ``first`` (onset = end), or the ramp (level, a straight line from the onset,
-    level from the end on) that fits the estimates better by more than ``RAMP_CHI2``."""
-    seg_y, seg_w = y[a:b], w[a:b]
-    i = np.arange(a, b)
-    best_step = best_ramp = (math.inf, first, first)
-    for o in range(max(a + 1, first - RAMP_SEARCH), first + 1):
-        for e in range(max(last, o), min(b - 1, last + RAMP_SEARCH) + 1):
-            x = np.clip((i - o + 1) / (e - o + 1), 0.0, 1.0)
-            sw, sx, sxx = seg_w.sum(), (seg_w * x).sum(), (seg_w * x * x).sum()
-            sy, sxy = (seg_w * seg_y).sum(), (seg_w * x * seg_y).sum()
-            det = sw * sxx - sx * sx
-            if det <= 0:
-                continue
-            slope = (sw * sxy - sx * sy) / det
-            icpt = (sy - slope * sx) / sw
-            sse = float(np.sum(seg_w * (seg_y - icpt - slope * x) ** 2))
-            if e == o and sse < best_step[0]:
-                best_step = (sse, o, e)
-            elif e > o and sse < best_ramp[0]:
-                best_ramp = (sse, o, e)
-    if best_step[0] - best_ramp[0] > RAMP_CHI2:
-        return best_ramp[1], best_ramp[2]
-    if last > first:          # steps in one direction a few recordings apart: a ramp
-        return first, last
-    return best_step[1], best_step[2]
+            continue
+        found.append((cut, score))
+        todo += [(a, cut), (cut, b)]
+    return sorted(found), first_score, early_score
 
 
 def _segment(rule: DriftRule, h: Series, used: NDArray[np.intp], sc: Scatter,
@@ -512,20 +478,20 @@ def _segment(rule: DriftRule, h: Series, used: NDArray[np.intp], sc: Scatter,
     y, rel = h.y[used], h.rel[used]
     n = int(y.size)
     w = 1.0 / (sc.tau ** 2 + rel ** 2)
-    cps, first_score = _binseg(y, w, sc.dof, rule.threshold)
-    groups = _groups(cps, y, w, rule.ramp_gap)
+    cps, first_score, early_score = _binseg(y, w, sc.dof, rule)
+    groups = change_groups(cps, y, w, rule.ramp_gap)
     times = [h.times[i] for i in used]
     pos = [int(h.index[i]) for i in used]
     firsts = [0] + [g[0][0] for g in groups] + [n]
     lasts = [0] + [g[-1][0] for g in groups] + [n]
-    shapes = [(0, 0)] + [_shape(y, w, lasts[j], g[0][0], g[-1][0], firsts[j + 2])
+    shapes = [(0, 0)] + [shape_change(y, w, lasts[j], g[0][0], g[-1][0], firsts[j + 2])
                          for j, g in enumerate(groups)] + [(n, n)]
     changes = []
     pool = pool or rule.pool([h])
     for j, g in enumerate(groups):
         onset, end = shapes[j + 1]
-        before = _level(y, w, shapes[j][1], onset)[0]
-        after = _level(y, w, end, shapes[j + 2][0])[0]
+        before = level_of(y, w, shapes[j][1], onset)[0]
+        after = level_of(y, w, end, shapes[j + 2][0])[0]
         flag = _flagged(rule, h, used, lasts[j], min(onset, g[0][0]), firsts[j + 2], pool)
         changes.append(ChangePoint(
             index=pos[onset], since=_iso(times[onset]), until_index=pos[end],
@@ -534,17 +500,18 @@ def _segment(rule: DriftRule, h: Series, used: NDArray[np.intp], sc: Scatter,
             before=math.exp(before), after=math.exp(after),
             change=math.exp(after - before) - 1.0, z=(after - before) / sc.tau,
             score=max(s for _, s in g)))
-    level, level_se = _level(y, w, shapes[-2][1], n)
+    level, level_se = level_of(y, w, shapes[-2][1], n)
     outliers = tuple(int(h.index[i]) for i in np.setdiff1d(np.arange(h.y.size), used))
     base = DriftFinding(detected=False, n=int(h.y.size), level=math.exp(level),
                         level_std=level_se, scatter=sc.tau, dof=sc.dof, score=first_score,
-                        threshold=rule.threshold, change_points=tuple(changes),
+                        threshold=rule.threshold, early_score=early_score,
+                        early_threshold=rule.early_threshold, change_points=tuple(changes),
                         outliers=outliers)
     if changes:
         last = changes[-1]
         return replace(base, detected=True, change=last.change, since=last.since, z=last.z,
                        baseline=last.before, latest=last.after)
-    m = _level(y, w, 0, n)[0]
+    m = level_of(y, w, 0, n)[0]
     latest = float(h.y[-1])
     return replace(base, change=math.exp(latest - m) - 1.0, z=(latest - m) / sc.tau,
                    baseline=math.exp(m), latest=math.exp(latest))
@@ -561,8 +528,11 @@ def _flagged(rule: DriftRule, h: Series, used: NDArray[np.intp], a: int, c: int,
             continue
         end = min(last + 1, b)
         w = 1.0 / (sc.tau ** 2 + rel[a:end] ** 2)
-        best = _best_split(y[a:end], w, 0, end - a, first=a == 0)
+        best = best_split(y[a:end], w, 0, end - a, first=a == 0)
         if best is not None and normal_score(best[1], sc.dof) > rule.threshold:
+            return last
+        early = best_split(y[a:end], w, 0, end - a, True, rule.early) if a == 0 else None
+        if early is not None and normal_score(early[1], sc.dof) > rule.early_threshold:
             return last
     return int(y.size) - 1
 
