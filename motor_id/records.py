@@ -2,26 +2,66 @@
 
 A result block is a frozen dataclass whose fields are named and typed; the JSON shape is
 its fields in their order. A field declared with :func:`optional` is left out of the
-JSON while it is None (a key that exists only in some reports); any other None is
-written as null. Nested records, lists, tuples and dicts of them serialise recursively
-(tuples as lists), so a report's JSON keeps the same keys in the same order as its
-records' fields.
+JSON while it is None (a key that exists only in some reports; other rules: while
+empty, while the record failed); any other None is written as null. :func:`written`
+fields are written through a converter, :func:`internal` ones not at all. Nested
+records, lists, tuples and dicts of them serialise recursively (tuples as lists), so a
+report's JSON keeps the same keys in the same order as its records' fields.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import dataclasses
+import math
 import types
 import typing
 from typing import Any, TypeVar, Union
 
 _OMIT = 'omit_if_none'
+_JSON = 'json'
+_INTERNAL = 'internal'
+_RULES: dict[str, Callable[[Any, Any], bool]] = {
+    'none': lambda value, _record: value is None,
+    'empty': lambda value, _record: not value,
+}
 R = TypeVar('R', bound='Record')
 
 
-def optional(default: Any = None) -> Any:
-    """A field left out of the JSON while it is None (default None)."""
-    return dataclasses.field(default=default, metadata={_OMIT: True})
+def optional(default: Any = None, *, when: Callable[[Any, Any], bool] | str = 'none',
+             json: Callable[[Any], object] | None = None) -> Any:
+    """A field left out of the JSON while it is None (default None); ``when='empty'``:
+    while it is falsy; ``when(value, record)``: while that is true (:func:`omit_if_failed`).
+    ``json``: how its value is written (default as any other field)."""
+    meta: dict[str, object] = {_OMIT: _RULES[when] if isinstance(when, str) else when}
+    if json is not None:
+        meta[_JSON] = json
+    if isinstance(default, (dict, list)):
+        return dataclasses.field(default_factory=type(default), metadata=meta)
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def written(json: Callable[[Any], object], default: Any = dataclasses.MISSING) -> Any:
+    """A field always written, as ``json(value)`` (a number JSON cannot hold, an object
+    that is not a record)."""
+    return dataclasses.field(default=default, metadata={_JSON: json})
+
+
+def internal(default: Any = dataclasses.MISSING, **kw: Any) -> Any:
+    """A field the JSON never holds (per-sample arrays, masks)."""
+    return dataclasses.field(default=default, repr=False, compare=False,
+                             metadata={_INTERNAL: True}, **kw)
+
+
+def omit_if_failed(_value: object, record: object) -> bool:
+    """Rule of :func:`optional`: left out of a record whose ``failed`` says why it has
+    nothing."""
+    return bool(getattr(record, 'failed', ''))
+
+
+def finite(value: float | None) -> float | None:
+    """None for a non-finite number (JSON has no inf or nan)."""
+    return float(value) if value is not None and math.isfinite(value) else None
 
 
 def _out(value: Any) -> Any:
@@ -38,13 +78,18 @@ class Record:
     """Base of the frozen result dataclasses: JSON out and back in at the edges."""
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready: the fields in order, :func:`optional` ones left out while None."""
+        """JSON-ready: the fields in order, :func:`optional` ones left out by their rule
+        (while None), :func:`internal` ones never written."""
         out = {}
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            v = getattr(self, f.name)
-            if v is None and f.metadata.get(_OMIT):
+            if f.metadata.get(_INTERNAL):
                 continue
-            out[f.name] = _out(v)
+            v = getattr(self, f.name)
+            omit = f.metadata.get(_OMIT)
+            if omit is not None and omit(v, self):
+                continue
+            how = f.metadata.get(_JSON)
+            out[f.name] = how(v) if how is not None else _out(v)
         return out
 
     @classmethod

@@ -10,6 +10,7 @@ import os
 import numpy as np
 import pytest
 
+from motor_id.analysis.diagnostics import ResidualBlock
 from motor_id.analysis.frames import frame_evidence, fresh_mask
 from motor_id.analysis.report import DiscrepancyReport
 from motor_id.analysis.simulation_fit import simulation_stage
@@ -120,8 +121,9 @@ def test_the_analysis_report_carries_the_chosen_models_feedforward_block():
                           min_gain=0.05, held_readings={}, candidates=(),
                           chosen='coulomb_friction',
                           estimates=StageEstimates(combinations=combos))
-    rep = DiscrepancyReport('coulomb_friction', [], False, [], {}, {}, {}, {}, {}, 'voltage',
-                            ('speed',), simulation=sim)
+    rep = DiscrepancyReport('coulomb_friction', [], False, [], {}, {}, {},
+                            ResidualBlock(residual={}, binned={}), {}, 'voltage', ('speed',),
+                            simulation=sim)
     ff = rep.to_dict()['controller']['feedforward']
     assert ff['kV'] == {'value': 0.0175, 'std': 1e-4, 'unit': 'V s/rad'}
     assert ff['kA']['value'] is None and ff['kA']['std'] is None

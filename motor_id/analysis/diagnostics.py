@@ -10,8 +10,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.analysis.heldout import binned_means, BinnedMeans
-from motor_id.analysis.records import JsonRecord, optional
 from motor_id.metrics import residual_diagnostics
+from motor_id.records import optional, Record
 
 if TYPE_CHECKING:
     from motor_id.analysis.inverse_dynamics import ElectricalEvidence
@@ -19,7 +19,7 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True, kw_only=True)
-class SteadyPoint(JsonRecord):
+class SteadyPoint(Record):
     """A steady state: the input, speed (and current) averaged over ``[start, stop)``;
     in a report also the linear and the chosen model's mean speed there."""
 
@@ -33,7 +33,7 @@ class SteadyPoint(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class SideFit(JsonRecord):
+class SideFit(Record):
     """``speed = slope input + intercept`` over one side's plateaus."""
 
     slope: float
@@ -42,7 +42,7 @@ class SideFit(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class Quadratic(JsonRecord):
+class Quadratic(Record):
     """``speed = c2 input^2 + c1 input + c0`` over every plateau."""
 
     c2: float
@@ -51,7 +51,7 @@ class Quadratic(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class SteadyStateMap(JsonRecord):
+class SteadyStateMap(Record):
     """The straight lines of :func:`map_summary` (and, in a report, the points)."""
 
     n_points: int
@@ -62,7 +62,7 @@ class SteadyStateMap(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class ResidualTest(JsonRecord):
+class ResidualTest(Record):
     """Whiteness of a residual and its independence of the input
     (:func:`motor_id.metrics.residual_diagnostics`): the share of lags outside the 99 %
     band; the band and the correlations themselves for the linear model's residual."""
@@ -77,7 +77,7 @@ class ResidualTest(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class ResidualBlock(JsonRecord):
+class ResidualBlock(Record):
     """The linear model's residual per channel (:func:`residual_block`), the chosen
     one's, and in a report the noise floors, the electrical evidence and the map."""
 

@@ -23,10 +23,12 @@ one sample per frame period (a frame arrived and said the same).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import Any, TYPE_CHECKING
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from motor_id.records import finite, internal, Record, written
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -35,32 +37,27 @@ MIN_CHANGES = 20
 """Value changes the rhythm test needs."""
 
 
-@dataclass
-class FrameEvidence:
+@dataclass(kw_only=True)
+class FrameEvidence(Record):
     """What one channel's repeats say about held readings."""
 
     channel: str
     found: bool
-    repeated_moving: float
+    repeated_moving: float = written(finite)
     """Share of the moving samples whose value equals the previous sample's."""
-    frame_period: float
+    frame_period: float = written(finite)
     """Median time between value changes [s] (nan when there are too few)."""
-    frame_samples: float
+    frame_samples: float = written(finite)
     """The frame period in median sample periods."""
-    spread: float
+    spread: float = written(finite)
     """Interquartile range of the times between changes over their median."""
-    fresh_share: float
+    fresh_share: float = written(finite)
     """Share of the samples that carry a new reading."""
     reason: str
-    fresh: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool), repr=False)
+    fresh: np.ndarray = internal(default_factory=lambda: np.ones(0, dtype=bool))
     """Per sample: it carries a new reading (:func:`fresh_mask`; all True when no held
     readings were found). Not part of :meth:`to_dict`."""
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready (without the per-sample mask)."""
-        out = {f.name: getattr(self, f.name) for f in fields(self) if f.name != 'fresh'}
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v)
-                for k, v in out.items()}
 
 
 def _moving(y: np.ndarray, frac: float = 0.05) -> np.ndarray:
@@ -114,9 +111,11 @@ def frame_evidence(time: np.ndarray, y: np.ndarray, channel: str = 'speed',
     dt = float(np.median(np.concatenate(dts))) if dts else float('nan')
     repeated = float(np.mean(r)) if r.size else 0.0
     if g.size < MIN_CHANGES or not np.isfinite(dt) or dt <= 0:
-        return FrameEvidence(channel, False, repeated, float('nan'), float('nan'),
-                             float('nan'), 1.0, f'fewer than {MIN_CHANGES} value changes',
-                             np.ones(y.size, dtype=bool))
+        return FrameEvidence(channel=channel, found=False, repeated_moving=repeated,
+                             frame_period=float('nan'), frame_samples=float('nan'),
+                             spread=float('nan'), fresh_share=1.0,
+                             reason=f'fewer than {MIN_CHANGES} value changes',
+                             fresh=np.ones(y.size, dtype=bool))
     period = float(np.median(g))
     q1, q3 = np.percentile(g, [25, 75])
     spread = float((q3 - q1) / period) if period > 0 else float('inf')
@@ -132,10 +131,12 @@ def frame_evidence(time: np.ndarray, y: np.ndarray, channel: str = 'speed',
                   f'(a frame rhythm: at most {max_spread})')
     found = not reason
     fresh = fresh_mask(time, y, period, segments) if found else np.ones(y.size, bool)
-    return FrameEvidence(channel, found, repeated, period, frames, spread,
-                         float(np.mean(fresh)), reason or
+    return FrameEvidence(channel=channel, found=found, repeated_moving=repeated,
+                         frame_period=period, frame_samples=frames, spread=spread,
+                         fresh_share=float(np.mean(fresh)), reason=reason or
                          f'{100 * repeated:.0f} % of the moving samples repeat; a new '
-                         f'value every {1e3 * period:.1f} ms ({frames:.1f} samples)', fresh)
+                         f'value every {1e3 * period:.1f} ms ({frames:.1f} samples)',
+                         fresh=fresh)
 
 
 def fresh_mask(time: np.ndarray, y: np.ndarray, period: float,

@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from motor_id.analysis.records import JsonRecord
 from motor_id.errors import ConfigError
 from motor_id.metrics import noise_floor
+from motor_id.records import Record
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -53,7 +53,7 @@ def heldout_mask(n: int, n_blocks: int = 10, every: int = 3, first: int = 2
 
 
 @dataclass(frozen=True, kw_only=True)
-class BinnedMeans(JsonRecord):
+class BinnedMeans(Record):
     """Mean residual per bin of one variable (bins with samples only); ``explained`` is
     the share of the residual variance that the binned means account for (0..1)."""
 

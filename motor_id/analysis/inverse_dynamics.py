@@ -16,16 +16,16 @@ from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
-from motor_id.analysis.records import JsonRecord, omit_if_failed, optional
 from motor_id.effects import EFFECTS, role_params
 from motor_id.errors import ConfigError, DataError
+from motor_id.records import omit_if_failed, optional, Record
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
 
 
 @dataclass(frozen=True, kw_only=True)
-class RegressionEstimate(JsonRecord):
+class RegressionEstimate(Record):
     """A least-squares coefficient and its standard deviation."""
 
     value: float
@@ -33,7 +33,7 @@ class RegressionEstimate(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class InverseDynamicsFit(JsonRecord):
+class InverseDynamicsFit(Record):
     """The mechanical equation error's estimate (:func:`inverse_dynamics`), or why it
     failed: ``parameters`` (J, B and ``effect.param``), ``relative_error`` (norm of the
     equation residual over norm of the filtered input), the filter ``cutoff`` [Hz], the
@@ -49,7 +49,7 @@ class InverseDynamicsFit(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class ElectricalEvidence(JsonRecord):
+class ElectricalEvidence(Record):
     """What the electrical equation error says (:func:`electrical_evidence`), or why it
     failed: the share of the base equation error each term removes (``explained``), the
     ``favoured`` term (or None), the ``parameter`` of each term's best grid point, R_m

@@ -7,7 +7,6 @@ import math
 import os
 from typing import Any, TYPE_CHECKING
 
-from motor_id.analysis.records import jsonable
 from motor_id.contracts import units_of
 from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
@@ -122,7 +121,7 @@ class DiscrepancyReport:
              'chosen': self.chosen,
              'measurement': self.measurement,
              'failed': self.failed,
-             'diagnostics': jsonable(self.diagnostics),
+             'diagnostics': self.diagnostics.to_dict(),
              'heldout': self.heldout,
              'input_kind': self.input_kind,
              'channels': list(self.channels),
@@ -159,7 +158,8 @@ class DiscrepancyReport:
                 ff[c.name] = {'value': c.value, 'std': c.std}
             else:
                 ff[c.name] = {'value': None, 'std': None, 'particular_value': c.value,
-                              'interval': jsonable(c.interval), 'note': c.note or None}
+                              'interval': None if c.interval is None else list(c.interval),
+                              'note': c.note or None}
             ff[c.name]['unit'] = units.get(c.name)
         source = ('the simulation-error model (simulation.model): kS = V_b + T_c R_m / K_T, '
                   'kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T')

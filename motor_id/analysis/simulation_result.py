@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import math
 from typing import Any, TYPE_CHECKING
 
-from motor_id.analysis.records import finite, JsonRecord, omit_if_failed, optional, written
+from motor_id.records import finite, omit_if_failed, optional, Record, written
 
 if TYPE_CHECKING:
     from motor_id.analysis.frames import FrameEvidence
@@ -25,7 +25,7 @@ ESTIMATES_METHOD = ('the largest of the Gauss-Newton, the block-sandwich and the
 
 
 @dataclass(kw_only=True)
-class SimCandidate(JsonRecord):
+class SimCandidate(Record):
     """One model fitted on simulation error (refined in place while the stage runs)."""
 
     name: str
@@ -46,7 +46,7 @@ class SimCandidate(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class ParameterEstimate(JsonRecord):
+class ParameterEstimate(Record):
     """A free parameter of the stage's model (SI; effect parameters as ``effect.param``):
     its value, error bar (None when not determined), the Gauss-Newton/sandwich part of
     it, the two halves' values and why it is not determined."""
@@ -60,7 +60,7 @@ class ParameterEstimate(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class DerivedEstimate(JsonRecord):
+class DerivedEstimate(Record):
     """A quantity of the model (a SysId constant, friction by direction) with its
     delta-method error bar floored by the halves' spread; one not determined has the
     ``interval`` of two error bars and a ``note``."""
@@ -76,7 +76,7 @@ class DerivedEstimate(JsonRecord):
 
 
 @dataclass(frozen=True, kw_only=True)
-class StageEstimates(JsonRecord):
+class StageEstimates(Record):
     """Values, error bars and determinacy of the stage's chosen model
     (:func:`.simulation_uncertainty.stage_estimates`), or why there are none."""
 
@@ -95,7 +95,7 @@ def _model_json(model: SavedModel | None) -> dict[str, Any] | None:
 
 
 @dataclass(frozen=True, kw_only=True)
-class SimulationStage(JsonRecord):
+class SimulationStage(Record):
     """The simulation-error stage (:func:`.simulation_fit.simulation_stage`).
 
     ``candidates`` were each fitted on the training blocks and scored on the held-out
