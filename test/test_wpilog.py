@@ -17,8 +17,9 @@ from wpiutil.log import DataLogReader
 from motor_id.bag import read_recording
 from motor_id.cli import main
 from motor_id.data.load import load_recording
+from motor_id.data.log_units import parse_unit
 from motor_id.data.mapping import TopicMapping
-from motor_id.data.wpilog import load_wpilog, LogEntries, parse_unit
+from motor_id.data.wpilog import load_wpilog, LogEntries
 from motor_id.errors import ConfigError, DataError
 from motor_id.pipeline import aliased_poles
 from motor_id.testing.sysid_log import DEFAULT_MOTOR
@@ -402,3 +403,141 @@ def test_fit_with_an_effect_searches_on_the_records_scale(friction_logs, tmp_pat
     report = json.loads(out.read_text())
     assert report['effects'] == {} and report['controller']['feedforward']['kS']['value'] == 0
     assert any(n.startswith('kS = 0') for n in report['controller']['notes'])
+
+
+AK = '{"source":"AdvantageKit"}'
+ENUM_NAMES = {'quasistatic-forward': 'kQuasistaticForward',
+              'quasistatic-reverse': 'kQuasistaticReverse', 'dynamic-forward': 'kDynamicForward',
+              'dynamic-reverse': 'kDynamicReverse', 'none': 'kNone'}
+
+
+def advantagekit_copy(src, dst, late_loops=(0, 0)):
+    """The routine ``src`` as an AdvantageKit robot logs it: the state as the Java enum's
+    name under ``/RealOutputs/Shooter/SysIdState``, the voltage a double with the unit in
+    JSON metadata, velocity and position elements of arrays (double[] and float[], no
+    unit); the velocity entry starts ``late_loops[0]`` loops into the first test, the
+    voltage ``late_loops[1]`` loops after that."""
+    import wpiutil
+    from wpiutil.log import (
+        DoubleArrayLogEntry,
+        DoubleLogEntry,
+        FloatArrayLogEntry,
+        StringLogEntry,
+    )
+
+    raw = raw_entries(src)
+    state = raw['sysid-test-state-shooter'][1]
+    volts, pos, vel = (raw[f'{c}-shooter-shooter'][1] for c in ('voltage', 'position',
+                                                                  'velocity'))
+    t_vel = vel[late_loops[0]][0] if late_loops[0] else 0
+    t_volt = volts[sum(late_loops)][0] if sum(late_loops) else 0
+    log = wpiutil.DataLogWriter(str(dst))
+    st = StringLogEntry(log, '/RealOutputs/Shooter/SysIdState', AK, state[0][0] - 5)
+    entries = {}
+    for t, value in sorted(state + [(t, ('V', v)) for t, v in volts]
+                           + [(t, ('P', v)) for t, v in pos] + [(t, ('W', v)) for t, v in vel],
+                           key=lambda tv: tv[0]):
+        if isinstance(value, str):
+            st.append(ENUM_NAMES[value], t)
+            continue
+        kind, v = value
+        if kind == 'V' and t >= t_volt:
+            if 'V' not in entries:
+                entries['V'] = DoubleLogEntry(log, '/Shooter/AppliedVolts',
+                                              '{"source":"AdvantageKit","unit":"Volt"}', t)
+            entries['V'].append(v, t)
+        elif kind == 'P':
+            if 'P' not in entries:
+                entries['P'] = FloatArrayLogEntry(log, '/Shooter/Positions', AK, t)
+            entries['P'].append([v, 0.0, 0.0], t)
+        elif kind == 'W' and t >= t_vel:
+            if 'W' not in entries:
+                entries['W'] = DoubleArrayLogEntry(log, '/Shooter/Velocities', AK, t)
+            entries['W'].append([v, -v], t)
+    log.flush()
+    log.stop()
+    return str(dst)
+
+
+def test_an_advantagekit_log_maps_its_arrays_and_enum_states(routine, tmp_path):
+    _, path = routine
+    ref = load_wpilog(path)
+    ak = advantagekit_copy(path, tmp_path / 'akit.wpilog')
+    with pytest.raises(DataError, match=r'no SysIdRoutineLog motor .* \(numeric entries: '
+                                        r'/Shooter/AppliedVolts, /Shooter/Positions, '
+                                        r'/Shooter/Velocities\)'):
+        load_wpilog(ak)
+    named = LogEntries(voltage='AppliedVolts', velocity='Shooter/Velocities',
+                       units='Rotation')
+    with pytest.raises(DataError, match=r"velocity entry '/Shooter/Velocities' holds "
+                                        r'double\[\] \(arrays of 2\); name one element: '
+                                        r'/Shooter/Velocities\[0\] .. /Shooter/Velocities\[1\]'):
+        load_wpilog(ak, named)
+    with pytest.raises(DataError, match=r'has no element 5 \(its arrays hold 2\)'):
+        load_wpilog(ak, replace(named, velocity='Velocities[5]'))
+    with pytest.raises(DataError, match='no unit in its metadata'):   # JSON without a unit
+        load_wpilog(ak, replace(named, velocity='Velocities[0]', units=None))
+    # the state entry is found by its name (sysid) and its values, the enum names read
+    rec = load_wpilog(ak, replace(named, velocity='Velocities[0]', position='Positions[0]'))
+    assert rec.meta['segment_names'] == list(ROUTINE)
+    assert rec.meta['sysid']['entries'] == {
+        'voltage': '/Shooter/AppliedVolts', 'velocity': '/Shooter/Velocities[0]',
+        'position': '/Shooter/Positions[0]', 'state': '/RealOutputs/Shooter/SysIdState'}
+    np.testing.assert_array_equal(rec.speed, ref.speed)
+    np.testing.assert_array_equal(rec.input, ref.input)
+    np.testing.assert_allclose(rec.position, ref.position, rtol=1e-6)   # float[]
+    other = load_wpilog(ak, replace(named, velocity='/Shooter/Velocities[1]'))
+    np.testing.assert_array_equal(other.speed, -ref.speed)
+
+
+def test_entries_that_start_mid_log(routine, tmp_path):
+    """A velocity entry started 5 loops into the first test, the voltage 3 loops later: the
+    first test is read from the first loop that has both, and a warning counts the loops
+    without a voltage."""
+    _, path = routine
+    ref = load_wpilog(path)
+    ak = advantagekit_copy(path, tmp_path / 'late.wpilog', late_loops=(5, 3))
+    rec = load_wpilog(ak, LogEntries(voltage='AppliedVolts', velocity='Velocities[0]',
+                                     state='SysIdState', units='Rotation'))
+    assert rec.meta['segment_names'] == list(ROUTINE)
+    (a0, b0), (a1, _) = ref.segment_ranges[:2]
+    assert rec.segment_ranges[0] == (0, b0 - a0 - 8)
+    np.testing.assert_array_equal(rec.speed[:b0 - a0 - 8], ref.speed[a0 + 8:b0])
+    np.testing.assert_array_equal(rec.speed[b0 - a0 - 8:], ref.speed[a1:])
+    assert any("test 'quasistatic-forward': 3 sample(s) without a finite voltage" in w
+               for w in rec.meta['warnings'])
+
+
+def test_two_routines_in_one_log(tmp_path, capsys):
+    """Two SysIdRoutineLogs (log names a and b, one motor each, the second routine after
+    the first): the error lists both, a motor or a state entry picks one."""
+    import wpiutil
+    from wpiutil.log import DoubleLogEntry, StringLogEntry
+
+    src = write_sysid_wpilog(tmp_path / 'one.wpilog', 8, **SHORT).path
+    raw = raw_entries(src)
+    log = wpiutil.DataLogWriter(str(tmp_path / 'two.wpilog'))
+    shift = {'a': 0, 'b': raw['sysid-test-state-shooter'][1][-1][0] + 1_000_000}
+    for name, (meta, records) in raw.items():
+        if not name.endswith('-shooter') or not records:
+            continue
+        for log_name, dt in shift.items():
+            new = name[:-len('shooter')].replace('-shooter-', '-arm-') + log_name
+            kind = StringLogEntry if name.startswith('sysid') else DoubleLogEntry
+            entry = kind(log, new, meta, records[0][0] + dt)
+            for t, v in records:
+                entry.append(v, t + dt)
+    log.flush()
+    log.stop()
+    path = str(tmp_path / 'two.wpilog')
+    with pytest.raises(DataError, match=r'several motors: arm-a, arm-b; pick one'):
+        load_wpilog(path)
+    ref = load_wpilog(src)
+    for sel in (LogEntries(motor='arm-b'), LogEntries(state='sysid-test-state-b')):
+        rec = load_wpilog(path, sel)
+        assert rec.meta['sysid']['motor'] == 'arm (log b)'
+        np.testing.assert_array_equal(rec.speed, ref.speed)
+        np.testing.assert_allclose(rec.time - rec.time[0], ref.time - ref.time[0], atol=1e-9)
+    assert main(['fit', path, '--motor', 'arm-a', '-q', '--json',
+                 str(tmp_path / 'a.json')]) == 0
+    capsys.readouterr()

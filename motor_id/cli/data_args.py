@@ -9,9 +9,10 @@ from typing import Any, TextIO
 from motor_id.contracts import INPUT_KINDS
 from motor_id.data.csv_io import DECIMALS, DELIMITERS, parse_columns
 from motor_id.data.load import load_recording
+from motor_id.data.log_units import UNIT_NAMES
 from motor_id.data.mapping import load_profile, mapping_settings, PROFILE_KEYS
 from motor_id.data.shift import detect_shift, shift_input
-from motor_id.data.wpilog import LogEntries, UNIT_NAMES
+from motor_id.data.wpilog import LogEntries
 from motor_id.errors import DataError
 from motor_id.recording import Recording
 

@@ -11,15 +11,21 @@ Since 2024 WPILib's SysId reads DataLogs written on the robot by ``SysIdRoutineL
   ``Meter per Second``, ...).
 
 Other loggers (CTRE SignalLogger, REV URCL, AdvantageKit) name their entries themselves;
-:class:`LogEntries` names them instead. Records carry their own timestamps [us]: the
-velocity entry is the time base, and each velocity sample takes the voltage and position
-of its own robot loop: the last ones logged up to half a loop after it, whatever order the
-loop logs them in (the ``hold`` rule of :mod:`motor_id.data.align`, half a loop ahead).
-As in a SysId JSON row, a loop's voltage is the input over the interval that starts at
-that loop's sample. A run holds
-the velocity samples from half a loop before its first state record to half a loop
-before the record that ends it. Positions and speeds are converted to SI: rad and rad/s,
-or m and m/s for a linear unit.
+:class:`LogEntries` names them instead: an entry by its full name or a unique ending
+(behind a prefix such as ``NT:/`` or ``/RealOutputs/``), an element of an array entry
+(``double[]``, ``float[]``, ``int64[]``) as ``NAME[i]``. A metadata that is a JSON object
+(AdvantageKit's ``{"source": "AdvantageKit", "unit": "..."}``, NetworkTables' properties)
+gives its ``unit``, or none. The test state may be written as SysIdRoutineLog writes it
+(``quasistatic-forward``) or as the Java enum's name (``kQuasistaticForward``, ``kNone``);
+unnamed, a string entry with ``sysid`` in its name that holds such states is the state.
+Records carry their own timestamps [us]: the velocity entry is the time base, and each
+velocity sample takes the voltage and position of its own robot loop: the last ones logged
+up to half a loop after it, whatever order the loop logs them in (the ``hold`` rule of
+:mod:`motor_id.data.align`, half a loop ahead). As in a SysId JSON row, a loop's voltage is
+the input over the interval that starts at that loop's sample. A run holds the velocity
+samples from half a loop before its first state record to half a loop before the record
+that ends it. Positions and speeds are converted to SI: rad and rad/s, or m and m/s for a
+linear unit.
 
 :mod:`wpiutil` (robotpy-wpiutil) reads the file; it is imported on the first read.
 """
@@ -36,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from motor_id.data.align import held_command_index
+from motor_id.data.log_units import parse_unit, UNIT_NAMES, unit_of, VOLTS
 from motor_id.data.sysid import MIN_TEST_ROWS, sysid_recording
 from motor_id.errors import DataError
 from motor_id.recording import Recording
@@ -52,19 +59,8 @@ CHANNELS = ('voltage', 'position', 'velocity')
 _ALIASES = {'voltage': ('voltage',), 'position': ('position', 'distance'),
             'velocity': ('velocity',)}
 _NUMERIC = ('double', 'float', 'int64')
-_ANGLE = {'rotation': 2.0 * math.pi, 'revolution': 2.0 * math.pi, 'rot': 2.0 * math.pi,
-          'rev': 2.0 * math.pi, 'radian': 1.0, 'rad': 1.0, 'degree': math.pi / 180.0,
-          'deg': math.pi / 180.0}
-_LENGTH = {'meter': 1.0, 'metre': 1.0, 'm': 1.0, 'centimeter': 0.01, 'cm': 0.01,
-           'millimeter': 0.001, 'mm': 0.001, 'foot': 0.3048, 'feet': 0.3048, 'ft': 0.3048,
-           'inch': 0.0254, 'inches': 0.0254, 'in': 0.0254}
-_PER_TIME = {'second': 1.0, 'sec': 1.0, 's': 1.0, 'minute': 1.0 / 60.0, 'min': 1.0 / 60.0}
-_SHORT_SPEEDS = {'rps': 'rotation per second', 'rpm': 'rotation per minute',
-                 'mps': 'meter per second', 'fps': 'foot per second'}
-_VOLTS = ('', 'v', 'volt', 'volts')
-UNIT_NAMES = ('Rotation', 'Radian', 'Degree', 'Meter', 'Foot', 'Inch')
-"""Position units :class:`LogEntries`' ``units`` takes (any spelling the metadata may use
-is read too: plural, abbreviated, ``per Second`` or ``/s`` for speeds)."""
+_ARRAYS = ('double[]', 'float[]', 'int64[]')
+_INDEXED = re.compile(r'^(.*)\[(\d+)\]$')
 
 
 @dataclass(frozen=True)
@@ -169,8 +165,9 @@ def load_wpilog(path: str | os.PathLike[str], entries: LogEntries | None = None)
 
 def _wanted(sel: LogEntries) -> Callable[[str], bool]:
     """Which entries' records to keep: SysIdRoutineLog's names, and the ones named."""
-    named = tuple(sel.named.values())
-    pattern = re.compile(r'(^|/)(sysid-test-state-|voltage-|position-|distance-|velocity-)')
+    named = tuple(_split_index(v)[0] for v in sel.named.values())
+    pattern = re.compile(r'(^|/)(sysid-test-state-|voltage-|position-|distance-|velocity-)'
+                         r'|sysid', re.IGNORECASE)
 
     def wanted(name: str) -> bool:
         return bool(pattern.search(name)) or any(name.endswith(n) for n in named)
@@ -246,6 +243,9 @@ def _append(record: Any, entry: _Entry) -> None:
         value = float(record.getInteger())
     elif entry.type == 'string':
         value = record.getString()
+    elif entry.type in _ARRAYS:
+        value = list({'double[]': record.getDoubleArray, 'float[]': record.getFloatArray,
+                      'int64[]': record.getIntegerArray}[entry.type]())
     else:
         return
     entry.times.append(record.getTimestamp())
@@ -254,20 +254,55 @@ def _append(record: Any, entry: _Entry) -> None:
 
 # ------------------------------------------------------------------------ choosing entries
 
+def _split_index(name: str) -> tuple[str, int | None]:
+    """``('NAME', i)`` of ``'NAME[i]'``; ``(name, None)`` otherwise."""
+    match = _INDEXED.match(name.strip())
+    return (match.group(1), int(match.group(2))) if match else (name.strip(), None)
+
+
 def _find(path: str, log: dict[str, _Entry], name: str, what: str,
           types: tuple[str, ...]) -> _Entry:
+    """The entry called ``name`` or, failing that, the one entry whose name ends with it;
+    ``NAME[i]``: element ``i`` of an array entry, as an entry of its own."""
+    base, index = _split_index(name)
+    if index is not None or (base in log and log[base].type in _ARRAYS):
+        return _element(path, _find_one(path, log, base, what, _ARRAYS), index, what)
+    return _find_one(path, log, name, what, types)
+
+
+def _element(path: str, entry: _Entry, index: int | None, what: str) -> _Entry:
+    """Element ``index`` of each record of an array entry (NaN where a record is short)."""
+    sizes = sorted({len(v) for v in entry.values}) or [0]
+    if index is None:
+        raise DataError(f'{path}: the {what} entry {entry.name!r} holds {entry.type} (arrays '
+                        f'of {"-".join(map(str, sizes[::max(len(sizes) - 1, 1)]))}); name '
+                        f'one element: {entry.name}[0] .. {entry.name}[{max(sizes[-1] - 1, 0)}]',
+                        params=(what,))
+    if index >= sizes[-1]:
+        raise DataError(f'{path}: the {what} entry {entry.name!r} has no element {index} '
+                        f'(its arrays hold {sizes[-1]})', params=(what,))
+    values = [float(v[index]) if index < len(v) else math.nan for v in entry.values]
+    return _Entry(f'{entry.name}[{index}]', entry.type[:-2], entry.metadata,
+                  list(entry.times), values)
+
+
+def _find_one(path: str, log: dict[str, _Entry], name: str, what: str,
+              types: tuple[str, ...]) -> _Entry:
     """The entry called ``name`` or, failing that, the one entry whose name ends with it."""
     found = [log[name]] if name in log else [
         e for n, e in log.items() if n.endswith(name) and n[-len(name) - 1:-len(name)]
         in ('/', ':', '')]
     if len(found) != 1:
-        pool = [n for n, e in log.items() if e.type in types]
+        pool = [n for n, e in log.items()
+                if e.type in types or (types == _NUMERIC and e.type in _ARRAYS)]
         how = 'no' if not found else f'{len(found)} entries match'
         raise DataError(f'{path}: {how} {what} entry {name!r} ({"/".join(types)} entries: '
                         f'{_listing(pool)})')
+    if found[0].type in _ARRAYS and types is not _ARRAYS:
+        return _element(path, found[0], None, what)
     if found[0].type not in types:
         raise DataError(f'{path}: the {what} entry {found[0].name!r} holds {found[0].type}, '
-                        f'not {" or ".join(types)}')
+                        f'not {" or ".join(types)}', params=(what,))
     return found[0]
 
 
@@ -324,7 +359,7 @@ def _choose(path: str, log: dict[str, _Entry], sel: LogEntries) -> _Motor:
         state = _find(path, log, sel.state, 'state', ('string',))
         motors = {k: v for k, v in motors.items() if states.get(k[1]) is state}
     if not motors:
-        numeric = [n for n, e in log.items() if e.type in _NUMERIC]
+        numeric = [n for n, e in log.items() if e.type in _NUMERIC + _ARRAYS]
         raise DataError(f'{path}: no SysIdRoutineLog motor (entries voltage-<motor>-<log '
                         f'name> and velocity-<motor>-<log name> beside a {STATE_PREFIX}<log '
                         f'name> entry); for another logger name the entries voltage, '
@@ -342,6 +377,10 @@ def _state(path: str, log: dict[str, _Entry], states: dict[str, _Entry],
         return _find(path, log, name, 'state', ('string',))
     if len(states) == 1:
         return next(iter(states.values()))
+    guess = [e for n, e in log.items() if e.type == 'string' and 'sysid' in n.lower()
+             and any(state_name(str(v)) in STATES for v in e.values)]
+    if not states and len(guess) == 1:   # AdvantageKit's Logger.recordOutput("SysIdState")
+        return guess[0]
     strings = [n for n, e in log.items() if e.type == 'string']
     raise DataError(f'{path}: {"several" if states else "no"} {STATE_PREFIX}<log name> '
                     f'entries; name the test-state entry (state; string entries: '
@@ -389,7 +428,7 @@ class _Scales:
 def _units(path: str, chosen: _Motor, override: str | None) -> _Scales:
     """The log's units from the entries' metadata (or ``override``), checked."""
     volts = chosen.channels['voltage']
-    if volts.metadata.strip().lower() not in _VOLTS:
+    if unit_of(volts.metadata).lower() not in VOLTS:
         raise DataError(f'{path}: the voltage entry {volts.name!r} is in '
                         f'{volts.metadata!r}, not volts')
     scales: dict[str, tuple[float, bool]] = {}
@@ -397,7 +436,7 @@ def _units(path: str, chosen: _Motor, override: str | None) -> _Scales:
         entry = chosen.channels.get(channel)
         if entry is None:
             continue
-        text = override if override is not None else entry.metadata
+        text = override if override is not None else unit_of(entry.metadata)
         if not text.strip():
             raise DataError(f'{path}: the {channel} entry {entry.name!r} has no unit in its '
                             f'metadata; give the position unit (units: '
@@ -410,45 +449,16 @@ def _units(path: str, chosen: _Motor, override: str | None) -> _Scales:
         scales[channel] = parsed
     if len({linear for _, linear in scales.values()}) > 1:
         raise DataError(f'{path}: position and velocity disagree: one is a length, the other '
-                        f'an angle ({chosen.channels["position"].metadata!r}, '
-                        f'{chosen.channels["velocity"].metadata!r})')
+                        f'an angle ({unit_of(chosen.channels["position"].metadata)!r}, '
+                        f'{unit_of(chosen.channels["velocity"].metadata)!r})')
     v_scale, linear = scales['velocity']
     if 'position' in scales:
-        unit = (override or chosen.channels['position'].metadata).strip()
+        unit = (override or unit_of(chosen.channels['position'].metadata)).strip()
         return _Scales(scales['position'][0], v_scale, unit, linear)
     unit = override or re.split(r'\s*(?:/|\bper\b)\s*',
-                                chosen.channels['velocity'].metadata.strip())[0]
+                                unit_of(chosen.channels['velocity'].metadata))[0]
     per_unit = parse_unit(unit)
     return _Scales(per_unit[0] if per_unit else v_scale, v_scale, unit.strip(), linear)
-
-
-def parse_unit(text: str, speed: bool = False) -> tuple[float, bool] | None:
-    """SI value of one ``text`` unit and whether it is a length; None when not known.
-
-    ``speed``: a speed unit (``Rotation per Second``, ``m/s``, ``rpm``): the SI value of
-    one unit per second; otherwise a position unit (``Rotation``, ``Meter``, ``deg``).
-    """
-    words = text.strip().lower()
-    words = _SHORT_SPEEDS.get(words, words)
-    per = 1.0
-    if speed:
-        parts = re.split(r'\s*(?:/|\bper\b)\s*', words)
-        if len(parts) != 2 or _singular(parts[1]) not in _PER_TIME:
-            return None
-        words, per = parts[0], _PER_TIME[_singular(parts[1])]
-    name = _singular(words)
-    if name in _ANGLE:
-        return _ANGLE[name] * per, False
-    if name in _LENGTH:
-        return _LENGTH[name] * per, True
-    return None
-
-
-def _singular(word: str) -> str:
-    word = word.strip()
-    if word in _LENGTH or word in _ANGLE or word in _PER_TIME:
-        return word
-    return word[:-1] if word.endswith('s') else word
 
 
 # ----------------------------------------------------------------------------------- runs
@@ -464,12 +474,23 @@ def _series(entry: _Entry) -> tuple[np.ndarray, np.ndarray]:
     return t[keep], v[keep]
 
 
+def state_name(value: str) -> str:
+    """A test state as SysIdRoutineLog writes it: ``quasistatic-forward`` (also written as
+    the Java enum's name, ``kQuasistaticForward``, or ``QUASISTATIC_FORWARD``), ``none``."""
+    text = value.strip()
+    if text in STATES or text == 'none':
+        return text
+    words = re.sub(r'^k(?=[A-Z])', '', text)
+    words = re.sub(r'(?<=[a-z0-9])(?=[A-Z])', '-', words).replace('_', '-').lower()
+    return words if words in STATES or words == 'none' else text
+
+
 def _tests(path: str, state: _Entry, end_us: int,
            warnings: list[str]) -> list[tuple[str, int, int]]:
     """``(state, first record, record that ends it)`` of each test in the state entry."""
     order = np.argsort(np.asarray(state.times, dtype=np.int64), kind='stable')
     times = [int(state.times[i]) for i in order]
-    values = [str(state.values[i]).strip() for i in order]
+    values = [state_name(str(state.values[i])) for i in order]
     out: list[tuple[str, int, int]] = []
     unknown: set[str] = set()
     k = 0
