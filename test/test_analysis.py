@@ -66,9 +66,9 @@ def test_friction_and_load_are_ambiguous_when_the_motor_never_reverses():
     u = 6.0 + 3.0 * np.sign(np.sin(2 * np.pi * T / 8.0 + 0.1))
     rec = _sim({'coulomb_friction': {'T_c': 0.1}}, u, seed=3)
     rep = DiscrepancyAnalysis(R_m=2.3).fit(rec).report_
-    named = {rep.verdict} | {a['name'] for a in rep.ambiguous_with}
+    named = {rep.verdict} | {a.name for a in rep.ambiguous_with}
     assert named == {'coulomb_friction', 'load_torque'}
-    assert 'reverse' in rep.ambiguous_with[0]['experiment']
+    assert 'reverse' in rep.ambiguous_with[0].experiment
 
 
 def test_encoder_grid_and_friction_are_both_reported():
@@ -211,19 +211,19 @@ def test_emps_friction_with_offset_and_published_parameters(emps_report):
     names = rep.verdict.split('+')
     assert 'coulomb_friction' in names and 'load_torque' in names
     assert 'speed_quantization' not in names  # a 2.5e-5 m/s grid: a resolution
-    combo = next(e for e in rep.effects if e.name == rep.chosen['name'])
+    combo = next(e for e in rep.effects if e.name == rep.chosen.name)
     assert combo.gain > 0.6
     assert all(c['marginal'] > 0.05 for c in combo.components.values())
     idim = {k: v.value for k, v in rep.inverse_dynamics.parameters.items()}
-    oe = {k: v['value'] for k, v in rep.chosen['output_error_parameters'].items()}
+    oe = {k: v['value'] for k, v in rep.chosen.output_error_parameters.items()}
     head = {k: rep.parameters[k]['value'] for k in EMPS_PUBLISHED}
     print(f'\nEMPS {rep.verdict}: gain {100 * combo.gain:.1f} %; estimator '
-          f'{rep.chosen["estimator"]}')
+          f'{rep.chosen.estimator}')
     for k, ref in EMPS_PUBLISHED.items():
         print(f'  {k:<22} published {ref:10.4f}  headline {head[k]:10.4f} '
               f'({100 * (head[k] / ref - 1):+6.2f} %)  output error {oe[k]:10.4f} '
               f'({100 * (oe[k] / ref - 1):+6.2f} %)')
-    assert 'inverse dynamics' in rep.chosen['estimator']
+    assert 'inverse dynamics' in rep.chosen.estimator
     for k in ('J', 'B', 'coulomb_friction.T_c'):
         assert head[k] == pytest.approx(EMPS_PUBLISHED[k], rel=0.05)
     assert head['load_torque.T_L'] == pytest.approx(EMPS_PUBLISHED['load_torque.T_L'],
@@ -241,7 +241,7 @@ def test_dunker_shows_coulomb_friction_and_its_speed_grid():
     # the authors' fit: T0 = 0.0070 .. 0.0081 N m, b = 2.0e-5 .. 2.4e-5 N m s/rad
     assert 0.005 < rep.parameters['coulomb_friction.T_c']['value'] < 0.011
     assert 1e-5 < rep.parameters['B']['value'] < 5e-5
-    assert rep.measurement['input']['found']  # the current (the input) on a 25.6 mA grid
+    assert rep.measurement['input'].found  # the current (the input) on a 25.6 mA grid
     ms = rep.diagnostics.steady_state
     assert ms.positive.zero_speed_input > 0.004
     assert ms.negative.zero_speed_input < -0.004

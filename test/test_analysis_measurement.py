@@ -34,8 +34,8 @@ def test_an_encoder_grid_is_found_with_its_step_and_counts_per_revolution():
     assert [e.name for e in effects] == ['speed_quantization']
     assert effects[0].q == pytest.approx(q, rel=1e-6)
     assert effects[0].extra['counts_per_revolution'] == pytest.approx(cpr, rel=1e-6)
-    assert evidence['speed']['p_value'] < 1e-10
-    assert evidence['speed']['coherence'] > 0.99
+    assert evidence['speed'].p_value < 1e-10
+    assert evidence['speed'].coherence > 0.99
 
 
 @pytest.mark.parametrize('seed', range(6))
@@ -86,8 +86,8 @@ def test_emps_encoder_grid_is_a_resolution_not_an_effect():
     effects, evidence = find_measurement_effects(rec)
     assert effects == []
     # central difference of a 5e-8 m position step over 2 ms: a grid of 2.5e-5 m/s
-    assert evidence['speed']['q'] == pytest.approx(2.5e-5, rel=0.01)
-    assert evidence['speed']['relative_to_spread'] < 1e-3
+    assert evidence['speed'].q == pytest.approx(2.5e-5, rel=0.01)
+    assert evidence['speed'].relative_to_spread < 1e-3
 
 
 def test_dunker_current_input_grid_is_reported_as_input_noise():
@@ -97,10 +97,10 @@ def test_dunker_current_input_grid_is_reported_as_input_noise():
     rec = load_dunker(DUNKER, motor=1)
     effects, evidence = find_measurement_effects(rec)
     ev = evidence['input']
-    assert ev['found']
+    assert ev.found
     # the input is k_t i with k_t = 0.0514 N m/A: 25.6 mA steps
-    assert ev['q'] / 0.0514 == pytest.approx(0.0256, rel=0.03)
-    assert 'errors in variables' in ev['note']
+    assert ev.q / 0.0514 == pytest.approx(0.0256, rel=0.03)
+    assert 'errors in variables' in ev.note
     assert 'current_quantization' not in [e.name for e in effects]
 
 

@@ -116,11 +116,11 @@ def test_analysis_of_an_arm_recovers_kg_offset_kv_ks_and_beats_no_mechanism(arm)
     assert ff['kV']['value'] == pytest.approx(truth['kV'], rel=0.10)
     assert ff['kS']['value'] == pytest.approx(truth['kS'], abs=0.1)
     assert (ff['kG']['unit'], ff['offset']['unit']) == ('V', 'rad')
-    assert 'arm_gravity.T_g' in rep.parameters and rep.chosen['effects']['arm_gravity']
+    assert 'arm_gravity.T_g' in rep.parameters and rep.chosen.effects['arm_gravity']
     # without the mechanism the same record is explained far worse (measured: held-out
     # error 0.010 against 1.008 of the speed's spread)
     plain = _analyse(arm.recording, 'simple')
-    assert rep.heldout['final_error'] < 0.1 * plain.heldout['final_error']
+    assert rep.heldout.final_error < 0.1 * plain.heldout.final_error
     assert plain.simulation.rmse['position'] > 5 * rep.simulation.rmse['position']
 
 
@@ -135,4 +135,4 @@ def test_analysis_of_an_elevator_recovers_kg_kv_ks_and_beats_no_mechanism():
     assert (ff['kG']['unit'], ff['kV']['unit']) == ('V', 'V s/m')   # a linear axis
     assert 'offset' not in ff
     plain = _analyse(case.recording, 'simple')
-    assert rep.heldout['final_error'] < 0.5 * plain.heldout['final_error']
+    assert rep.heldout.final_error < 0.5 * plain.heldout.final_error

@@ -51,14 +51,14 @@ def _score(cases):
     misses = []
     for effect, seed in cases:
         case, rep = _analyse(effect, seed)
-        names = set(rep.verdict.split('+')) | {a['name'] for a in rep.ambiguous_with}
+        names = set(rep.verdict.split('+')) | {a.name for a in rep.ambiguous_with}
         if effect == 'none':
             alarms += rep.verdict != 'none'
             ok = rep.verdict == 'none'
         else:
             ok = effect in names
             named += ok
-            spurious += '+' in rep.chosen['name']
+            spurious += '+' in rep.chosen.name
             for p, truth in case.effect_params.items():
                 key, tol = f'{effect}.{p}', PARAM_TOLERANCE.get(f'{effect}.{p}')
                 if ok and tol is not None and key in rep.parameters:

@@ -12,10 +12,11 @@ import pytest
 
 from motor_id.analysis.diagnostics import ResidualBlock
 from motor_id.analysis.frames import frame_evidence, fresh_mask
-from motor_id.analysis.report import DiscrepancyReport
+from motor_id.analysis.report import Baseline, ChosenBlock, DiscrepancyReport, HeldoutBlock
 from motor_id.analysis.simulation_fit import simulation_stage
 from motor_id.analysis.simulation_result import DerivedEstimate, SimulationStage, StageEstimates
 from motor_id.data.sysid import load_sysid
+from motor_id.identify.result import FitQuality
 from motor_id.identify.validation import SavedModel
 from motor_id.testing.sysid_log import DEFAULT_MOTOR as MOTOR
 from motor_id.testing.sysid_log import make_sysid_log
@@ -121,9 +122,14 @@ def test_the_analysis_report_carries_the_chosen_models_feedforward_block():
                           min_gain=0.05, held_readings={}, candidates=(),
                           chosen='coulomb_friction',
                           estimates=StageEstimates(combinations=combos))
-    rep = DiscrepancyReport('coulomb_friction', [], False, [], {}, {}, {},
-                            ResidualBlock(residual={}, binned={}), {}, 'voltage', ('speed',),
-                            simulation=sim)
+    fit = FitQuality(channels={}, noise_std={}, cost=0.0, initial_state={})
+    rep = DiscrepancyReport(
+        'coulomb_friction', [], False, [], {}, Baseline(parameters={}, fit=fit, heldout_error=0.1),
+        ChosenBlock(name='coulomb_friction', estimator='', effects={}, fit=fit),
+        ResidualBlock(residual={}, binned={}),
+        HeldoutBlock(scheme='', by_run=False, fraction=0.3, blocks=[], base_error=0.1,
+                     final_error=0.1, noise_floor=0.01, min_gain=0.05, resistance=None),
+        'voltage', ('speed',), simulation=sim)
     ff = rep.to_dict()['controller']['feedforward']
     assert ff['kV'] == {'value': 0.0175, 'std': 1e-4, 'unit': 'V s/rad'}
     assert ff['kA']['value'] is None and ff['kA']['std'] is None

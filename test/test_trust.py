@@ -218,7 +218,7 @@ def test_one_direction_runs_report_friction_and_load_as_ambiguous():
                               generations=60).fit(rec).report_
     named = set(rep.verdict.split('+'))
     assert named & {'coulomb_friction', 'load_torque'}
-    others = {a['name'] for a in rep.ambiguous_with}
+    others = {a.name for a in rep.ambiguous_with}
     assert others & {'coulomb_friction', 'load_torque'} - named
     assert any('one sign' in w for w in rep.warnings)
 

@@ -24,7 +24,7 @@ from motor_id.analysis.diagnostics import (
     steady_state_map,
     SteadyPoint,
 )
-from motor_id.analysis.report import DiscrepancyReport
+from motor_id.analysis.report import Baseline, ChosenBlock, DiscrepancyReport, HeldoutBlock
 from motor_id.effects import EFFECTS
 from motor_id.identify import determinacy
 from motor_id.metrics import normalised_fit
@@ -69,8 +69,8 @@ def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
         idyn, params, chosen_d = outcome.torque_headline(rec, chosen, params, chosen_d)
     diag, points = _diagnostics(ctx, full_base, full, chosen, base)
     bres = full_base.result_
-    baseline = {'parameters': bres.to_dict()['parameters'], 'fit': bres.fit.to_dict(),
-                'heldout_error': base.heldout_error}
+    baseline = Baseline(parameters=bres.parameters, fit=bres.fit,
+                        heldout_error=base.heldout_error)
     split = ctx.split
     plot_data = {'time': rec.time, 'channels': split.channels, 'ys': split.ys,
                  'base': base.prediction['preds'], 'chosen': chosen.prediction['preds'],
@@ -90,22 +90,19 @@ def build_report(ctx: RecordContext, base: ModelScore, chosen: ModelScore,
 
 
 def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None, dyn: str
-                  ) -> dict[str, Any]:
+                  ) -> ChosenBlock:
     """The report's ``chosen`` entry: name, estimator, effect values and the fit."""
-    chosen_d: dict[str, Any] = {
-        'name': dyn, 'estimator': 'output error (simulation)',
-        'effects': dict(chosen.effects),   # the base's: a mechanism's gravity, or none
-        'fit': full.result_.fit.to_dict() if (full is not None and chosen is not base)
-        else None}
+    effects = dict(chosen.effects)   # the base's: a mechanism's gravity, or none
     if full is not None and (chosen is not base or base.effects):
-        chosen_d['effects'] = {e: {p: (v['value'] if isinstance(v, dict) else v)
-                                   for p, v in vals.items()}
-                               for e, vals in dynamic_effects(full.result_.effects).items()}
-    return chosen_d
+        effects = {e: {p: (v['value'] if isinstance(v, dict) else v) for p, v in vals.items()}
+                   for e, vals in dynamic_effects(full.result_.effects).items()}
+    return ChosenBlock(name=dyn, estimator='output error (simulation)', effects=effects,
+                       fit=full.result_.fit if (full is not None and chosen is not base)
+                       else None)
 
 
 def _heldout_block(ctx: RecordContext, base: ModelScore, chosen: ModelScore, n_blocks: int,
-                   min_gain: float) -> dict[str, Any]:
+                   min_gain: float) -> HeldoutBlock:
     """The report's ``heldout`` entry: the split's scheme and the errors on it."""
     split = ctx.split
     held = list(range(2, n_blocks, 3))
@@ -113,10 +110,11 @@ def _heldout_block(ctx: RecordContext, base: ModelScore, chosen: ModelScore, n_b
               if split.by_run else
               f'{n_blocks} blocks, blocks {held} held out (the simulation runs '
               'through them)')
-    return {'scheme': scheme, 'by_run': split.by_run, 'fraction': float(np.mean(split.test)),
-            'blocks': split.blocks, 'base_error': base.heldout_error,
-            'final_error': chosen.heldout_error, 'noise_floor': split.floor,
-            'min_gain': min_gain, 'resistance': ctx.resistance}
+    return HeldoutBlock(scheme=scheme, by_run=split.by_run,
+                        fraction=float(np.mean(split.test)), blocks=split.blocks,
+                        base_error=base.heldout_error, final_error=chosen.heldout_error,
+                        noise_floor=split.floor, min_gain=min_gain,
+                        resistance=ctx.resistance)
 
 
 def _diagnostics(ctx: RecordContext, full_base: Identifier, full: Identifier | None,

@@ -28,6 +28,7 @@ from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
     from motor_id.analysis.heldout import HeldOutSplit
+    from motor_id.identify.result import Resistance
     from motor_id.recording import Recording
 
 FLAT = 0.95 ** 2
@@ -145,7 +146,7 @@ class CandidateFitter:
         self.starts = starts
         self.max_delay = max_delay
         self.scales: dict[str, float] = {}
-        self.resistance: dict[str, Any] | None = None
+        self.resistance: Resistance | None = None
         self.extra_starts: dict[str, dict[str, float]] = {}
         self.linear_estimator: Identifier | None = None
         self.physical_bounds: dict[str, tuple[float, float]] = {}
@@ -400,6 +401,6 @@ class CandidateFitter:
                                bounds=self.physical_bounds or None)
             n_extra = len(EFFECTS[self.gravity].params)
         s = self.score('linear', est, n_extra, t0)
-        self.resistance = est.result_.to_dict().get('resistance')
+        self.resistance = est.result_.resistance
         self.linear_estimator = est
         return s

@@ -10,13 +10,14 @@ the analysis (:mod:`.analyzer`) builds it.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
     from motor_id.analysis.heldout import HeldOutSplit
     from motor_id.analysis.inverse_dynamics import ElectricalEvidence
-    from motor_id.analysis.measurement import MeasurementEffect
+    from motor_id.analysis.measurement import LatticeEvidence, MeasurementEffect
+    from motor_id.identify.result import Resistance
     from motor_id.recording import Recording
 
 
@@ -33,7 +34,7 @@ class RecordContext:
         Fits the linear model and each candidate on the training blocks.
     measurement : list of MeasurementEffect
         Measurement effects (value grids) found in the values themselves.
-    measurement_evidence : dict
+    measurement_evidence : dict of LatticeEvidence
         The evidence of every measurement channel (grid found or not).
     electrical : ElectricalEvidence or None
         The electrical equation's evidence (voltage plants with the current measured).
@@ -43,7 +44,7 @@ class RecordContext:
         The speed kept one sign.
     steady : (float, float) or None
         Zero-speed inputs of the steady-state map that point to a static offset.
-    resistance : dict or None
+    resistance : Resistance or None
         The linear fit's resistance block (with the current measured).
     """
 
@@ -51,9 +52,9 @@ class RecordContext:
     split: HeldOutSplit
     fitter: CandidateFitter
     measurement: list[MeasurementEffect]
-    measurement_evidence: dict[str, Any]
+    measurement_evidence: dict[str, LatticeEvidence]
     electrical: ElectricalEvidence | None
     at_once: bool
     one_way: bool
     steady: tuple[float, float] | None
-    resistance: dict[str, Any] | None = None
+    resistance: Resistance | None = None

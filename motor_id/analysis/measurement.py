@@ -29,7 +29,7 @@ spread, far below any model error).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, replace
 import math
 from typing import Any, TYPE_CHECKING
 
@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id.effects import EFFECTS
+from motor_id.records import optional, Record
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -49,8 +50,8 @@ MIN_LEVELS = 10
 of a square wave) line up with some step by chance."""
 
 
-@dataclass
-class LatticeEvidence:
+@dataclass(frozen=True)
+class LatticeEvidence(Record):
     """What the values of one channel say about a grid (see the module notes)."""
 
     channel: str
@@ -65,10 +66,8 @@ class LatticeEvidence:
     method: str
     relative_to_spread: float
     reason: str = ''
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict."""
-        return asdict(self)
+    note: str = optional('', when='empty')
+    """Why a grid found cannot be a model effect (the input's)."""
 
 
 @dataclass
@@ -212,8 +211,7 @@ def lattice_evidence(y: ArrayLike, channel: str = 'speed', alpha: float = 1e-3,
     none = LatticeEvidence(channel, False, 0.0, 0.0, 0.0, 1.0, 0, int(u.size), n_all, '',
                            0.0)
     if y.size < 50 or u.size < 3:
-        none.reason = 'too few samples or distinct values to test'
-        return none
+        return replace(none, reason='too few samples or distinct values to test')
     slope = _slope(y)
     std = float(np.std(y))
     if y.size > max_samples:
@@ -228,9 +226,8 @@ def lattice_evidence(y: ArrayLike, channel: str = 'speed', alpha: float = 1e-3,
         if best is None or c[0] > best[1]:
             best = (q, float(c[0]), int(n[0]))
     if best is None:
-        none.reason = (f'{u.size} distinct values in {n_all} samples: the values do not '
-                       'repeat, so they sit on no grid')
-        return none
+        return replace(none, reason=f'{u.size} distinct values in {n_all} samples: the '
+                       'values do not repeat, so they sit on no grid')
     q, c, n_mov = best
     p = float(min(1.0, n_tried * math.exp(-n_mov * c * c)))
     phase = np.angle(np.mean(np.exp(2j * np.pi * y / q)))
@@ -260,7 +257,7 @@ def _decide(q: float, c: float, p: float, n_mov: int, levels: int, share: float,
 
 
 def find_measurement_effects(rec: Recording, **kw: Any
-                             ) -> tuple[list[MeasurementEffect], dict[str, dict[str, Any]]]:
+                             ) -> tuple[list[MeasurementEffect], dict[str, LatticeEvidence]]:
     """Grids of the recording's output channels (effects) and of its input (a note).
 
     Parameters
@@ -275,11 +272,11 @@ def find_measurement_effects(rec: Recording, **kw: Any
         ``speed_quantization`` / ``current_quantization`` for the output channels on a
         grid; for the speed also the implied counts per revolution ``2 pi / (q T)``.
     evidence : dict
-        ``{channel: LatticeEvidence.to_dict()}`` for every channel and the input, with a
-        note where a grid cannot be a model effect.
+        ``{channel: LatticeEvidence}`` for every channel and the input, with a note where
+        a grid cannot be a model effect.
     """
     effects: list[MeasurementEffect] = []
-    evidence: dict[str, dict[str, Any]] = {}
+    evidence: dict[str, LatticeEvidence] = {}
     T = rec.sample_period
     for name, spec in EFFECTS.items():
         if spec.category != 'measurement' or rec.input_kind not in spec.kinds:
@@ -287,7 +284,7 @@ def find_measurement_effects(rec: Recording, **kw: Any
         if spec.channel not in rec.channels():
             continue
         ev = lattice_evidence(getattr(rec, spec.channel), spec.channel, **kw)
-        evidence[spec.channel] = ev.to_dict()
+        evidence[spec.channel] = ev
         if not ev.found:
             continue
         extra: dict[str, float] = {}
@@ -296,10 +293,10 @@ def find_measurement_effects(rec: Recording, **kw: Any
             extra['position_step'] = float(ev.q * T)
         effects.append(MeasurementEffect(name, ev.q, ev, extra))
     ev = lattice_evidence(rec.input, 'input', **kw)
-    d = ev.to_dict()
     if ev.found:
-        d['note'] = ('the input is measured on a grid: its rounding acts as input noise of '
-                     f'variance q^2/12 = {ev.q ** 2 / 12:.3g} (errors in variables), not '
-                     'as a term of the model')
-    evidence['input'] = d
+        ev = replace(ev, note=(
+            'the input is measured on a grid: its rounding acts as input noise of '
+            f'variance q^2/12 = {ev.q ** 2 / 12:.3g} (errors in variables), not as a term '
+            'of the model'))
+    evidence['input'] = ev
     return effects, evidence

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any, cast, TYPE_CHECKING
 
 import numpy as np
@@ -14,7 +15,7 @@ from motor_id.errors import FIT_ERRORS
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
-    from motor_id.analysis.report import ModelScore
+    from motor_id.analysis.report import ChosenBlock, ModelScore
     from motor_id.identify import Identifier
     from motor_id.recording import Recording
 
@@ -69,8 +70,8 @@ def parameters(chosen: ModelScore, base: ModelScore, full: Identifier | None
 
 
 def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
-                    chosen_d: dict[str, Any]
-                    ) -> tuple[InverseDynamicsFit, dict[str, Any], dict[str, Any]]:
+                    chosen_d: ChosenBlock
+                    ) -> tuple[InverseDynamicsFit, dict[str, Any], ChosenBlock]:
     """Equation-error estimate; the headline for a closed-loop record.
 
     In closed loop the input depends on the measured output, and a free-run
@@ -86,10 +87,10 @@ def torque_headline(rec: Recording, chosen: ModelScore, params: dict[str, Any],
     except FIT_ERRORS as exc:
         return InverseDynamicsFit(failed=str(exc)), params, chosen_d
     if rec.meta.get('closed_loop') and idyn.physical and idyn.relative_error < 0.1:
-        chosen_d['output_error_parameters'] = {k: dict(params[k]) for k in
-                                               idyn.parameters if k in params}
+        chosen_d = replace(
+            chosen_d, estimator='inverse dynamics (equation error): the record is closed loop',
+            output_error_parameters={k: dict(params[k]) for k in idyn.parameters
+                                     if k in params})
         for k, v in idyn.parameters.items():
             params[k] = {'value': v.value, 'std': v.std, 'determined': True}
-        chosen_d['estimator'] = ('inverse dynamics (equation error): the record is '
-                                 'closed loop')
     return idyn, params, chosen_d

@@ -11,11 +11,15 @@ from motor_id.contracts import units_of
 from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
+from motor_id.records import optional, Record, written
 
 if TYPE_CHECKING:
     from motor_id.analysis.diagnostics import ResidualBlock
     from motor_id.analysis.inverse_dynamics import InverseDynamicsFit
+    from motor_id.analysis.measurement import LatticeEvidence
+    from motor_id.analysis.selection import Ambiguity
     from motor_id.analysis.simulation_result import SimulationStage
+    from motor_id.identify.result import Estimate, FitQuality, Resistance
 
 
 @dataclass
@@ -72,6 +76,48 @@ def _finite(v: float | None) -> float | None:
     return float(v) if v is not None and math.isfinite(v) else None
 
 
+def _estimates_json(params: dict[str, Estimate]) -> dict[str, object]:
+    return {k: v.to_dict() for k, v in params.items()}
+
+
+@dataclass(frozen=True, kw_only=True)
+class Baseline(Record):
+    """The linear model refitted on all data: its parameters, fit and held-out error."""
+
+    parameters: dict[str, Estimate] = written(_estimates_json)
+    fit: FitQuality
+    heldout_error: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class ChosenBlock(Record):
+    """The chosen model: its name (``'none'``: the linear one), the estimator of the
+    headline parameters, its effects' values, its fit on all data (None for the linear
+    model or where that fit failed); for a closed-loop torque record whose headline is
+    the inverse-dynamics estimate, the output-error parameters it replaced."""
+
+    name: str
+    estimator: str
+    effects: dict[str, dict[str, float]]
+    fit: FitQuality | None
+    output_error_parameters: dict[str, dict[str, Any]] | None = optional()
+
+
+@dataclass(frozen=True, kw_only=True)
+class HeldoutBlock(Record):
+    """The held-out scheme and the errors on it (RMS over channel std)."""
+
+    scheme: str
+    by_run: bool
+    fraction: float
+    blocks: list[tuple[int, int]]
+    base_error: float
+    final_error: float
+    noise_floor: float
+    min_gain: float
+    resistance: Resistance | None
+
+
 @dataclass
 class DiscrepancyReport:
     """The analysis result; :meth:`to_dict` is the ``--json`` shape.
@@ -88,15 +134,15 @@ class DiscrepancyReport:
     verdict: str
     effects: list
     unexplained: bool
-    ambiguous_with: list
+    ambiguous_with: list[Ambiguity]
     parameters: dict
-    baseline: dict
-    chosen: dict
+    baseline: Baseline
+    chosen: ChosenBlock
     diagnostics: ResidualBlock
-    heldout: dict
+    heldout: HeldoutBlock
     input_kind: str
     channels: tuple
-    measurement: dict = field(default_factory=dict)
+    measurement: dict[str, LatticeEvidence] = field(default_factory=dict)
     failed: list = field(default_factory=list)
     inverse_dynamics: InverseDynamicsFit | None = None
     plot_data: dict = field(default_factory=dict, repr=False)
@@ -115,14 +161,14 @@ class DiscrepancyReport:
              'warnings': list(self.warnings),
              'effects': [e.to_dict() for e in self.effects],
              'unexplained': self.unexplained,
-             'ambiguous_with': self.ambiguous_with,
+             'ambiguous_with': [a.to_dict() for a in self.ambiguous_with],
              'parameters': self.parameters,
-             'baseline': self.baseline,
-             'chosen': self.chosen,
-             'measurement': self.measurement,
+             'baseline': self.baseline.to_dict(),
+             'chosen': self.chosen.to_dict(),
+             'measurement': {ch: ev.to_dict() for ch, ev in self.measurement.items()},
              'failed': self.failed,
              'diagnostics': self.diagnostics.to_dict(),
-             'heldout': self.heldout,
+             'heldout': self.heldout.to_dict(),
              'input_kind': self.input_kind,
              'channels': list(self.channels),
              'seconds': self.seconds}
@@ -235,14 +281,14 @@ def _simulation_lines(sim: SimulationStage | None,
 
 def _fit_lines(rep: DiscrepancyReport) -> list[str]:
     h = rep.heldout
-    lines = [f'linear model: held-out error {h["base_error"]:.4g} '
-             f'(noise floor {h["noise_floor"]:.4g}; errors are RMS / channel std)']
-    for ch, m in rep.baseline['fit']['channels'].items():
+    lines = [f'linear model: held-out error {h.base_error:.4g} '
+             f'(noise floor {h.noise_floor:.4g}; errors are RMS / channel std)']
+    for ch, m in rep.baseline.fit.channels.items():
         after = ''
-        if rep.chosen.get('fit'):
-            after = (f' -> {rep.chosen["fit"]["channels"][ch]["fit_percent"]:.2f} % '
-                     f'with {rep.chosen["name"]}')
-        lines.append(f'  {ch} fit on all data: {m["fit_percent"]:.2f} %{after}')
+        if rep.chosen.fit:
+            after = (f' -> {rep.chosen.fit.channels[ch].fit_percent:.2f} % '
+                     f'with {rep.chosen.name}')
+        lines.append(f'  {ch} fit on all data: {m.fit_percent:.2f} %{after}')
     return lines
 
 
@@ -276,13 +322,12 @@ def _diagnostic_lines(diag: ResidualBlock) -> list[str]:
 def _measurement_lines(rep: DiscrepancyReport) -> list[str]:
     lines: list[str] = []
     for ch, ev in rep.measurement.items():
-        if ev['found']:
-            lines.append(f'measurement: {ch} on a grid of {ev["q"]:.5g} (coherence '
-                         f'{ev["coherence"]:.3f} over {ev["n_moving"]} moving samples, '
-                         f'p = {ev["p_value"]:.2g})' + (f'; {ev["note"]}' if 'note' in ev
-                                                        else ''))
-        elif ev['q'] > 0 and ev['coherence'] >= 0.5:
-            lines.append(f'measurement: {ch}: {ev["reason"]}')
+        if ev.found:
+            lines.append(f'measurement: {ch} on a grid of {ev.q:.5g} (coherence '
+                         f'{ev.coherence:.3f} over {ev.n_moving} moving samples, '
+                         f'p = {ev.p_value:.2g})' + (f'; {ev.note}' if ev.note else ''))
+        elif ev.q > 0 and ev.coherence >= 0.5:
+            lines.append(f'measurement: {ch}: {ev.reason}')
     for e in rep.effects:
         if e.to_dict()['evidence']['kind'] == 'measurement' and 'counts_per_revolution' \
                 in e.extra:
@@ -319,18 +364,18 @@ def _candidate_lines(rep: DiscrepancyReport) -> list[str]:
                          f'rest {100 * g["marginal"]:.1f} %')
     lines.append(f'verdict: {rep.verdict}')
     for a in rep.ambiguous_with:
-        gain = '' if a.get('gain') is None else f' (gain {100 * a["gain"]:.1f} %)'
-        lines.append(f'  cannot be told apart from {a["name"]} with this excitation'
-                     f'{gain}; to separate them: {a["experiment"]}')
+        gain = '' if a.gain is None else f' (gain {100 * a.gain:.1f} %)'
+        lines.append(f'  cannot be told apart from {a.name} with this excitation'
+                     f'{gain}; to separate them: {a.experiment}')
     h = rep.heldout
-    ratio = h['final_error'] / h['noise_floor'] if h['noise_floor'] > 0 else float('inf')
+    ratio = h.final_error / h.noise_floor if h.noise_floor > 0 else float('inf')
     lines.append(f'unexplained structure: {"yes" if rep.unexplained else "no"} '
                  f'(held-out error {ratio:.2f} x noise floor)')
     return lines
 
 
 def _parameter_lines(rep: DiscrepancyReport) -> list[str]:
-    lines = [f'parameters under the chosen model ({rep.chosen.get("estimator", "")}):']
+    lines = [f'parameters under the chosen model ({rep.chosen.estimator}):']
     for k, v in rep.parameters.items():
         if v.get('value') is None:
             lines.append(f'  {k:<24}{"-":>14}  not determined')
@@ -384,8 +429,8 @@ def _plot_residual(ax: Any, report: DiscrepancyReport, k: int, ch: str) -> None:
     pd = report.plot_data
     t = pd['time']
     ax.plot(t, pd['ys'][k] - pd['base'][k], lw=0.7, label='linear model')
-    if report.chosen['name'] != 'none':
-        ax.plot(t, pd['ys'][k] - pd['chosen'][k], lw=0.7, label=report.chosen['name'])
+    if report.chosen.name != 'none':
+        ax.plot(t, pd['ys'][k] - pd['chosen'][k], lw=0.7, label=report.chosen.name)
     ylo, yhi = ax.get_ylim()
     ax.fill_between(t, ylo, yhi, where=pd['test'], color='0.9', zorder=0, label='held out')
     ax.set_ylim(ylo, yhi)
@@ -402,7 +447,7 @@ def _plot_map(ax: Any, report: DiscrepancyReport) -> None:
         ax.plot(u, [p.speed_linear for p in pts], 'x', label='linear model')
         if pts[0].speed_chosen is not None:
             ax.plot(u, [p.speed_chosen for p in pts], '+', ms=10,
-                    label=report.chosen['name'])
+                    label=report.chosen.name)
         ax.legend(loc='best', fontsize=8)
     ax.set_title('steady-state map')
     units = units_of(report.input_kind, report.linear)
@@ -414,13 +459,13 @@ def _plot_gains(ax: Any, report: DiscrepancyReport) -> None:
     items = [e for e in report.effects if e.to_dict()['evidence']['kind'] == 'dynamic']
     items = [e for e in items if '+' not in e.name] + [e for e in items if '+' in e.name]
     gains = [0.0 if e.failed else 100 * e.gain for e in items]
-    colors = ['tab:red' if e.failed else 'tab:blue' if e.name == report.chosen['name'] else
+    colors = ['tab:red' if e.failed else 'tab:blue' if e.name == report.chosen.name else
               'tab:green' if e.significant else 'tab:gray' for e in items]
     ax.barh(range(len(items)), gains, color=colors)
     ax.set_yticks(range(len(items)))
     ax.set_yticklabels([e.name for e in items], fontsize=7)
     ax.invert_yaxis()
-    ax.axvline(100 * report.heldout['min_gain'], color='k', ls='--', lw=0.8)
+    ax.axvline(100 * report.heldout.min_gain, color='k', ls='--', lw=0.8)
     ax.set_xlabel('held-out gain [%] (blue: chosen, green: significant, red: failed)')
     ax.set_title(f'gain per candidate; verdict: {report.verdict}')
 
@@ -430,8 +475,8 @@ def _plot_channel(ax: Any, report: DiscrepancyReport) -> None:
     t = pd['time']
     ax.plot(t, pd['ys'][0], lw=0.8, color='k', label='measured')
     ax.plot(t, pd['base'][0], lw=0.8, label='linear model')
-    if report.chosen['name'] != 'none':
-        ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.chosen['name'])
+    if report.chosen.name != 'none':
+        ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.chosen.name)
     ax.set_title(f'{pd["channels"][0]}: measured and simulated')
     ax.set_xlabel('time [s]')
     ax.legend(loc='best', fontsize=8)

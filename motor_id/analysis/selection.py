@@ -13,12 +13,14 @@ at a search limit and is plausible (:meth:`motor_id.effects.EffectSpec.implausib
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 import math
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.effects import Confusion, EFFECTS
+from motor_id.records import optional, Record
 
 if TYPE_CHECKING:
     from motor_id.analysis.diagnostics import SteadyStateMap
@@ -221,30 +223,41 @@ def components(combo: ModelScore, singles: Sequence[ModelScore], parts_error: Ma
     return out
 
 
+@dataclass(frozen=True, kw_only=True)
+class Ambiguity(Record):
+    """A model as good as the chosen one (its held-out ``gain``; None for one the record
+    cannot tell apart at all) and the ``experiment`` that would separate them."""
+
+    name: str
+    gain: float | None
+    experiment: str
+    note: str | None = optional()
+
+
 def ambiguous(chosen: ModelScore, ranked: Sequence[ModelScore], ambiguity: float, input_kind: str,
-              one_way: bool = False) -> list[dict[str, Any]]:
+              one_way: bool = False) -> list[Ambiguity]:
     """Other significant single models as good as the chosen one, with experiments.
 
     With ``one_way`` (the speed kept one sign) Coulomb friction and a constant load act
     alike: whichever the verdict names, the other is listed, and the model holds for
     that direction only.
     """
-    out: list[dict[str, Any]] = []
+    out: list[Ambiguity] = []
     have = chosen.name.split('+')
     if one_way:
         for a, b in [p for pair in one_way_pairs() for p in (pair, pair[::-1])]:
             if a in have and b not in have:
-                out.append({'name': b, 'gain': None,
-                            'experiment': experiment(a, b, input_kind),
-                            'note': f'the speed kept one sign: {a} and {b} act alike; the '
-                                    'model holds for this direction only'})
+                out.append(Ambiguity(
+                    name=b, gain=None, experiment=experiment(a, b, input_kind),
+                    note=f'the speed kept one sign: {a} and {b} act alike; the model holds '
+                         'for this direction only'))
     for s in ranked:
         if s is chosen or not s.significant or '+' in s.name:
             continue
-        if s.name in have or any(o['name'] == s.name for o in out):
+        if s.name in have or any(o.name == s.name for o in out):
             continue
         if s.heldout_error <= (1 + ambiguity) * chosen.heldout_error:
             main = chosen.name.split('+')[0]
-            out.append({'name': s.name, 'gain': s.gain,
-                        'experiment': experiment(main, s.name, input_kind)})
+            out.append(Ambiguity(name=s.name, gain=s.gain,
+                                 experiment=experiment(main, s.name, input_kind)))
     return out

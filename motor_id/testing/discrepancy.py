@@ -245,14 +245,12 @@ def _measurement_notes(rep: Any) -> dict[str, str]:
     """Per channel: grid found or the reason why not (the lattice evidence)."""
     out = {}
     for ch, m in (getattr(rep, 'measurement', None) or {}).items():
-        if isinstance(m, dict):
-            out[ch] = f"found q = {m['q']:.4g}" if m.get('found') and m.get('q') else \
-                (m.get('reason') or '')
+        out[ch] = f'found q = {m.q:.4g}' if m.found and m.q else (m.reason or '')
     return out
 
 
 def _names(entries: Iterable[Any] | None) -> list[str]:
-    return [a['name'] if isinstance(a, dict) else str(a) for a in entries or []]
+    return [getattr(a, 'name', str(a)) for a in entries or []]
 
 
 def analyse(spec: CaseSpec, candidates: Sequence[str] | None = None) -> dict[str, Any]:
