@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from motor_id.controller import from_identification, to_ros_parameters
+from motor_id.controller import from_fit, to_ros_parameters
+from motor_id.controller.result import ControllerDesign
 from motor_id.effects import EFFECTS
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
@@ -23,7 +24,7 @@ from motor_id.identify.mechanism import check_mechanism, with_gravity
 from motor_id.identify.result import IdentificationResult
 from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.model import PARAM_NAMES
-from motor_id.output import attach_units, to_jsonable
+from motor_id.output import attach_units
 from motor_id.recording import Recording
 
 
@@ -46,8 +47,8 @@ class FitReport:
     result : IdentificationResult
     data : dict
         :func:`data_block` of the recording.
-    controller : dict or None
-        The controller design (``ControllerDesign.to_dict()``), None when there is none.
+    design : ControllerDesign or None
+        The controller design, None when there is none (``controller``: its JSON).
     controller_error : str or None
         Why there is no controller design.
     extra : dict
@@ -56,10 +57,15 @@ class FitReport:
 
     result: IdentificationResult
     data: dict[str, Any]
-    controller: dict[str, Any] | None = None
+    design: ControllerDesign | None = None
     controller_error: str | None = None
     controller_summary: str = ''
     extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def controller(self) -> dict[str, Any] | None:
+        """The controller design's JSON (``ControllerDesign.to_dict()``), None without one."""
+        return None if self.design is None else self.design.to_dict()
 
     @property
     def adequate(self) -> bool:
@@ -71,8 +77,8 @@ class FitReport:
         extras; every constant with its ``unit`` (:func:`motor_id.output.attach_units`)."""
         d = self.result.to_dict()
         d['data'] = dict(self.data)
-        if self.controller is not None:
-            d['controller'] = self.controller
+        if self.design is not None:
+            d['controller'] = self.design.to_dict()
         elif self.controller_error is not None:
             d['controller'] = {'error': self.controller_error}
         d.update(self.extra)
@@ -97,8 +103,8 @@ class FitReport:
                     params[f'estimate.{key}'] = float(v)
                 elif unknown == 'nan':
                     params[f'estimate.{key}'] = math.nan
-        if self.controller is not None:
-            flat = to_ros_parameters(self.controller, node_name)[node_name]
+        if self.design is not None:
+            flat = to_ros_parameters(self.design, node_name)[node_name]
             params.update(flat['ros__parameters'])
         return {node_name: {'ros__parameters': params}}
 
@@ -112,18 +118,18 @@ class FitReport:
         return '\n'.join(parts)
 
 
-def controller_for(report: Mapping[str, Any], sample_period: float | None,
+def controller_for(result: IdentificationResult, linear: bool, sample_period: float | None,
                    options: Mapping[str, Any] | None = None
-                   ) -> tuple[dict[str, Any] | None, str | None, str]:
-    """``(design dict, error, summary)`` of the controller design for a fit report."""
+                   ) -> tuple[ControllerDesign | None, str | None, str]:
+    """``(design, error, summary)`` of the controller design for a fit's result."""
     kw = dict(options or {})
     if sample_period is not None:
         kw['sample_period'] = sample_period
     try:
-        design = from_identification(to_jsonable(dict(report)), **kw)
+        design = from_fit(result, linear=linear, **kw)
     except MotorIdError as exc:  # the fit stands; say why there is no design
         return None, str(exc), ''
-    return design.to_dict(), None, design.summary()
+    return design, None, design.summary()
 
 
 def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any] | None:
@@ -287,7 +293,7 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     identifier : Identifier
         Its settings; it is fitted here (``identifier.result_`` afterwards).
     controller_options : dict, optional
-        Keyword arguments of :func:`motor_id.controller.from_identification` (loop
+        Keyword arguments of :func:`motor_id.controller.from_fit` (loop
         bandwidths).
     sample_period : float, optional
         The controller's sample period (default: the record's median period).
@@ -314,8 +320,8 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     >>> report = fit_report(rec, Identifier(R_m=2.3, random_state=0))
     >>> report.adequate
     True
-    >>> ff = report.controller['feedforward']
-    >>> round(ff['kV']['value'], 3), ff['units']['kV']
+    >>> ff = report.design.feedforward
+    >>> round(ff.kV.value, 3), ff.units['kV']
     (0.667, 'V s/rad')
     >>> sorted(report.to_dict())[:4]
     ['adequate', 'assumptions', 'channels', 'controller']
@@ -329,9 +335,8 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     extra = {**dict(extra or {}), **({'effect_search': search} if search else {}),
              **({'alias_guard': guard} if guard else {})}
     block = data_block(rec, **dict(data or {}))
-    head = res.to_dict()
-    head['data'] = block
     period = sample_period if sample_period is not None else rec.sample_period
-    design, error, text = controller_for(head, period, controller_options)
-    return FitReport(result=res, data=block, controller=design, controller_error=error,
+    design, error, text = controller_for(res, bool(block.get('linear', False)), period,
+                                         controller_options)
+    return FitReport(result=res, data=block, design=design, controller_error=error,
                      controller_summary=text, extra=dict(extra or {}))

@@ -47,13 +47,13 @@ def _cascade(values, design, input_kind='voltage'):
     outputs = ['w', 'i'][:n]
     motor = ct.ss(F[0], G[0][:, :1], np.eye(n), np.zeros((n, 1)), inputs=['u'],
                   outputs=outputs, name='motor')
-    sp = design.pi['speed']
+    sp = design.pi.speed.to_dict()
     c_speed = ct.tf([sp['kp']['value'], sp['ki']['value']], [1, 0], inputs='ew',
                     outputs='iref' if input_kind == 'voltage' else 'u', name='cs')
     sum_w = ct.summing_junction(['wref', '-w'], 'ew', name='sw')
     if input_kind == 'torque':
         return None, ct.interconnect([motor, c_speed, sum_w], inputs='wref', outputs='w')
-    cu = design.pi['current']
+    cu = design.pi.current.to_dict()
     c_current = ct.tf([cu['kp']['value'], cu['ki']['value']], [1, 0], inputs='ei',
                       outputs='u', name='ci')
     sum_i = ct.summing_junction(['iref', '-i'], 'ei', name='si')
@@ -79,7 +79,7 @@ def test_feedforward_matches_hand_computation():
     assert tc['mechanical']['value'] == pytest.approx(0.1196 / 0.4402, rel=1e-12)
     assert ff['units'] == {'kS': 'V', 'kV': 'V s/rad', 'kA': 'V s^2/rad'}
     # the paper's own motor (K_b 0.64 != K_T 0.66) tells K_T and K_b apart
-    ff = design_controller({**PAPER, 'K_b': 0.64}).feedforward
+    ff = design_controller({**PAPER, 'K_b': 0.64}).to_dict()['feedforward']
     assert ff['kV']['value'] == pytest.approx(0.64 + 0.0046 / 0.66, rel=1e-12)
     assert ff['kA']['value'] == pytest.approx(0.1196 / 0.66, rel=1e-12)
     assert any(n.startswith('kS = 0') for n in d['notes'])
@@ -89,7 +89,7 @@ def test_feedforward_tracks_a_ramp_on_the_model():
     # Open loop on the model: V = kV w_ref + kA dw_ref/dt for w_ref = a t. Neglecting L_m
     # leaves a constant lag of L_m B a / (K_T kV) (0.003 rad/s here) once tau_m has passed.
     v = {**PAPER, 'K_b': 0.64}
-    ff = design_controller(v).feedforward
+    ff = design_controller(v).to_dict()['feedforward']
     kV, kA = ff['kV']['value'], ff['kA']['value']
     F, G = continuous_matrices({k: [x] for k, x in v.items()}, 'voltage')
     w = 50.0
@@ -110,7 +110,7 @@ def test_feedforward_tracks_a_ramp_on_the_model():
 
 def test_default_loops_have_phase_margin_above_45_deg():
     d = design_controller(PAPER)
-    cu, sp = d.pi['current'], d.pi['speed']
+    cu, sp = d.pi.current.to_dict(), d.pi.speed.to_dict()
     # defaults: current 10 / (2 pi tau_e), speed a decade lower
     assert cu['bandwidth_hz'] == pytest.approx(10 / (2 * math.pi * 0.015), rel=1e-12)
     assert sp['bandwidth_hz'] == pytest.approx(cu['bandwidth_hz'] / 10, rel=1e-12)
@@ -125,8 +125,8 @@ def test_default_loops_have_phase_margin_above_45_deg():
 def test_closed_loop_reaches_designed_bandwidth():
     d = design_controller(PAPER)
     current, speed = _cascade(PAPER, d)
-    f_i = d.pi['current']['bandwidth_hz']
-    f_w = d.pi['speed']['bandwidth_hz']
+    f_i = d.pi.current.bandwidth_hz
+    f_w = d.pi.speed.bandwidth_hz
     # current loop: first order at w_ci -> -3 dB within 5 %, 10-90 % rise ln(9)/w_ci +-10 %
     assert ct.bandwidth(current) / (2 * math.pi) == pytest.approx(f_i, rel=0.05)
     info = ct.step_info(current)
@@ -141,7 +141,7 @@ def test_closed_loop_reaches_designed_bandwidth():
     assert resp.outputs[-1] == pytest.approx(1.0, abs=1e-3)
     assert resp.outputs.max() < 1.10  # overshoot about 7 %
     # the module's own check agrees with the independent interconnection
-    assert d.pi['speed']['closed_loop_bandwidth_hz'] == pytest.approx(ratio * f_w, rel=0.01)
+    assert d.pi.speed.closed_loop_bandwidth_hz == pytest.approx(ratio * f_w, rel=0.01)
 
 
 def _reference_loops(values, input_kind, gains, sample_period):
@@ -182,14 +182,14 @@ def _reference_loops(values, input_kind, gains, sample_period):
         'unstable'])
 def test_loop_checks_match_python_control(values, input_kind, kw):
     d = design_controller(values, input_kind=input_kind, **kw)
-    bandwidths = [d.pi[k]['bandwidth_hz'] if d.pi[k] else math.nan
-                  for k in ('current', 'speed')]
+    pi = {'current': d.pi.current, 'speed': d.pi.speed}
+    bandwidths = [pi[k].bandwidth_hz if pi[k] else math.nan for k in ('current', 'speed')]
     gains = controller_constants(values, input_kind, *bandwidths)
     ours = loop_transfer_functions(values, input_kind, gains, kw.get('sample_period'))
     ref = _reference_loops(values, input_kind, gains, kw.get('sample_period'))
-    assert set(ours) == set(ref) == {k for k in d.pi if d.pi[k]}
+    assert set(ours) == set(ref) == {k for k in pi if pi[k]}
     for name, loop in ref.items():
-        check = d.pi[name]
+        check = pi[name].to_dict()
         gm, pm, _, _, wgc, _ = ct.stability_margins(loop)
         closed = ct.feedback(loop, 1)
         stable = bool(np.all(ct.poles(closed).real < 0))
@@ -214,7 +214,7 @@ def test_loop_checks_match_python_control(values, input_kind, kw):
         np.testing.assert_allclose(mine, loop(1j * w), rtol=1e-5)
         wc = 2j * math.pi * check['crossover_hz']
         assert abs(np.polyval(num, wc) / np.polyval(den, wc)) == pytest.approx(1.0, abs=1e-9)
-    unstable = [k for k in d.pi if d.pi[k] and not d.pi[k]['closed_loop_stable']]
+    unstable = [k for k in pi if pi[k] and not pi[k].closed_loop_stable]
     assert [n for n in d.notes if 'UNSTABLE' in n] == [f'{k} loop: UNSTABLE on the '
                                                        'identified model: lower its '
                                                        'bandwidth' for k in unstable]
@@ -294,7 +294,7 @@ def test_feedforward_explains_measured_emps_force():
     rec = load_recording(str(EMPS_BAG))
     ff = design_controller(EMPS, input_kind='torque',
                            kS={'value': EMPS_FC, 'std': None,
-                               'source': 'coulomb_friction'}).feedforward
+                               'source': 'coulomb_friction'}).to_dict()['feedforward']
     dt = rec.sample_period
     w = savgol_filter(rec.speed, 11, 2)
     a = savgol_filter(rec.speed, 11, 2, deriv=1, delta=dt)
@@ -386,7 +386,7 @@ def test_from_identification_uses_parameter_covariance():
         cov = np.array([[1, rho], [rho, 1]]) * np.outer(sd, sd)
         fit['parameter_covariance'] = {'names': names, 'matrix': cov.tolist()}
         d = from_identification(fit, current_bandwidth_hz=100.0, speed_bandwidth_hz=10.0)
-        kA = d.feedforward['kA']
+        kA = d.to_dict()['feedforward']['kA']
         # kA = R_m J / K_T: relative std sqrt(2 (1 - rho)) x 1 %
         assert kA['std'] / kA['value'] == pytest.approx(0.01 * factor, rel=0.01)
         assert not any('correlations ignored' in n for n in d.notes)
@@ -395,18 +395,18 @@ def test_from_identification_uses_parameter_covariance():
 def test_sample_period_caps_default_bandwidth_and_delays_the_check():
     fast = design_controller(PAPER)
     slow = design_controller(PAPER, sample_period=1e-3)
-    assert slow.pi['current']['bandwidth_hz'] == pytest.approx(50.0)  # f_s / 20
-    assert slow.pi['speed']['bandwidth_hz'] == pytest.approx(5.0)
+    assert slow.pi.current.bandwidth_hz == pytest.approx(50.0)  # f_s / 20
+    assert slow.pi.speed.bandwidth_hz == pytest.approx(5.0)
     # 1.5 samples of delay cost 2 pi 50 Hz 1.5 ms = 27 deg at the current crossover
-    assert slow.pi['current']['phase_margin_deg'] == pytest.approx(90 - 27, abs=1.5)
-    assert fast.pi['current']['phase_margin_deg'] > slow.pi['current']['phase_margin_deg']
+    assert slow.pi.current.phase_margin_deg == pytest.approx(90 - 27, abs=1.5)
+    assert fast.pi.current.phase_margin_deg > slow.pi.current.phase_margin_deg
     assert any('delay' in n for n in slow.notes)
 
 
 def test_low_phase_margin_is_noted():
     # speed loop at half the current bandwidth: symmetric optimum with a = 2, about 37 deg
     d = design_controller(PAPER, current_bandwidth_hz=100.0, speed_bandwidth_hz=50.0)
-    assert d.pi['speed']['phase_margin_deg'] < 45
+    assert d.pi.speed.phase_margin_deg < 45
     assert any(n.startswith('speed loop: phase margin') and 'below the required 45' in n
                for n in d.notes)
     ok = design_controller(PAPER, current_bandwidth_hz=100.0, speed_bandwidth_hz=50.0,
@@ -446,7 +446,7 @@ def test_summary_lists_every_number():
     text = d.summary()
     for label in ('kS', 'kV', 'kA', 'tau_e', 'tau_m', 'current kp', 'speed ki', 'notes:'):
         assert label in text
-    assert f'{d.feedforward["kA"]["value"]:.4g}' in text
+    assert f'{d.feedforward.kA.value:.4g}' in text
     assert all(len(line) < 200 for line in text.splitlines())
 
 
@@ -456,8 +456,8 @@ def test_to_ros_parameters_round_trips_through_yaml():
     back = yaml.safe_load(yaml.safe_dump(params))
     assert back == params
     p = back['speed_controller']['ros__parameters']
-    assert p['controller.kV'] == pytest.approx(d.feedforward['kV']['value'])
-    assert p['controller.current.kp'] == pytest.approx(d.pi['current']['kp']['value'])
+    assert p['controller.kV'] == pytest.approx(d.feedforward.kV.value)
+    assert p['controller.current.kp'] == pytest.approx(d.pi.current.kp.value)
     assert set(p) == {'controller.kS', 'controller.kV', 'controller.kA', 'controller.tau_e',
                       'controller.tau_m', 'controller.current.kp', 'controller.current.ki',
                       'controller.current.bandwidth_hz', 'controller.speed.kp',
@@ -523,7 +523,7 @@ def test_design_does_not_load_python_control_or_scipy_signal():
             'from motor_id.controller import design_controller\n'
             'd = design_controller({"R_m": 2.3, "L_m": 0.0345, "J": 0.052, "K_T": 0.66, '
             '"K_b": 0.66, "B": 0.002}, sample_period=1e-3)\n'
-            'assert d.pi["speed"]["phase_margin_deg"] > 45\n'
+            'assert d.pi.speed.phase_margin_deg > 45\n'
             'heavy = {"control", "scipy.signal", "scipy.stats", "matplotlib"}\n'
             'assert not heavy & set(sys.modules), heavy & set(sys.modules)')
     subprocess.run([sys.executable, '-c', code], check=True)

@@ -45,7 +45,7 @@ def test_speed_only_fit_reports_sysid_kv_ka_with_error_bars_that_cover_the_truth
     """Speed alone determines SysId's kV = a0/b0 and kA = a1/b0 (the five parameters it
     does not): within 1 % of the truth and within 3 reported std, for three noise seeds,
     and the controller block carries them."""
-    from motor_id.controller import from_identification
+    from motor_id.controller import from_fit, from_identification
     truth = {'kV': (2.3 * 0.002 + 0.66 * 0.64) / 0.66,
              'kA': (2.3 * 0.052 + 0.002 * 0.0345) / 0.66}
     for seed in (1, 2, 3):
@@ -55,9 +55,10 @@ def test_speed_only_fit_reports_sysid_kv_ka_with_error_bars_that_cover_the_truth
         for k in ('kV', 'kA'):
             assert rel_err(c[k]['value'], truth[k]) < 0.01, (seed, k, c[k])
             assert abs(c[k]['value'] - truth[k]) < 3 * c[k]['std'], (seed, k, c[k])
-        ff = from_identification(r.to_dict()).feedforward
-        assert ff['kV']['value'] == pytest.approx(c['kV']['value'])
-        assert ff['kA']['std'] == pytest.approx(c['kA']['std'])
+        ff = from_fit(r).feedforward
+        assert ff.kV.value == pytest.approx(c['kV']['value'])
+        assert ff.kA.std == pytest.approx(c['kA']['std'])
+        assert from_identification(r.to_dict()).feedforward == ff   # the JSON, read back
 
 
 def test_zoh_recovers_all_five_with_current_and_tie():

@@ -7,16 +7,30 @@ gains for a current and a speed loop; each loop is then checked on the full mode
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 import math
 from typing import Any
 
 import numpy as np
 
 from motor_id.contracts import INPUT_KINDS, linear_unit, units_of
-from motor_id.controller.loops import DELAY_SAMPLES, loop_transfer_functions, margins
+from motor_id.controller.loops import (
+    DELAY_SAMPLES,
+    loop_transfer_functions,
+    LoopCheck,
+    margins,
+)
+from motor_id.controller.result import (
+    ControllerDesign,
+    Feedforward,
+    format_number,
+    LoopDesign,
+    PiLoops,
+    Quantity,
+    TimeConstants,
+)
 from motor_id.effects import role_params
 from motor_id.errors import ConfigError
+from motor_id.identify.result import ParameterCovariance
 from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 
 VOLTAGE_NAMES = PARAM_NAMES
@@ -45,64 +59,13 @@ FD_RELATIVE_STEP = 1e-5
 _OUTPUTS = ('kV', 'kA', 'tau_e', 'tau_m', 'current_kp', 'current_ki', 'speed_kp', 'speed_ki')
 
 
-@dataclass
-class ControllerDesign:
-    """Feedforward constants, time constants and cascaded PI gains, each with an error bar.
-
-    Every number is ``{'value': float|None, 'std': float|None}``; ``None`` value means the
-    parameters it needs are unknown, ``None`` std means no covariance was given.
-    """
-
-    input_kind: str
-    feedforward: dict[str, Any]
-    time_constants: dict[str, Any]
-    pi: dict[str, Any]
-    notes: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: keys ``feedforward, time_constants, pi, notes`` (the contract)."""
-        return {'feedforward': self.feedforward, 'time_constants': self.time_constants,
-                'pi': self.pi, 'notes': list(self.notes)}
-
-    def summary(self) -> str:
-        """Return a plain-text table for people (one string, lines separated by newlines)."""
-        ff, tc = self.feedforward, self.time_constants
-        lines = [f'controller design ({self.input_kind} plant; {ff["convention"]})',
-                 f'{"quantity":<14}{"value":>13}{"std":>12}  units']
-        for k in ('kS', 'kV', 'kA'):
-            lines.append(_row(k, ff[k], ff['units'][k]))
-        lines.append(_row('tau_e', tc['electrical'], 's'))
-        lines.append(_row('tau_m', tc['mechanical'], 's'))
-        for loop in ('current', 'speed'):
-            d = self.pi[loop]
-            if d is None:
-                lines.append(f'{loop + " PI":<14}{"-":>13}{"-":>12}  (no {loop} loop)')
-                continue
-            lines.append(_row(f'{loop} kp', d['kp'], d['units']['kp']))
-            lines.append(_row(f'{loop} ki', d['ki'], d['units']['ki']))
-            lines.append(f'{"":<14}designed {_fmt(d["bandwidth_hz"])} Hz; checked: crossover '
-                         f'{_fmt(d["crossover_hz"])} Hz, phase margin '
-                         f'{_fmt(d["phase_margin_deg"])} deg')
-        lines.append('notes:')
-        lines.extend(f'- {n}' for n in self.notes)
-        return '\n'.join(lines)
-
-
-def _fmt(x: float | None) -> str:
-    return '-' if x is None else f'{x:.4g}'
-
-
-def _row(name: str, entry: Mapping[str, Any], unit: str) -> str:
-    return f'{name:<14}{_fmt(entry["value"]):>13}{_fmt(entry["std"]):>12}  {unit}'
-
-
-def _entry(value: float | None, std: float | None = None) -> dict[str, float | None]:
-    """``{'value', 'std'}`` with NaN (unknown) mapped to None and numpy scalars to float."""
+def _entry(value: float | None, std: float | None = None) -> Quantity:
+    """A :class:`Quantity` with NaN (unknown) mapped to None and numpy scalars to float."""
     if value is None or not np.isfinite(value):
-        return {'value': None, 'std': None}
+        return Quantity(None, None)
     if std is not None and not np.isfinite(std):
         std = None
-    return {'value': float(value), 'std': None if std is None else float(std)}
+    return Quantity(float(value), None if std is None else float(std))
 
 
 def check_input_kind(input_kind: str) -> tuple[str, ...]:
@@ -141,11 +104,13 @@ def _check_values(values: Mapping[str, float | None], input_kind: str) -> dict[s
     return out
 
 
-def _check_covariance(covariance: Mapping[str, Any] | None,
+def _check_covariance(covariance: ParameterCovariance | Mapping[str, Any] | None,
                       values: Mapping[str, float]) -> tuple[list[str], np.ndarray | None]:
     """Return ``(names, matrix)`` or ``([], None)``; only known parameters may appear."""
     if covariance is None:
         return [], None
+    if isinstance(covariance, ParameterCovariance):
+        covariance = covariance.to_dict()
     if not isinstance(covariance, dict) or set(covariance) != {'names', 'matrix'}:
         raise ConfigError("covariance must be {'names': [...], 'matrix': [[...]]}")
     names = list(covariance['names'])
@@ -298,7 +263,7 @@ def _choose_bandwidths(vals: Mapping[str, float], input_kind: str, current_hz: f
         rule = f'{BANDWIDTH_RATIO:g} / (2 pi tau_e)'
         if cap is not None and current_hz > cap:
             current_hz, rule = cap, f'capped at f_s/{1 / SAMPLE_FRACTION:g}'
-        notes.append(f'current bandwidth {_fmt(current_hz)} Hz by default ({rule}); '
+        notes.append(f'current bandwidth {format_number(current_hz)} Hz by default ({rule}); '
                      'pass current_bandwidth_hz to choose it')
     if speed_hz is None:
         if input_kind == 'voltage':
@@ -312,7 +277,7 @@ def _choose_bandwidths(vals: Mapping[str, float], input_kind: str, current_hz: f
             rule = f'{BANDWIDTH_RATIO:g} / (2 pi tau_m)'
         if cap is not None and speed_hz > cap:
             speed_hz, rule = cap, f'capped at f_s/{1 / SAMPLE_FRACTION:g}'
-        notes.append(f'speed bandwidth {_fmt(speed_hz)} Hz by default ({rule}); '
+        notes.append(f'speed bandwidth {format_number(speed_hz)} Hz by default ({rule}); '
                      'pass speed_bandwidth_hz to choose it')
     for name, f in (('current_bandwidth_hz', current_hz), ('speed_bandwidth_hz', speed_hz)):
         if nyquist is not None and f is not None and np.isfinite(f) and f >= nyquist:
@@ -348,7 +313,7 @@ def _propagate(vals: Mapping[str, float], input_kind: str,
 
 def _verify(vals: Mapping[str, float], input_kind: str, nominal: Mapping[str, Any],
             sample_period: float | None, pm_min: float,
-            notes: list[str]) -> dict[str, dict[str, Any]]:
+            notes: list[str]) -> dict[str, LoopCheck]:
     """Margins of each loop on the full model; notes for low margins or instability."""
     known = all(np.isfinite(nominal[k]) for k in ('speed_kp', 'speed_ki')) and \
         all(np.isfinite(x) for x in vals.values())
@@ -362,18 +327,18 @@ def _verify(vals: Mapping[str, float], input_kind: str, nominal: Mapping[str, An
     for name, (num, den) in loops.items():
         m = margins(num, den)
         out[name] = m
-        pm = m['phase_margin_deg']
-        if not m['closed_loop_stable']:
+        pm = m.phase_margin_deg
+        if not m.closed_loop_stable:
             notes.append(f'{name} loop: UNSTABLE on the identified model: lower its '
                          'bandwidth')
         elif pm is None or pm < pm_min:
-            notes.append(f'{name} loop: phase margin {_fmt(pm)} deg is below the required '
-                         f'{pm_min:g} deg: lower its bandwidth')
+            notes.append(f'{name} loop: phase margin {format_number(pm)} deg is below the '
+                         f'required {pm_min:g} deg: lower its bandwidth')
     return out
 
 
 def design_controller(values: Mapping[str, float | None],
-                      covariance: Mapping[str, Any] | None = None,
+                      covariance: ParameterCovariance | Mapping[str, Any] | None = None,
                       input_kind: str = 'voltage', kS: Mapping[str, Any] | None = None,
                       current_bandwidth_hz: float | None = None,
                       speed_bandwidth_hz: float | None = None,
@@ -389,7 +354,7 @@ def design_controller(values: Mapping[str, float | None],
         [N m s/rad], ``L_m`` [H], ``R_m`` [Ohm]; torque plant: ``J``, ``B`` (a mass [kg] and
         N s/m for a linear axis). ``None`` marks an unknown parameter: every entry that
         needs it comes out null.
-    covariance : dict, optional
+    covariance : ParameterCovariance or dict, optional
         ``{'names': [...], 'matrix': [[...]]}`` in linear units over any subset of the
         parameters; the others are taken as exact (for example an assumed R_m).
     input_kind : {'voltage', 'torque'}
@@ -482,7 +447,7 @@ def design_controller(values: Mapping[str, float | None],
 def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, float | None],
               kS: tuple[float, float | None, str | None],
               bandwidths: tuple[float | None, float],
-              checks: Mapping[str, dict[str, Any]], has_cov: bool,
+              checks: Mapping[str, LoopCheck], has_cov: bool,
               notes: list[str], linear: bool = False) -> ControllerDesign:
     """Build the ControllerDesign in the contract's shape."""
     e = {k: _entry(nominal[k], std[k]) for k in _OUTPUTS}
@@ -506,33 +471,29 @@ def _assemble(input_kind: str, nominal: Mapping[str, Any], std: Mapping[str, flo
                      'and no tau_e (the drive closes the current loop): both null')
     if linear:
         speed_units = {k: linear_unit(u) for k, u in speed_units.items()}
-    pi: dict[str, dict[str, Any] | None] = {'current': None, 'speed': None}
+    current = None
     if input_kind == 'voltage':
-        pi['current'] = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],
-                                    checks.get('current', {}), {'kp': 'V/A', 'ki': 'V/(A s)'},
-                                    'pole-zero cancellation of R_m/L_m on 1/(L_m s + R_m)')
-    pi['speed'] = _loop_entry(e['speed_kp'], e['speed_ki'], bandwidths[1],
-                              checks.get('speed', {}), speed_units,
-                              f'symmetric-optimum style: PI zero at crossover/{zero_ratio:.3g}')
+        current = _loop_entry(e['current_kp'], e['current_ki'], bandwidths[0],
+                              checks.get('current', LoopCheck()), {'kp': 'V/A', 'ki': 'V/(A s)'},
+                              'pole-zero cancellation of R_m/L_m on 1/(L_m s + R_m)')
+    speed = _loop_entry(e['speed_kp'], e['speed_ki'], bandwidths[1],
+                        checks.get('speed', LoopCheck()), speed_units,
+                        f'symmetric-optimum style: PI zero at crossover/{zero_ratio:.3g}')
     return ControllerDesign(
         input_kind=input_kind,
-        feedforward={'kS': {'value': kS_value, 'std': kS_std}, 'kV': e['kV'], 'kA': e['kA'],
-                     'units': units, 'convention': CONVENTION},
-        time_constants={'electrical': e['tau_e'], 'mechanical': e['tau_m']},
-        pi=pi, notes=notes)
+        feedforward=Feedforward(kS=Quantity(kS_value, kS_std), kV=e['kV'], kA=e['kA'],
+                                units=units, convention=CONVENTION),
+        time_constants=TimeConstants(electrical=e['tau_e'], mechanical=e['tau_m']),
+        pi=PiLoops(current=current, speed=speed), notes=notes)
 
 
-def _loop_entry(kp: dict[str, Any], ki: dict[str, Any], bandwidth_hz: float | None,
-                check: Mapping[str, Any], units: dict[str, str], design: str) -> dict[str, Any]:
-    if kp['value'] is None or bandwidth_hz is None or not np.isfinite(bandwidth_hz):
+def _loop_entry(kp: Quantity, ki: Quantity, bandwidth_hz: float | None, check: LoopCheck,
+                units: dict[str, str], design: str) -> LoopDesign:
+    if kp.value is None or bandwidth_hz is None or not np.isfinite(bandwidth_hz):
         bandwidth_hz = None
-    out = {'kp': kp, 'ki': ki,
-           'bandwidth_hz': None if bandwidth_hz is None else float(bandwidth_hz),
-           'phase_margin_deg': check.get('phase_margin_deg'),
-           'crossover_hz': check.get('crossover_hz'),
-           'gain_margin_db': check.get('gain_margin_db'),
-           'closed_loop_bandwidth_hz': check.get('closed_loop_bandwidth_hz'),
-           'closed_loop_stable': check.get('closed_loop_stable'),
-           'units': units, 'design': design,
-           'form': 'u = kp e + ki integral(e dt)'}
-    return out
+    return LoopDesign(kp=kp, ki=ki,
+                      bandwidth_hz=None if bandwidth_hz is None else float(bandwidth_hz),
+                      phase_margin_deg=check.phase_margin_deg, crossover_hz=check.crossover_hz,
+                      gain_margin_db=check.gain_margin_db,
+                      closed_loop_bandwidth_hz=check.closed_loop_bandwidth_hz,
+                      closed_loop_stable=check.closed_loop_stable, units=units, design=design)

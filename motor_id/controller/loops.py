@@ -7,11 +7,13 @@ by brentq. numpy polynomials only; the tests hold the results to python-control.
 """
 
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 import math
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from motor_id.records import Record
 
 # With a sample period T a loop sees about 1.5 T of delay: half a sample of ZOH plus one
 # sample of computation.
@@ -177,7 +179,18 @@ def _response(num: np.ndarray, den: np.ndarray, w: ArrayLike) -> np.ndarray:
         return np.polyval(num, s) / np.polyval(den, s)
 
 
-def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class LoopCheck(Record):
+    """A loop's check on the full model (:func:`margins`): None where it has none."""
+
+    phase_margin_deg: float | None = None
+    crossover_hz: float | None = None
+    gain_margin_db: float | None = None
+    closed_loop_stable: bool | None = None
+    closed_loop_bandwidth_hz: float | None = None
+
+
+def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> LoopCheck:
     """Phase margin [deg], crossover [Hz], gain margin [dB] and closed-loop facts of a loop.
 
     ``num / den`` is the loop gain L(s). The crossover is where ``|L(jw)| = 1`` (of
@@ -199,21 +212,19 @@ def margins(num: NDArray[np.float64], den: NDArray[np.float64]) -> dict[str, Any
     with np.errstate(divide='ignore'):
         gm = 1.0 / np.abs(loop(w180))
     gm = gm[np.isfinite(gm)]  # |L| = 0 on the negative real axis: no finite gain margin
-    out: dict[str, Any] = {'phase_margin_deg': None, 'crossover_hz': None,
-                           'gain_margin_db': None}
+    pm_deg = crossover = gm_db = bandwidth = None
     if wc.size:
         j = np.argmin(np.abs(pm))
-        out['phase_margin_deg'] = float(pm[j])
-        out['crossover_hz'] = float(wc[j] / (2 * np.pi))
+        pm_deg, crossover = float(pm[j]), float(wc[j] / (2 * np.pi))
     if gm.size:
-        out['gain_margin_db'] = float(20 * np.log10(gm[np.argmin(np.abs(np.log(gm)))]))
+        gm_db = float(20 * np.log10(gm[np.argmin(np.abs(np.log(gm)))]))
     closed_den = np.polyadd(den, num)
-    out['closed_loop_stable'] = bool(np.all(np.roots(closed_den).real < 0))
-    out['closed_loop_bandwidth_hz'] = None
-    if out['closed_loop_stable']:
+    stable = bool(np.all(np.roots(closed_den).real < 0))
+    if stable:
         bw = _bandwidth(num, closed_den)
-        out['closed_loop_bandwidth_hz'] = None if bw is None else float(bw / (2 * np.pi))
-    return out
+        bandwidth = None if bw is None else float(bw / (2 * np.pi))
+    return LoopCheck(phase_margin_deg=pm_deg, crossover_hz=crossover, gain_margin_db=gm_db,
+                     closed_loop_stable=stable, closed_loop_bandwidth_hz=bandwidth)
 
 
 def _bandwidth(num: np.ndarray, den: np.ndarray, drop_db: float = -3.0) -> float | None:

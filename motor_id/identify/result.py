@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 import math
 from typing import Any, cast
@@ -51,6 +52,18 @@ class Estimate:
         if self.bound:
             d['bound'] = self.bound.to_dict()
         return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Estimate:
+        """The estimate of a :meth:`to_dict` (a missing key: its default)."""
+        ci, bound = d.get('bootstrap_ci95'), d.get('bound')
+        return cls(value=d.get('value'), std=d.get('std'),
+                   determined=bool(d.get('determined', False)),
+                   assumed=bool(d.get('assumed', False)),
+                   particular_value=d.get('particular_value'),
+                   ci95=None if ci is None else (ci[0], ci[1]),
+                   at_bound=bool(d.get('at_bound', False)), reason=d.get('reason'),
+                   bound=None if bound is None else Bound.from_dict(bound))
 
 
 @dataclass(frozen=True)
