@@ -50,7 +50,7 @@ def throughput(root, quick):
             t0 = time.perf_counter()
             with DaskEngine(workers=n) as eng:
                 t1 = time.perf_counter()
-                secs = [r['seconds'] for _, r, _ in eng.map(run_task, tasks)]
+                secs = [r.seconds for _, r, _ in eng.map(run_task, tasks)]
                 t2 = time.perf_counter()
             run = {'total': time.perf_counter() - t0, 'start': t1 - t0, 'work': t2 - t1,
                    'task_seconds': float(np.sum(secs))}
@@ -76,7 +76,7 @@ def plain_loop(root):
     from motor_id.fleet.task import run_task
     tasks, _ = _tasks(root)
     t0 = time.perf_counter()
-    secs = [run_task(t)['seconds'] for t in tasks]
+    secs = [run_task(t).seconds for t in tasks]
     return secs, time.perf_counter() - t0
 
 

@@ -122,6 +122,7 @@ def operator_fleets(rule, fleets, seed):
     :func:`motor_id.fleet.history.fleet_findings` (the command's own path). ``seed``
     is not one the rule was tuned on. Returns the counts."""
     from motor_id.fleet.history import fleet_findings
+    from motor_id.fleet.rows import EstimateRow, ParameterValue
     from motor_id.testing.fleet_gen import FleetSpec, motor_truths, random_drifts, score_detection
     rng = np.random.default_rng(seed)
     got = {'drifts': 0, 'flagged': 0, 'dated': 0, 'first_week': 0, 'first_week_flagged': 0,
@@ -136,12 +137,13 @@ def operator_fleets(rule, fleets, seed):
         rows = []
         for (robot, motor), days in truths.items():
             for day, m in enumerate(days):
-                row = {'robot': robot, 'motor': motor, 'recording': f'{robot}/{day}',
-                       'start_time': f'2026-01-{day + 1:02d}T10:00:00Z', 'adequate': True}
+                params = {}
                 for p, err in FIT_ERROR.items():
                     v = getattr(m, p) * (1 + rng.normal(0, err))
-                    row.update({p: v, f'{p}_std': v * err, f'{p}_determined': True})
-                rows.append(row)
+                    params[p] = ParameterValue(value=v, std=v * err, determined=True)
+                rows.append(EstimateRow(robot=robot, motor=motor, recording=f'{robot}/{day}',
+                                        start_time=f'2026-01-{day + 1:02d}T10:00:00Z',
+                                        parameters=params, adequate=True))
         spec = FleetSpec(robots=4, days=spec.days, seed=spec.seed, drifts=spec.drifts,
                          start='2026-01-01')
         found, false, clean = score_detection(spec, fleet_findings(rows, rule).drift)

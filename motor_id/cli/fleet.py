@@ -5,10 +5,11 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from typing import Any, TextIO
+from typing import TextIO
 
 from motor_id.fleet.config import load_fleet_config
 from motor_id.fleet.discover import ROBOT_RULES
+from motor_id.fleet.rows import TaskResult
 from motor_id.fleet.run import Progress
 
 
@@ -43,7 +44,7 @@ def progress_line(quiet: bool, stream: TextIO | None = None) -> Progress:
     tty = stream.isatty()
     state = {'start': time.perf_counter(), 'last': 0.0}
 
-    def progress(done: int, failed: int, left: int, result: dict[str, Any] | None) -> None:
+    def progress(done: int, failed: int, left: int, result: TaskResult | None) -> None:
         if quiet:
             return
         now = time.perf_counter()

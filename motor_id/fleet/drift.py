@@ -45,7 +45,7 @@ recording at which the test (on the data known then) flagged it.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 import math
 from typing import Any
 
@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from motor_id.errors import ConfigError
 from motor_id.fleet.scatter import Scatter, ScatterPool
 from motor_id.fleet.segment import best_split, change_groups, level_of, shape_change
+from motor_id.records import Record
 
 MIN_RECORDINGS = 3
 """Recordings before the test runs: 1 before a change and 2 after it."""
@@ -108,7 +109,7 @@ def series(times: Sequence[Any], values: Sequence[float | None],
 
 
 @dataclass(frozen=True)
-class ChangePoint:
+class ChangePoint(Record):
     """One change found in a history.
 
     Attributes
@@ -150,13 +151,9 @@ class ChangePoint:
     z: float
     score: float
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return asdict(self)
-
 
 @dataclass(frozen=True)
-class DriftFinding:
+class DriftFinding(Record):
     """What :meth:`DriftRule.scan` found in one history.
 
     Attributes
@@ -211,16 +208,9 @@ class DriftFinding:
     outliers: tuple[int, ...] = ()
     reason: str | None = None
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        d = asdict(self)
-        d['change_points'] = [c.to_dict() for c in self.change_points]
-        d['outliers'] = list(self.outliers)
-        return d
-
 
 @dataclass(frozen=True)
-class DriftRule:
+class DriftRule(Record):
     """Settings of the drift test (see the module docstring).
 
     Attributes
@@ -280,10 +270,6 @@ class DriftRule:
             raise ConfigError(f'drift: unknown key(s) {", ".join(unknown)} (known: '
                               f'{", ".join(sorted(known))})')
         return cls(**d)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The settings, for the outputs."""
-        return asdict(self)
 
     def pool(self, histories: Sequence[Series], units: Sequence[str] | None = None
              ) -> ScatterPool:
@@ -457,9 +443,10 @@ def _binseg(y: NDArray[np.float64], w: NDArray[np.float64], dof: float, rule: Dr
         if best is None:
             continue
         score = normal_score(best[1], dof)
-        early = best_split(y, w, a, b, first=True, most=rule.early) if a == 0 else None
+        whole = a == 0 and b == y.size     # the early splits: the first stage only
+        early = best_split(y, w, a, b, first=True, most=rule.early) if whole else None
         escore = normal_score(early[1], dof) if early is not None else None
-        if a == 0 and b == y.size:
+        if whole:
             first_score, early_score = score, escore
         if score > rule.threshold:
             cut = best[0]
@@ -484,8 +471,11 @@ def _segment(rule: DriftRule, h: Series, used: NDArray[np.intp], sc: Scatter,
     pos = [int(h.index[i]) for i in used]
     firsts = [0] + [g[0][0] for g in groups] + [n]
     lasts = [0] + [g[-1][0] for g in groups] + [n]
-    shapes = [(0, 0)] + [shape_change(y, w, lasts[j], g[0][0], g[-1][0], firsts[j + 2])
-                         for j, g in enumerate(groups)] + [(n, n)]
+    shapes = [(0, 0)]
+    for j, g in enumerate(groups):    # each change starts after the one before has ended
+        shapes.append(shape_change(y, w, lasts[j], g[0][0], g[-1][0], firsts[j + 2],
+                                   shapes[-1][1] + 1))
+    shapes.append((n, n))
     changes = []
     pool = pool or rule.pool([h])
     for j, g in enumerate(groups):

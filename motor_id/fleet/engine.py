@@ -20,6 +20,7 @@ from typing import Any, TypeVar
 from motor_id.errors import ConfigError
 
 T = TypeVar('T')
+R = TypeVar('R')
 
 WORKER_CONFIG = {'distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_': None,
                  'distributed.worker.profile.enabled': False}
@@ -98,15 +99,16 @@ class DaskEngine:
         info = self.client.scheduler_info()
         return sum(w.get('nthreads', 1) for w in info.get('workers', {}).values()) or 1
 
-    def map(self, fn: Callable[[T], Any], items: Iterable[T]
-            ) -> Iterator[tuple[T, Any, str | None]]:
+    def map(self, fn: Callable[[T], R], items: Iterable[T]
+            ) -> Iterator[tuple[T, R | None, str | None]]:
         """Run ``fn(item)`` for every item on the workers.
 
         Yields
         ------
         (item, result, error)
-            ``error`` is None, or the text of an exception the engine raised for the task
-            (a worker that died, a task that could not be shipped).
+            ``result`` is ``fn(item)`` (None when the engine failed); ``error`` is None,
+            or the text of an exception the engine raised for the task (a worker that
+            died, a task that could not be shipped).
         """
         dist = _distributed()
         items = iter(items)
@@ -126,10 +128,12 @@ class DaskEngine:
                 break
         for fut in done:
             item = pending.pop(fut.key)
+            result: R | None = None
+            error: str | None = None
             try:
-                result, error = fut.result(), None
+                result = fut.result()
             except Exception as exc:   # noqa: BLE001  the engine's failure of one task
-                result, error = None, f'{type(exc).__name__}: {exc}'
+                error = f'{type(exc).__name__}: {exc}'
             fut.release()
             submit()
             yield item, result, error

@@ -16,13 +16,12 @@ from dataclasses import dataclass
 from typing import Any
 
 from motor_id.fleet.drift import DriftFinding, DriftRule, series
+from motor_id.fleet.rows import EstimateRow
 from motor_id.fleet.siblings import compare_siblings, SiblingFinding
 from motor_id.model import PARAM_NAMES, PARAM_UNITS
 
 UNITS = PARAM_UNITS
 
-Row = dict[str, Any]
-"""A result row (motor_id.fleet.store.COLUMNS)."""
 Point = tuple[Any, float, 'float | None', str]
 """One estimate of a history: (start_time, value, std, recording)."""
 
@@ -118,32 +117,31 @@ class FleetFindings:
         return [s for s in self.siblings if s.outlier]
 
 
-def histories(rows: Iterable[Row], parameters: Sequence[str] = PARAM_NAMES
+def histories(rows: Iterable[EstimateRow], parameters: Sequence[str] = PARAM_NAMES
               ) -> dict[tuple[str, str], dict[str, list[Point]]]:
     """``{(robot, motor): {parameter: [(start_time, value, std, recording), ...]}}`` in
     time order, from result rows (adequate fits, determined parameters)."""
     out: dict[tuple[str, str], dict[str, list[Point]]] = {}
-    for r in sorted(rows, key=lambda r: (r['start_time'] or '', r['recording'])):
-        per = out.setdefault((r['robot'], r['motor']), {p: [] for p in parameters})
-        if r.get('adequate') is False:
+    for r in sorted(rows, key=lambda r: (r.start_time or '', r.recording)):
+        per = out.setdefault((r.robot, r.motor), {p: [] for p in parameters})
+        if r.adequate is False:
             continue
         for p in parameters:
-            v = r.get(p)
-            if v is None or r.get(f'{p}_determined') is False:
+            x = r.parameter(p)
+            if x.value is None or x.determined is False:
                 continue
-            per[p].append((r['start_time'], v, r.get(f'{p}_std'), r['recording']))
+            per[p].append((r.start_time, x.value, x.std, r.recording))
     return out
 
 
-def fleet_findings(rows: Iterable[Row], rule: DriftRule | None = None,
+def fleet_findings(rows: Iterable[EstimateRow], rule: DriftRule | None = None,
                    groups: Mapping[str, str] | None = None,
                    parameters: Sequence[str] = PARAM_NAMES) -> FleetFindings:
     """Drift and sibling findings of result rows.
 
     Parameters
     ----------
-    rows : iterable of dict
-        Result rows (:data:`motor_id.fleet.store.COLUMNS`).
+    rows : iterable of EstimateRow
     rule : DriftRule, optional
     groups : mapping, optional
         Motor name -> siblings' key (the profile's ``type:``); a motor not in it is its
@@ -188,7 +186,7 @@ def fleet_findings(rows: Iterable[Row], rule: DriftRule | None = None,
     return FleetFindings(tuple(drift), tuple(siblings))
 
 
-def drift_table(rows: Iterable[Row], rule: DriftRule | None = None,
+def drift_table(rows: Iterable[EstimateRow], rule: DriftRule | None = None,
                 groups: Mapping[str, str] | None = None,
                 parameters: Sequence[str] = PARAM_NAMES) -> list[DriftRow]:
     """The drift rows of :func:`fleet_findings` (one per robot, motor and parameter)."""

@@ -16,6 +16,7 @@ from typing import Any
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
 from motor_id.fleet.history import drift_table, DriftRow
+from motor_id.fleet.rows import EstimateRow, ParameterValue
 from motor_id.model import PARAM_NAMES
 
 
@@ -67,9 +68,9 @@ class EstimateHistory:
             raise ConfigError(f'history_file {self.path}: cannot write ({exc.strerror})') \
                 from None
 
-    def rows(self) -> list[dict[str, Any]]:
-        """The history as result rows (the shape :mod:`motor_id.fleet.history` reads)."""
-        out: list[dict[str, Any]] = []
+    def rows(self) -> list[EstimateRow]:
+        """The history as result rows (what :mod:`motor_id.fleet.history` reads)."""
+        out: list[EstimateRow] = []
         self.skipped_ = 0
         try:
             fh = open(self.path, encoding='utf-8')
@@ -82,13 +83,14 @@ class EstimateHistory:
             for k, text in enumerate(fh):
                 try:
                     line = json.loads(text)
-                    row = {'robot': self.robot, 'motor': self.motor,
-                           'recording': f'{self.path}:{k + 1}', 'start_time': line['time'],
-                           'adequate': line.get('adequate', True)}
-                    for name, p in line['parameters'].items():
-                        row[name] = p.get('value')
-                        row[f'{name}_std'] = p.get('std')
-                        row[f'{name}_determined'] = p.get('determined', True)
+                    params = {name: ParameterValue(
+                        value=_number(p.get('value')), std=_number(p.get('std')),
+                        determined=bool(p.get('determined', True)))
+                        for name, p in line['parameters'].items()}
+                    row = EstimateRow(robot=self.robot, motor=self.motor,
+                                      recording=f'{self.path}:{k + 1}',
+                                      start_time=str(line['time']), parameters=params,
+                                      adequate=bool(line.get('adequate', True)))
                 except (ValueError, KeyError, TypeError, AttributeError):
                     self.skipped_ += 1
                     continue
@@ -99,6 +101,15 @@ class EstimateHistory:
         """Drift rows (:func:`motor_id.fleet.history.drift_table`) of this history (its
         own day-to-day scatter: a live motor has no siblings here)."""
         return drift_table(self.rows(), self.rule)
+
+
+def _number(v: object) -> float | None:
+    """A JSON number (None stays None; anything else is refused)."""
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise TypeError(f'not a number: {v!r}')
+    return float(v)
 
 
 def drift_message(rows: Iterable[DriftRow]) -> str:

@@ -16,10 +16,10 @@ from motor_id.fleet.history import (
     FleetFindings,
     histories,
     Point,
-    Row,
     SiblingRow,
     UNITS,
 )
+from motor_id.fleet.rows import EstimateRow, TaskFailure
 from motor_id.model import PARAM_NAMES
 
 GLANCE = ('K_T', 'R_m', 'B')
@@ -92,7 +92,7 @@ class _Status:
         return (2 if self.failed else 3), 0.0
 
 
-def motor_status(found: FleetFindings, failures: Iterable[Row]
+def motor_status(found: FleetFindings, failures: Iterable[TaskFailure]
                  ) -> dict[tuple[str, str], _Status]:
     """Per (robot, motor): drifting rows, rows against the siblings, failure count."""
     out: dict[tuple[str, str], _Status] = {}
@@ -105,19 +105,19 @@ def motor_status(found: FleetFindings, failures: Iterable[Row]
         if s.outlier:
             cur.odd.append(s)
     for f in failures:
-        out.setdefault((f['robot'], f['motor']), _Status()).failed += 1
+        out.setdefault((f.robot, f.motor), _Status()).failed += 1
     return out
 
 
-def render(rows: list[Row], failures: list[Row], found: FleetFindings,
+def render(rows: list[EstimateRow], failures: list[TaskFailure], found: FleetFindings,
            rule: DriftRule | None = None, title: str = 'motor_id fleet report') -> str:
     """The report as one HTML text.
 
     Parameters
     ----------
-    rows : list of dict
-        Result rows, sorted by robot, motor, time.
-    failures : list of dict
+    rows : list of EstimateRow
+        Sorted by robot, motor, time.
+    failures : list of TaskFailure
     found : FleetFindings
         :func:`motor_id.fleet.history.fleet_findings`.
     rule : DriftRule, optional
@@ -125,13 +125,13 @@ def render(rows: list[Row], failures: list[Row], found: FleetFindings,
     """
     status = motor_status(found, failures)
     hist = histories(rows)
-    counts: dict[tuple[str, str], list[Row]] = {}
+    counts: dict[tuple[str, str], list[EstimateRow]] = {}
     for r in rows:
-        counts.setdefault((r['robot'], r['motor']), []).append(r)
+        counts.setdefault((r.robot, r.motor), []).append(r)
     for key in counts:
         status.setdefault(key, _Status())
     order = sorted(status, key=lambda k: (*status[k].rank(), k))
-    n_rec = len({r['recording'] for r in rows} | {f['recording'] for f in failures})
+    n_rec = len({r.recording for r in rows} | {f.recording for f in failures})
     drifting = sum(1 for k in order if status[k].drifts)
     odd = sum(1 for k in order if status[k].odd)
     out = ['<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">',
@@ -173,7 +173,7 @@ def render(rows: list[Row], failures: list[Row], found: FleetFindings,
 
 
 def _glance_table(order: list[tuple[str, str]], status: dict[tuple[str, str], _Status],
-                  counts: dict[tuple[str, str], list[Row]]) -> str:
+                  counts: dict[tuple[str, str], list[EstimateRow]]) -> str:
     head = ('robot', 'motor', 'status', 'parameter', 'change', 'since', 'z', 'siblings',
             *GLANCE, 'recordings', 'last recording', 'failed')
     out = ['<table id="glance-table" class="sortable"><thead><tr>'
@@ -182,7 +182,7 @@ def _glance_table(order: list[tuple[str, str]], status: dict[tuple[str, str], _S
         s = status[key]
         w = s.worst
         rows = counts.get(key, [])
-        last = rows[-1] if rows else {}
+        last = rows[-1] if rows else None
         cls = 'drift' if w or s.odd else 'fail' if s.failed else ''
         state = ('<span class="badge bad">DRIFT</span>' if w else
                  '<span class="badge bad">ODD</span>' if s.odd else
@@ -191,7 +191,8 @@ def _glance_table(order: list[tuple[str, str]], status: dict[tuple[str, str], _S
         params = ', '.join(d.parameter for d in s.drifts)
         odd = ', '.join(f'{o.parameter} {_pct(o.finding.deviation)}' for o in s.odd)
         latest = ''.join(
-            f'<td class="num">{_g(last.get(p))}</td>' for p in GLANCE)
+            f'<td class="num">{_g(last.parameter(p).value if last else None)}</td>'
+            for p in GLANCE)
         out.append(
             f'<tr class="{cls}" data-robot="{_e(key[0])}" data-motor="{_e(key[1])}">'
             f'<td>{_e(key[0])}</td><td><a href="#{_anchor(key)}">{_e(key[1])}</a></td>'
@@ -200,7 +201,7 @@ def _glance_table(order: list[tuple[str, str]], status: dict[tuple[str, str], _S
             f'{_pct(w.change) if w else ""}</td><td>{_e(w.since) if w else ""}</td>'
             f'<td class="num">{_g(w.z, ".1f") if w else ""}</td><td>{_e(odd)}</td>{latest}'
             f'<td class="num">{len(rows)}</td>'
-            f'<td>{_e((last.get("start_time") or "")[:10])}</td>'
+            f'<td>{_e(((last.start_time if last else None) or "")[:10])}</td>'
             f'<td class="num">{s.failed}</td></tr>')
     out.append('</tbody></table>')
     return ''.join(out)
@@ -363,7 +364,7 @@ def _caption(param: str, d: DriftRow | None, sib: SiblingRow | None) -> str:
     return cap
 
 
-def _failures_table(failures: list[Row]) -> str:
+def _failures_table(failures: list[TaskFailure]) -> str:
     out = [f'<h2 id="failed">Failed tasks ({len(failures)})</h2>']
     if not failures:
         out.append('<p>None.</p>')
@@ -371,15 +372,16 @@ def _failures_table(failures: list[Row]) -> str:
     out.append('<table id="failed-table" class="sortable"><thead><tr><th>robot</th>'
                '<th>motor</th><th>recording</th><th>stage</th><th>reason</th></tr>'
                '</thead><tbody>')
-    for f in sorted(failures, key=lambda f: (f['robot'], f['motor'], f['recording'])):
-        out.append(f'<tr><td>{_e(f["robot"])}</td><td>{_e(f["motor"])}</td>'
-                   f'<td>{_e(f["recording"])}</td><td>{_e(f.get("stage"))}</td>'
-                   f'<td>{_e(f.get("reason"))}</td></tr>')
+    for f in sorted(failures, key=lambda f: (f.robot, f.motor, f.recording)):
+        out.append(f'<tr><td>{_e(f.robot)}</td><td>{_e(f.motor)}</td>'
+                   f'<td>{_e(f.recording)}</td><td>{_e(f.stage)}</td>'
+                   f'<td>{_e(f.reason)}</td></tr>')
     out.append('</tbody></table>')
     return ''.join(out)
 
 
-def write_report(path: str | os.PathLike[str], rows: list[Row], failures: list[Row],
+def write_report(path: str | os.PathLike[str], rows: list[EstimateRow],
+                 failures: list[TaskFailure],
                  found: FleetFindings, rule: DriftRule | None = None) -> None:
     """Write :func:`render`'s page to ``path``."""
     text = render(rows, failures, found, rule)

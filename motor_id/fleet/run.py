@@ -7,16 +7,16 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 import time
-from typing import Any
 
 from motor_id.fleet.config import FleetConfig
 from motor_id.fleet.discover import find_recordings, RecordingRef
 from motor_id.fleet.engine import DaskEngine
 from motor_id.fleet.history import DriftRow, fleet_findings, SiblingRow
+from motor_id.fleet.rows import EstimateRow, TaskFailure, TaskResult
 from motor_id.fleet.store import ResultStore
 from motor_id.fleet.task import run_task, Task
 
-Progress = Callable[[int, int, int, 'dict[str, Any] | None'], None]
+Progress = Callable[[int, int, int, 'TaskResult | None'], None]
 """``progress(done, failed, left, result)`` after each task (result None at the start)."""
 
 
@@ -103,7 +103,7 @@ def run_fleet(paths: Sequence[str], config: FleetConfig, out_dir: str,
     if report:
         from motor_id.fleet.report_page import write_report
         path = store.out / 'report.html'
-        write_report(path, store.sorted_rows(), list(store.failures.values()), found,
+        write_report(path, store.sorted_rows(), store.sorted_failures(), found,
                      config.drift)
         run.files['report'] = str(path)
     run.seconds = time.perf_counter() - started
@@ -120,15 +120,16 @@ def _execute(todo: list[Task], store: ResultStore, run: FleetRun, workers: int |
         engine = DaskEngine(workers=workers, scheduler=scheduler).__enter__()
     try:
         left = len(todo)
-        for task, result, error in engine.map(run_task, todo):
-            if error is not None:
-                result = {'robot': task.robot, 'motor': task.motor.name,
-                          'recording': task.path, 'size': task.size,
-                          'mtime_ns': task.mtime_ns, 'settings': task.settings,
-                          'status': 'failed', 'stage': 'engine', 'reason': error}
+        for task, got, error in engine.map(run_task, todo):
+            result: TaskResult | None = got
+            if result is None:
+                result = TaskFailure(robot=task.robot, motor=task.motor.name,
+                                     recording=task.path, size=task.size,
+                                     mtime_ns=task.mtime_ns, settings=task.settings,
+                                     stage='engine', reason=error or 'no result')
             store.add(result)
             left -= 1
-            if result.get('status') == 'ok':
+            if isinstance(result, EstimateRow):
                 run.done += 1
             else:
                 run.failed += 1

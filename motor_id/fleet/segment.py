@@ -71,14 +71,15 @@ def change_groups(cps: list[tuple[int, float]], y: NDArray[np.float64],
 
 
 def shape_change(y: NDArray[np.float64], w: NDArray[np.float64], a: int, first: int,
-                 last: int, b: int) -> tuple[int, int]:
+                 last: int, b: int, lo: int = 0) -> tuple[int, int]:
     """Onset and end of a change between the regimes ``a..first`` and ``last..b``: a
     step at ``first`` (onset = end), or the ramp (level, a straight line from the onset,
-    level from the end on) that fits the estimates better by more than ``RAMP_CHI2``."""
+    level from the end on) that fits the estimates better by more than ``RAMP_CHI2``;
+    the onset not before ``lo`` (after the change before it has ended)."""
     seg_y, seg_w = y[a:b], w[a:b]
     i = np.arange(a, b)
     best_step = best_ramp = (math.inf, first, first)
-    for o in range(max(a + 1, first - RAMP_SEARCH), first + 1):
+    for o in range(max(a + 1, first - RAMP_SEARCH, lo), first + 1):
         for e in range(max(last, o), min(b - 1, last + RAMP_SEARCH) + 1):
             x = np.clip((i - o + 1) / (e - o + 1), 0.0, 1.0)
             sw, sx, sxx = seg_w.sum(), (seg_w * x).sum(), (seg_w * x * x).sum()

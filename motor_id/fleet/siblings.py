@@ -19,20 +19,20 @@ history.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 import math
-from typing import Any
 
 import numpy as np
 
 from motor_id.fleet.drift import normal_score
+from motor_id.records import Record
 
 MIN_SIBLINGS = 3
 """Siblings (other motors) a reference needs."""
 
 
 @dataclass(frozen=True)
-class SiblingFinding:
+class SiblingFinding(Record):
     """One motor's parameter against its siblings'.
 
     Attributes
@@ -66,10 +66,6 @@ class SiblingFinding:
     deviation: float | None = None
     score: float | None = None
     reason: str | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return asdict(self)
 
 
 def compare_siblings(levels: Sequence[tuple[float | None, float | None]],

@@ -8,6 +8,7 @@ engine (a worker that died) are always tried again.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 import csv
 import datetime as dt
 import json
@@ -18,19 +19,11 @@ from types import ModuleType
 from typing import Any, TYPE_CHECKING
 
 from motor_id.errors import ConfigError
-from motor_id.model import PARAM_NAMES
+from motor_id.fleet.rows import COLUMNS, EstimateRow, TaskFailure, TaskResult
 
 if TYPE_CHECKING:
     from motor_id.fleet.task import Task
 
-ID_COLUMNS = ('robot', 'motor', 'recording', 'start_time')
-COLUMNS = ID_COLUMNS + ('size', 'mtime_ns', 'settings', 'samples', 'duration_s') + tuple(
-    c for p in PARAM_NAMES for c in (p, f'{p}_std', f'{p}_determined')) + (
-    'fit_speed', 'fit_current', 'adequate', 'warnings', 'verdict', 'unexplained',
-    'seconds', 'worker')
-"""Columns of estimates.parquet / estimates.csv, in order."""
-FAILURE_KEYS = ('robot', 'motor', 'recording', 'size', 'mtime_ns', 'settings', 'stage',
-                'reason', 'worker', 'seconds')
 _INT = {'size', 'mtime_ns', 'samples'}
 _BOOL = {c for c in COLUMNS if c.endswith('_determined')} | {'adequate', 'unexplained'}
 _STR = {'robot', 'motor', 'recording', 'settings', 'warnings', 'verdict', 'worker'}
@@ -98,8 +91,8 @@ class ResultStore:
             raise ConfigError(f'out_dir {out_dir}: cannot create ({exc.strerror})',
                               params=('out_dir',)) from None
         self.flush_every = flush_every
-        self.rows: dict[tuple[str, str], dict[str, Any]] = {}
-        self.failures: dict[tuple[str, str], dict[str, Any]] = {}
+        self.rows: dict[tuple[str, str], EstimateRow] = {}
+        self.failures: dict[tuple[str, str], TaskFailure] = {}
         self._dirty = False
         self._flushed = time.monotonic()
         self._load()
@@ -125,72 +118,75 @@ class ResultStore:
             except (OSError, ValueError) as exc:
                 raise ConfigError(f'{self.parquet_path}: unreadable ({exc}); move it away '
                                   'to start afresh') from None
-            for r in table.to_pylist():
-                r = {c: r.get(c) for c in COLUMNS}
-                r['start_time'] = _iso(r['start_time'])
-                self.rows[(r['recording'], r['motor'])] = r
+            for cols in table.to_pylist():
+                cols['start_time'] = _iso(cols.get('start_time'))
+                r = EstimateRow.from_dict(cols)
+                self.rows[(r.recording, r.motor)] = r
         if self.failed_path.exists():
             try:
                 with open(self.failed_path, encoding='utf-8') as fh:
-                    for f in json.load(fh):
-                        self.failures[(f['recording'], f['motor'])] = f
+                    for d in json.load(fh):
+                        f = TaskFailure.from_dict(d)
+                        self.failures[(f.recording, f.motor)] = f
             except (OSError, ValueError, KeyError, TypeError) as exc:
                 raise ConfigError(f'{self.failed_path}: unreadable ({exc})') from None
 
     def is_done(self, task: Task, retry_failed: bool = False) -> bool:
         """True when ``task`` has a result (or a data/fit failure) for the same key."""
-        def same(r: dict[str, Any] | None) -> bool:
-            return (r is not None and r.get('size') == task.size and
-                    r.get('mtime_ns') == task.mtime_ns and r.get('settings') == task.settings)
+        def same(r: TaskResult | None) -> bool:
+            return (r is not None and r.size == task.size and
+                    r.mtime_ns == task.mtime_ns and r.settings == task.settings)
         if same(self.rows.get(task.ident)):
             return True
         f = self.failures.get(task.ident)
-        return f is not None and same(f) and not retry_failed and f.get('stage') != 'engine'
+        return f is not None and same(f) and not retry_failed and f.stage != 'engine'
 
-    def add(self, result: dict[str, Any]) -> None:
+    def add(self, result: TaskResult) -> None:
         """Keep one task's result row or failure; rewrite the files when due."""
-        ident = (result['recording'], result['motor'])
-        if result.get('status') == 'ok':
-            self.rows[ident] = {c: result.get(c) for c in COLUMNS}
+        ident = (result.recording, result.motor)
+        if isinstance(result, EstimateRow):
+            self.rows[ident] = result
             self.failures.pop(ident, None)
         else:
-            self.failures[ident] = {k: result.get(k) for k in FAILURE_KEYS}
+            self.failures[ident] = result
             self.rows.pop(ident, None)
         self._dirty = True
         if time.monotonic() - self._flushed >= self.flush_every:
             self.flush()
 
-    def sorted_rows(self) -> list[dict[str, Any]]:
+    def sorted_rows(self) -> list[EstimateRow]:
         """The rows by robot, motor, start time."""
-        return sorted(self.rows.values(), key=lambda r: (r['robot'], r['motor'],
-                                                         r['start_time'] or '',
-                                                         r['recording']))
+        return sorted(self.rows.values(), key=lambda r: (r.robot, r.motor,
+                                                         r.start_time or '', r.recording))
+
+    def sorted_failures(self) -> list[TaskFailure]:
+        """The failures by robot, motor, recording."""
+        return sorted(self.failures.values(), key=lambda f: (f.robot, f.motor, f.recording))
 
     def flush(self, force: bool = False) -> None:
         """Rewrite estimates.parquet, estimates.csv and failed.json (atomic replaces)."""
         if not (self._dirty or force):
             return
-        rows = self.sorted_rows()
+        rows = [r.to_dict() for r in self.sorted_rows()]
         self._write_parquet(rows)
         self._write_csv(rows)
-        failures = sorted(self.failures.values(), key=lambda f: (f['robot'], f['motor'],
-                                                                 f['recording']))
+        failures = [f.to_dict() for f in self.sorted_failures()]
         _atomic_text(self.failed_path, json.dumps(failures, indent=1))
         self._dirty = False
         self._flushed = time.monotonic()
 
-    def _write_parquet(self, rows: list[dict[str, Any]]) -> None:
+    def _write_parquet(self, rows: Sequence[Mapping[str, object]]) -> None:
         pa = _pa()
         import pyarrow.parquet as pq
         cols = {c: [r.get(c) for r in rows] for c in COLUMNS}
-        cols['start_time'] = [None if t is None else _parse_time(t)
+        cols['start_time'] = [None if t is None else _parse_time(str(t))
                               for t in cols['start_time']]
         table = pa.Table.from_pydict(cols, schema=schema())
         tmp = self.parquet_path.with_suffix('.parquet.tmp')
         pq.write_table(table, tmp)
         os.replace(tmp, self.parquet_path)
 
-    def _write_csv(self, rows: list[dict[str, Any]]) -> None:
+    def _write_csv(self, rows: Sequence[Mapping[str, object]]) -> None:
         tmp = self.csv_path.with_suffix('.csv.tmp')
         with open(tmp, 'w', newline='', encoding='utf-8') as fh:
             w = csv.writer(fh)

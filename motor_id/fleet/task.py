@@ -9,16 +9,17 @@ It never raises: a failure comes back as a row with ``status: failed``, the stag
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import datetime as dt
 import os
 import socket
 import time
 import traceback
-from typing import Any, SupportsFloat, TYPE_CHECKING
+from typing import SupportsFloat, TYPE_CHECKING
 
 from motor_id.errors import MotorIdError
 from motor_id.fleet.config import FleetFit, MotorSpec
+from motor_id.fleet.rows import EstimateRow, ParameterValue, TaskFailure, TaskResult
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
@@ -45,7 +46,7 @@ class Task:
         return (self.path, self.motor.name)
 
 
-def run_task(task: Task) -> dict[str, Any]:
+def run_task(task: Task) -> TaskResult:
     """Read, fit and (optionally) analyse one motor of one recording.
 
     Parameters
@@ -54,37 +55,37 @@ def run_task(task: Task) -> dict[str, Any]:
 
     Returns
     -------
-    dict
-        A result row (:data:`motor_id.fleet.store.COLUMNS`) with ``status: ok``, or a
-        failure ``{..., 'status': 'failed', 'stage', 'reason'}``.
+    EstimateRow or TaskFailure
+        The row of estimates, or the stage that failed (``read``, ``fit``, ``analyze``)
+        and the reason.
     """
     started = time.perf_counter()
-    row = {'robot': task.robot, 'motor': task.motor.name, 'recording': task.path,
-           'size': task.size, 'mtime_ns': task.mtime_ns, 'settings': task.settings,
-           'worker': f'{socket.gethostname()}:{os.getpid()}'}
+    source = EstimateRow(robot=task.robot, motor=task.motor.name, recording=task.path,
+                         size=task.size, mtime_ns=task.mtime_ns, settings=task.settings,
+                         worker=f'{socket.gethostname()}:{os.getpid()}')
     stage = 'read'
     try:
         rec = read_motor(task)
         stage = 'fit'
-        row.update(fit_row(rec, task))
+        row = fit_row(rec, task, source)
         if task.analyze:
             stage = 'analyze'
-            row.update(analysis_row(rec, task))
+            verdict, unexplained = analysis_verdict(rec, task)
+            row = replace(row, verdict=verdict, unexplained=unexplained)
     except MotorIdError as exc:
-        return _failed(row, stage, str(exc), started)
+        return _failed(source, stage, str(exc), started)
     except Exception as exc:   # noqa: BLE001  a task's failure is data: kept with its reason
         where = traceback.extract_tb(exc.__traceback__)[-1:]
         at = f' at {os.path.basename(where[0].filename)}:{where[0].lineno}' if where else ''
-        return _failed(row, stage, f'{type(exc).__name__}: {exc}{at}', started)
-    row['status'] = 'ok'
-    row['seconds'] = time.perf_counter() - started
-    return row
+        return _failed(source, stage, f'{type(exc).__name__}: {exc}{at}', started)
+    return replace(row, seconds=time.perf_counter() - started)
 
 
-def _failed(row: dict[str, Any], stage: str, reason: str, started: float) -> dict[str, Any]:
-    row.update(status='failed', stage=stage, reason=reason,
-               seconds=time.perf_counter() - started)
-    return row
+def _failed(source: EstimateRow, stage: str, reason: str, started: float) -> TaskFailure:
+    return TaskFailure(robot=source.robot, motor=source.motor, recording=source.recording,
+                       size=source.size, mtime_ns=source.mtime_ns, settings=source.settings,
+                       stage=stage, reason=reason, worker=source.worker,
+                       seconds=time.perf_counter() - started)
 
 
 def read_motor(task: Task) -> Recording:
@@ -124,36 +125,34 @@ def identifier(task: Task, input_kind: str) -> Identifier:
                       random_state=f.seed, fixed=fixed, bounds=bounds)
 
 
-def fit_row(rec: Recording, task: Task) -> dict[str, Any]:
+def fit_row(rec: Recording, task: Task, source: EstimateRow) -> EstimateRow:
     """The numbers a fit leaves: every parameter's value, std and determined flag, fit %,
-    adequacy and warnings (read defensively: older reports have no ``adequate``)."""
-    est = identifier(task, rec.input_kind).fit(rec)
-    report = est.result_.to_dict()
-    row = {'start_time': _start_time(rec, task), 'samples': len(rec),
-           'duration_s': float(rec.time[-1] - rec.time[0])}
-    params = report.get('parameters', {})
+    adequacy and warnings, added to ``source`` (the row's robot, motor, recording, ...)."""
+    result = identifier(task, rec.input_kind).fit(rec).result_
+    params = {}
     for name in PARAM_NAMES:
-        p = params.get(name) or {}
-        row[name] = _num(p.get('value'))
-        row[f'{name}_std'] = _num(p.get('std'))
-        row[f'{name}_determined'] = bool(p.get('determined', p.get('value') is not None))
-    channels = (report.get('fit') or {}).get('channels', {})
-    for ch in ('speed', 'current'):
-        row[f'fit_{ch}'] = _num((channels.get(ch) or {}).get('fit_percent'))
-    row['adequate'] = bool(report.get('adequate', True))
-    warnings = [str(w) for w in report.get('warnings', []) or []]
-    row['warnings'] = '; '.join(warnings)
-    return row
+        p = result.parameters.get(name)
+        params[name] = ParameterValue(determined=False) if p is None else ParameterValue(
+            value=_num(p.value), std=_num(p.std),
+            determined=bool(p.determined))
+    channels = result.fit.channels
+    fit = {ch: _num(channels[ch].fit_percent) if ch in channels else None
+           for ch in ('speed', 'current')}
+    return replace(source, start_time=_start_time(rec, task), samples=len(rec),
+                   duration_s=float(rec.time[-1] - rec.time[0]), parameters=params,
+                   fit_speed=fit['speed'], fit_current=fit['current'],
+                   adequate=bool(result.adequate),
+                   warnings='; '.join(str(w) for w in result.warnings or []))
 
 
-def analysis_row(rec: Recording, task: Task) -> dict[str, Any]:
-    """The discrepancy analysis's verdict for the row."""
+def analysis_verdict(rec: Recording, task: Task) -> tuple[str, bool]:
+    """The discrepancy analysis's verdict and whether it left the data unexplained."""
     from motor_id.analysis import DiscrepancyAnalysis
     m = task.motor
     ana = DiscrepancyAnalysis(R_m=m.resistance, random_state=task.fit.seed,
                               R_m_tolerance=m.resistance_tolerance / 100.0)
-    rep = ana.fit(rec).report_.to_dict()
-    return {'verdict': str(rep.get('verdict')), 'unexplained': bool(rep.get('unexplained'))}
+    rep = ana.fit(rec).report_
+    return str(rep.verdict), bool(rep.unexplained)
 
 
 def _num(v: SupportsFloat | None) -> float | None:
