@@ -50,6 +50,7 @@ import numpy as np  # noqa: E402
 
 from motor_id.testing.discrepancy import (  # noqa: E402
     build_plan,
+    CaseRow,
     CaseSpec,
     DEFAULT_CASES,
     failure_lines,
@@ -88,11 +89,11 @@ SUMMARY_ROWS = (('named', 'effects named (verdict or ambiguous)'),
 
 def summary_table(rows, noise, generators):
     """One noise level: a metric per row, the generators side by side."""
-    per = {g: rates([r for r in rows if r['generator'] == g and r['noise'] == noise])
+    per = {g: rates([r for r in rows if r.generator == g and r.noise == noise])
            for g in generators}
     out = []
     for key, label in SUMMARY_ROWS:
-        out.append({'metric': label, **{g: _cell(per[g][key]) for g in generators}})
+        out.append({'metric': label, **{g: _cell(getattr(per[g], key)) for g in generators}})
     for key, label in (('median_length', 'median record length [samples]'),
                        ('median_s', 'median analysis s (wall)'),
                        ('median_cpu_s', 'median analysis s (CPU)'),
@@ -100,7 +101,7 @@ def summary_table(rows, noise, generators):
                        ('median_param_error', 'median |parameter error|')):
         cells = {}
         for g in generators:
-            v = per[g][key]
+            v = getattr(per[g], key)
             cells[g] = ('-' if v is None else f'{100 * v:.1f} %' if 'param' in key
                         else f'{v:.0f}' if 'length' in key else f'{v:.1f}')
         out.append({'metric': label, **cells})
@@ -122,16 +123,16 @@ def effect_table(rows, generators, levels):
         row = {'effect': e}
         for g in generators:
             for lv in levels:
-                rs = [r for r in rows if r['generator'] == g and r['noise'] == lv
-                      and r['effect'] == e and not r.get('generator_error')]
+                rs = [r for r in rows if r.generator == g and r.noise == lv
+                      and r.effect == e and not r.generator_error]
                 key = 'false_alarm' if e == 'none' else 'named'
                 k = sum(bool(r[key]) for r in rs)
                 row[f'{g}@{lv}'] = f'{k}/{len(rs)}' if rs else '-'
-            errs = [abs(r['param_error']) for r in rows if r['generator'] == g
-                    and r['effect'] == e and r['param_error'] is not None]
+            errs = [abs(r.param_error) for r in rows if r.generator == g
+                    and r.effect == e and r.param_error is not None]
             row[f'{g}:err'] = f'{100 * float(np.median(errs)):.1f} %' if errs else '-'
-            found = [r for r in rows if r['generator'] == g and r['effect'] == e]
-            row[f'{g}:exact'] = (f'{sum(r["exact"] for r in found)}/{len(found)}'
+            found = [r for r in rows if r.generator == g and r.effect == e]
+            row[f'{g}:exact'] = (f'{sum(r.exact for r in found)}/{len(found)}'
                                  if found and e != 'none' else '-')
         out.append(row)
     for g in generators:
@@ -182,34 +183,34 @@ def time_cli(tmp, n, with_effect, candidates=None):
 
 def targets_for(rows, cli_rows):
     """The issue's targets (independent generator, 0.5-2 % noise) and informative ones."""
-    ind = rates([r for r in rows if r['generator'] == 'independent'
-                 and r['noise'] in TARGET_NOISE])
-    hid = rates([r for r in rows if r['generator'] == 'hidden'
-                 and r['noise'] in TARGET_NOISE])
-    four = [r for r in rows if r.get('length') == 4000 and r['seconds'] is not None]
-    med4 = float(np.median([r['seconds'] for r in four])) if four else None
-    cpu4 = float(np.median([r['cpu_seconds'] for r in four])) if four else None
+    ind = rates([r for r in rows if r.generator == 'independent'
+                 and r.noise in TARGET_NOISE])
+    hid = rates([r for r in rows if r.generator == 'hidden'
+                 and r.noise in TARGET_NOISE])
+    four = [r for r in rows if r.length == 4000 and r.seconds is not None]
+    med4 = float(np.median([r.seconds for r in four])) if four else None
+    cpu4 = float(np.median([r.cpu_seconds for r in four])) if four else None
 
     def check(value, ok):
         return None if value is None else ok(value)
 
     scope = 'independent generator, 0.5-2 % noise, R_m off 2-5 %'
     out = [
-        target(f'effects named ({scope})', ind['named_rate'], '>= 95 %',
-               check(ind['named_rate'], lambda v: v >= 0.95)),
-        target(f'false alarms on clean cases ({scope})', ind['false_alarm_rate'], '0',
-               check(ind['false_alarm_rate'], lambda v: v == 0)),
-        target(f'spurious second effects ({scope})', ind['spurious_rate'],
-               '<= 1 per 20 cases', check(ind['spurious_rate'], lambda v: v <= 0.05)),
-        target(f'encoder-grid cases named ({scope})', ind['grid_named_rate'], '100 %',
-               check(ind['grid_named_rate'], lambda v: v == 1.0)),
+        target(f'effects named ({scope})', ind.rate('named'), '>= 95 %',
+               check(ind.rate('named'), lambda v: v >= 0.95)),
+        target(f'false alarms on clean cases ({scope})', ind.rate('false_alarm'), '0',
+               check(ind.rate('false_alarm'), lambda v: v == 0)),
+        target(f'spurious second effects ({scope})', ind.rate('spurious'),
+               '<= 1 per 20 cases', check(ind.rate('spurious'), lambda v: v <= 0.05)),
+        target(f'encoder-grid cases named ({scope})', ind.rate('grid_named'), '100 %',
+               check(ind.rate('grid_named'), lambda v: v == 1.0)),
         target('median analysis time on 4,000 samples (wall)', med4, '< 5 s',
                check(med4, lambda v: v < 5.0), 's'),
         target('median analysis CPU time on 4,000 samples (one process)', cpu4,
                'informative', None, 's'),
-        target('effects named (hidden generator, 0.5-2 % noise)', hid['named_rate'],
+        target('effects named (hidden generator, 0.5-2 % noise)', hid.rate('named'),
                'informative', None),
-        target('false alarms (hidden generator, 0.5-2 % noise)', hid['false_alarm_rate'],
+        target('false alarms (hidden generator, 0.5-2 % noise)', hid.rate('false_alarm'),
                'informative', None),
     ]
     if cli_rows:
@@ -255,7 +256,7 @@ def _notes(rows, generators, exact_rm, jobs):
          'includes waiting for a loaded machine'),
         'magnitudes compared: ' + ', '.join(f'{e} {p}' for e, p in MAGNITUDE.items()),
     ]
-    gen_fail = sum(bool(r.get('generator_error')) for r in rows)
+    gen_fail = sum(bool(r.generator_error) for r in rows)
     if gen_fail:
         notes.append(f'{gen_fail} case(s) could not be generated and are left out of the '
                      'rates (listed among the failures)')
@@ -357,7 +358,10 @@ def rerun_specs(path):
     with open(path) as fh:
         rows = json.load(fh)['cases']
     fields = [f for f in CaseSpec.__dataclass_fields__]
-    return [CaseSpec(**{f: r[f] for f in fields}) for r in rows if is_failure(r)]
+    verdict = ('error', 'false_alarm', 'named', 'spurious', 'exact', 'ambiguous',
+               'param_error')
+    return [spec for spec, r in ((CaseSpec(**{f: r[f] for f in fields}), r) for r in rows)
+            if is_failure(CaseRow(spec, **{k: r[k] for k in verdict}))]
 
 
 def _levels(text):
@@ -405,10 +409,10 @@ def _progress(args, command):
     def progress(done, total, row):
         done_rows.append(row)
         if not args.quiet:
-            secs = '' if row['seconds'] is None else f', {row["seconds"]:.1f} s'
-            print(f'[{done}/{total}] {row["generator"]} seed {row["seed"]} '
-                  f'{100 * row["noise"]:g} % n={row.get("length")} {row["effect"]} -> '
-                  f'{row["verdict"]} ({is_failure(row) or "ok"}{secs})', file=sys.stderr,
+            secs = '' if row.seconds is None else f', {row.seconds:.1f} s'
+            print(f'[{done}/{total}] {row.generator} seed {row.seed} '
+                  f'{100 * row.noise:g} % n={row.length} {row.effect} -> '
+                  f'{row.verdict} ({is_failure(row) or "ok"}{secs})', file=sys.stderr,
                   flush=True)
         if args.markdown and done < total:
             with open(args.markdown, 'w') as fh:
@@ -473,7 +477,9 @@ def main(argv=None):
     rec['seconds'] = time.perf_counter() - t0
     _print_record(rec, args.failures)
     if args.json:
-        write_json(rec, args.json)
+        write_json({**rec, 'cases': [r.to_dict() for r in rec['cases']],
+                    'rates': {lv: {g: r.to_dict() for g, r in per.items()}
+                              for lv, per in rec['rates'].items()}}, args.json)
     if args.markdown:
         with open(args.markdown, 'w') as fh:
             fh.write(markdown_report(rec, command))

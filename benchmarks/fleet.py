@@ -11,6 +11,7 @@ Also a section of benchmarks/run.py style (``TITLE``, ``run(quick)``).
 """
 
 import argparse
+from dataclasses import asdict
 import json
 import os
 from pathlib import Path
@@ -153,7 +154,7 @@ def run(quick=False, memory_tasks=None, stream=sys.stdout):
         res = run_fleet([str(work / f'drift{seed}')], prof, str(work / f'out{seed}'),
                         workers=2)
         rows, fl, ns = score_detection(spec, res.drift)
-        det += [{'fleet': seed, **r} for r in rows]
+        det += [{'fleet': seed, **asdict(r)} for r in rows]
         false += [f'{seed}: {x}' for x in fl]
         n_series += ns
         n_clean += spec.robots * len(spec.motors) - len(spec.drifts)

@@ -214,7 +214,7 @@ def run(args):
         logs = {name: p.output() for name, p in procs.items()}
         try:
             from motor_id.bag import read_samples
-            bag_rows = int(read_samples(bag)['seq'].size)
+            bag_rows = int(read_samples(bag).seq.size)
             bag_error = None
         except MotorIdError as exc:
             bag_rows, bag_error = None, str(exc)

@@ -120,7 +120,7 @@ def test_the_speed_reading_of_a_grid_is_chosen_by_the_data(source):
         sim = _independent_sim()
         data, case = sim.make_case(3, effect='speed_quantization', motor_class='hobby',
                                    n_samples=4000, noise=0.005, r_m_error=0.03)
-        rec, r_known, q = sim.to_recording(data), data['known']['R_m'], \
+        rec, r_known, q = sim.to_recording(data), data.known['R_m'], \
             case.to_dict()['effect_params']['q']
     else:
         from motor_id.testing.hidden import make_case
@@ -152,4 +152,4 @@ def test_a_coarse_current_grid_credits_no_dynamic_effect():
     rep = DiscrepancyAnalysis(R_m=r_known).fit(rec).report_
     assert rep.verdict == 'current_quantization', rep.verdict
     q = rep.parameters['current_quantization.q_i']['value']
-    assert q == pytest.approx(truth['effect_params']['q_i'], rel=0.01)
+    assert q == pytest.approx(truth.effect_params['q_i'], rel=0.01)

@@ -108,7 +108,7 @@ def test_round_trip_is_exact(tmp_path):
     rec = make_recording(seed=1)
     path = tmp_path / 'rec.mcap'
     res = write_recording(rec, path, batch=37)
-    assert res['samples'] == len(rec)
+    assert res.samples == len(rec)
     back = read_recording(path)
     for name in ('time', 'input', 'speed', 'current'):
         np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
@@ -118,9 +118,9 @@ def test_round_trip_is_exact(tmp_path):
     assert back.meta['units']['voltage'] == 'V'
     assert back.meta['gaps'] == []
     samples = read_samples(path)
-    np.testing.assert_array_equal(samples['seq'], np.arange(len(rec)))
-    assert np.all(samples['flags'] == 0)
-    assert np.all(np.diff(samples['log_time_ns']) >= 0)
+    np.testing.assert_array_equal(samples.seq, np.arange(len(rec)))
+    assert np.all(samples.flags == 0)
+    assert np.all(np.diff(samples.log_time_ns) >= 0)
 
 
 def test_round_trip_torque_without_current(tmp_path):
@@ -132,7 +132,7 @@ def test_round_trip_torque_without_current(tmp_path):
     assert back.input_kind == 'torque'
     assert back.meta['units']['voltage'] == 'N m'
     np.testing.assert_array_equal(back.input, rec.input)
-    counts = {t['topic']: t['count'] for t in bag_info(path)['topics']}
+    counts = {t.topic: t.count for t in bag_info(path).topics}
     assert counts == {'/motor_id/meta': 1, '/samples': 3, '/voltage': 120, '/speed': 120}
 
 
@@ -277,7 +277,7 @@ def test_reads_samples_recorded_by_another_rosbag2_writer(tmp_path):
     np.testing.assert_array_equal(back.time, rec.time)
     np.testing.assert_array_equal(back.current, rec.current)
     assert back.meta['robot'] == 'r1'
-    assert bag_info(path)['complete']
+    assert bag_info(path).complete
 
 
 def test_file_has_ros2_profile_statistics_and_rosbag2_metadata(tmp_path):

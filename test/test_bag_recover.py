@@ -57,8 +57,8 @@ def test_truncated_file_gives_a_one_line_error_with_the_recoverable_count(tmp_pa
     assert f'{expected + 1} message(s) ({expected} on /samples) can be recovered' in text
     assert f'motor-id bag recover {cut} OUT.mcap' in text
     info = bag_info(cut)
-    assert not info['complete']
-    assert info['messages'] == expected + 1
+    assert not info.complete
+    assert info.messages == expected + 1
 
 
 @pytest.mark.parametrize('seed', [11, 12, 13])
@@ -75,10 +75,10 @@ def test_recover_salvages_every_complete_chunk(tmp_path, seed):
     cut.write_bytes(data[:cut_at])
     out = tmp_path / 'fixed.mcap'
     res = recover(cut, out)
-    assert res['messages'] == expected + 1
-    assert res['topics'] == {'/motor_id/meta': 1, '/samples': expected}
-    assert not res['was_complete']
-    assert bag_info(out)['complete']
+    assert res.messages == expected + 1
+    assert res.topics == {'/motor_id/meta': 1, '/samples': expected}
+    assert not res.was_complete
+    assert bag_info(out).complete
     rec = read_recording(out)
     np.testing.assert_array_equal(rec.time, rows[:8 * expected, 1])
     np.testing.assert_array_equal(rec.speed, rows[:8 * expected, 3])
@@ -97,8 +97,8 @@ def test_recover_skips_a_corrupt_chunk_and_keeps_the_rest(tmp_path):
         read_recording(broken)
     res = recover(broken, tmp_path / 'fixed.mcap')
     lost = (bad.message_end_time - bad.message_start_time) // 1000 + 1
-    assert res['chunks_lost'] == 1
-    assert res['topics']['/samples'] == 30 - lost
+    assert res.chunks_lost == 1
+    assert res.topics['/samples'] == 30 - lost
 
 
 def test_recover_resumes_after_a_chunk_with_a_damaged_header(tmp_path):
@@ -116,8 +116,8 @@ def test_recover_resumes_after_a_chunk_with_a_damaged_header(tmp_path):
                                        rf'{31 - lost} message\(s\)'):
         read_recording(broken)
     res = recover(broken, tmp_path / 'fixed.mcap')
-    assert res['topics'] == {'/motor_id/meta': 1, '/samples': 30 - lost}
-    assert res['chunks'] == len(summary.chunk_indexes) - 1
+    assert res.topics == {'/motor_id/meta': 1, '/samples': 30 - lost}
+    assert res.chunks == len(summary.chunk_indexes) - 1
 
 
 KILLED_WRITER = textwrap.dedent("""
@@ -162,7 +162,7 @@ def test_recover_after_the_writer_is_killed(tmp_path):
         read_recording(path)
     out = tmp_path / 'recovered.mcap'
     res = recover(path, out)
-    assert res['topics'] == {'/motor_id/meta': 1, '/samples': 40}
+    assert res.topics == {'/motor_id/meta': 1, '/samples': 40}
     rec = read_recording(out)
     np.testing.assert_array_equal(rec.time, np.arange(200) * 0.01)
     assert rec.meta['provenance'] == 'killed'
@@ -204,8 +204,8 @@ def test_cli_bag_info_and_recover(tmp_path, capsys):
 def test_committed_bags_are_complete():
     for path in sorted((ROOT / 'bags').glob('*.mcap')):
         info = bag_info(path)
-        assert info['complete'], path
-        assert info['profile'] == 'ros2'
+        assert info.complete, path
+        assert info.profile == 'ros2'
         assert path.stat().st_size < 2_000_000, path
 
 
@@ -219,7 +219,7 @@ def test_a_cut_summary_loses_no_data_and_directories_resolve(tmp_path):
     rec = read_recording(cut)
     np.testing.assert_array_equal(rec.time, rows[:, 1])
     assert 'summary/footer is missing' in rec.meta['bag_note']
-    assert not bag_info(cut)['complete']
+    assert not bag_info(cut).complete
     np.testing.assert_array_equal(read_recording(full.parent).speed, rows[:, 3])
     (tmp_path / 'empty_dir').mkdir()
     with pytest.raises(BagError, match='directory with 0 .mcap'):

@@ -108,7 +108,7 @@ def _clean_logs(out):
 
 def _bag_closed(out):
     info = bag_info(out / 'demo.mcap')
-    assert info['complete'], info['problem']
+    assert info.complete, info.problem
     assert len(read_recording(out / 'demo.mcap')) > 0
 
 

@@ -294,13 +294,13 @@ def test_generated_bags_read_back_through_the_profile(tmp_path):
     spec = FleetSpec(robots=1, days=1, duration_s=2.0)
     truth = generate_fleet(spec, tmp_path)
     prof = parse_fleet_config(truth.profile)
-    rec_path = truth.recordings[0]['path']
+    rec_path = truth.recordings[0].path
     assert os.path.isfile(os.path.join(rec_path, 'metadata.yaml'))
     task = Task(rec_path, 'robot_00', 0, 0, prof.motors[1], prof.fit, False, 'x')
     rec = read_motor(task)
     assert len(rec) == 200 and rec.input_kind == 'voltage'
     assert np.all(np.abs(rec.input) <= spec.max_voltage)
-    assert rec.meta['time_origin_ns'] == truth.recordings[0]['start_ns']
+    assert rec.meta['time_origin_ns'] == truth.recordings[0].start_ns
 
 
 def test_task_with_analysis_names_the_generators_friction(tmp_path):
@@ -540,7 +540,8 @@ def test_fleet_meets_the_detection_targets_on_a_held_out_fleet(tmp_path):
     rows, false, clean_series = score_detection(spec, res.drift)
     assert clean_series == (spec.robots * 2 - len(spec.drifts)) * 6 and false == []
     for r in rows:
-        lo, hi = (-1, 4) if 'ramp' in r['drift'] else (-1, 1)
-        assert r['flagged'] and lo <= r['dated'] <= hi and r['other_flags'] == '-', r
+        lo, hi = (-1, 4) if 'ramp' in r.drift else (-1, 1)
+        assert r.flagged and r.dated is not None and lo <= r.dated <= hi, r
+        assert r.other_flags == '-', r
     page = (tmp_path / 'out' / 'report.html').read_text()
     assert page.count('class="change-point"') >= 3 and 'class="change-point ramp"' in page

@@ -160,7 +160,7 @@ def test_committed_bags_hold_the_converted_data(emps):
             back, rec = read_recording(path), load_dunker(src, motor)
             np.testing.assert_array_equal(back.input, rec.input)
             np.testing.assert_array_equal(back.time, rec.time)
-            assert bag_info(path)['topics'][1]['count'] == -(-len(rec) // 50)
+            assert bag_info(path).topics[1].count == -(-len(rec) // 50)
 
 
 def test_dunker_as_a_torque_csv_imports_by_column_name(tmp_path, capsys):

@@ -77,44 +77,44 @@ def test_plan_is_seeded_and_covers_every_effect():
 def test_recording_tells_the_resistance_off_by_the_planned_error():
     spec = dr.plan('independent', 0.005, 1, 3, max_samples=2500)[0]
     rec, truth, r_known = dr.make_recording(spec)
-    assert len(rec) == truth['n_samples'] == spec.n_samples
-    assert r_known / truth['R_m'] - 1.0 == pytest.approx(spec.r_m_error, abs=1e-12)
-    assert truth['effect'] == spec.effect
+    assert len(rec) == truth.n_samples == spec.n_samples
+    assert r_known / truth.R_m - 1.0 == pytest.approx(spec.r_m_error, abs=1e-12)
+    assert truth.effect == spec.effect
 
 
 def test_independent_round_names_hidden_effects(round_rows):
-    eff = [r for r in round_rows if r['effect'] != 'none']
+    eff = [r for r in round_rows if r.effect != 'none']
     assert len(eff) == len(independent_sim.EFFECTS)
-    assert not [r for r in round_rows if r['error']], _describe(round_rows)
-    named = sum(r['named'] for r in eff)
+    assert not [r for r in round_rows if r.error], _describe(round_rows)
+    named = sum(r.named for r in eff)
     assert named >= MIN_NAMED, _describe(round_rows)
 
 
 def test_independent_round_raises_no_false_alarm(round_rows):
-    clean = [r for r in round_rows if r['effect'] == 'none']
+    clean = [r for r in round_rows if r.effect == 'none']
     assert len(clean) == dr.CLEAN_PER_ROUND
-    assert not any(r['false_alarm'] for r in clean), _describe(clean)
+    assert not any(r.false_alarm for r in clean), _describe(clean)
 
 
 def test_independent_round_adds_no_spurious_second_effect(round_rows):
-    spurious = [r for r in round_rows if r['spurious']]
+    spurious = [r for r in round_rows if r.spurious]
     assert len(spurious) <= MAX_SPURIOUS, _describe(spurious)
 
 
 def test_independent_round_names_the_encoder_grid(round_rows):
-    grid = [r for r in round_rows if r['effect'] == 'speed_quantization']
-    assert len(grid) == 1 and grid[0]['named'], _describe(grid)
+    grid = [r for r in round_rows if r.effect == 'speed_quantization']
+    assert len(grid) == 1 and grid[0].named, _describe(grid)
 
 
 def test_independent_round_finds_effect_magnitudes(round_rows):
     checked = 0
     for r in round_rows:
-        tol = MAGNITUDE_TOLERANCE.get(r['effect'])
-        if tol is None or not r['named']:
+        tol = MAGNITUDE_TOLERANCE.get(r.effect)
+        if tol is None or not r.named:
             continue
-        assert r['param_error'] is not None, _describe([r])
-        assert abs(r['param_error']) <= tol, \
-            (r['effect'], r['param'], r['param_found'], r['param_true'])
+        assert r.param_error is not None, _describe([r])
+        assert abs(r.param_error) <= tol, \
+            (r.effect, r.param, r.param_found, r.param_true)
         checked += 1
     assert checked >= MIN_NAMED - 2
 
@@ -125,8 +125,8 @@ def test_independent_sweep_rates():
     specs = dr.build_plan(generators=('independent',), levels=dr.TARGET_NOISE)
     rows = dr.run_cases(specs)
     rates = dr.rates(rows)
-    assert rates['errors'][0] == 0, _describe(rows)
-    assert rates['named_rate'] >= SWEEP_MIN_NAMED, _describe(rows)
-    assert rates['false_alarm_rate'] == 0.0, _describe(rows)
-    assert rates['spurious_rate'] <= 0.05, _describe(rows)
-    assert rates['grid_named_rate'] == 1.0, _describe(rows)
+    assert rates.errors[0] == 0, _describe(rows)
+    assert rates.rate('named') >= SWEEP_MIN_NAMED, _describe(rows)
+    assert rates.rate('false_alarm') == 0.0, _describe(rows)
+    assert rates.rate('spurious') <= 0.05, _describe(rows)
+    assert rates.rate('grid_named') == 1.0, _describe(rows)

@@ -1,5 +1,6 @@
 """Tests of the independent second simulator (motor_id.testing.independent_sim) against physics."""
 
+from dataclasses import fields
 import math
 
 import numpy as np
@@ -184,9 +185,9 @@ def test_encoder_speed_lies_on_its_grid(seed):
     q = truth.effect_params['q']
     np.testing.assert_allclose(q, 2 * np.pi / (truth.effect_params['cpr']
                                                * truth.sample_period), rtol=1e-15)
-    counts = np.round(data['speed'] / q)
-    np.testing.assert_array_equal(data['speed'], counts * q)   # bit for bit on the grid
-    np.testing.assert_allclose(data['speed'] / q, counts, rtol=0, atol=1e-9)
+    counts = np.round(data.speed / q)
+    np.testing.assert_array_equal(data.speed, counts * q)   # bit for bit on the grid
+    np.testing.assert_allclose(data.speed / q, counts, rtol=0, atol=1e-9)
     assert np.unique(counts).size > 5
 
 
@@ -197,7 +198,7 @@ def test_heating_raises_resistance_by_the_drawn_fraction(seed):
     assert 0.10 <= p['rise_target'] <= 0.40
     np.testing.assert_allclose(p['rise'], p['rise_target'], rtol=0.02)
     motor = sim.Motor.from_dict(truth.motor)
-    v = sim.amplifier(data['input'], truth.sim_effects)
+    v = sim.amplifier(data.input, truth.sim_effects)
     st = sim.integrate(motor, v, truth.sample_period, truth.sim_effects, truth.n_sub)
     np.testing.assert_allclose(st['resistance'][-1] / motor.R - 1.0, p['rise'], rtol=1e-12)
     assert np.all(st['temperature_rise'] >= 0.0) and st['temperature_rise'][0] == 0.0
@@ -240,20 +241,21 @@ def test_make_case_is_reproducible_bit_for_bit():
     a, ta = sim.make_case(11)
     b, tb = sim.make_case(11)
     for k in ('time', 'input', 'speed', 'current'):
-        assert np.array_equal(a[k], b[k])
+        assert np.array_equal(getattr(a, k), getattr(b, k))
     assert ta.to_dict() == tb.to_dict()
     c, _ = sim.make_case(12)
-    assert not (a['speed'].size == c['speed'].size and np.array_equal(a['speed'], c['speed']))
+    assert not (a.speed.size == c.speed.size and np.array_equal(a.speed, c.speed))
 
 
 def test_truth_is_never_in_the_data():
     data, truth = sim.make_case(4, effect='load_torque', r_m_error=0.05)
-    assert set(data) == {'time', 'input', 'speed', 'current', 'input_kind', 'known'}
-    assert data['input_kind'] == 'voltage'
-    assert set(data['known']) == {'R_m'}
-    np.testing.assert_allclose(data['known']['R_m'], truth.motor['R'] * 1.05, rtol=1e-15)
+    assert {f.name for f in fields(data)} == {'time', 'input', 'speed', 'current',
+                                              'input_kind', 'known'}
+    assert data.input_kind == 'voltage'
+    assert set(data.known) == {'R_m'}
+    np.testing.assert_allclose(data.known['R_m'], truth.motor['R'] * 1.05, rtol=1e-15)
     for k in ('time', 'input', 'speed', 'current'):
-        assert isinstance(data[k], np.ndarray)
+        assert isinstance(getattr(data, k), np.ndarray)
     assert 'load_torque' not in repr(data) and 'T_L' not in repr(data)
     rec = sim.to_recording(data)
     assert 'load_torque' not in repr(rec.meta) and len(rec) == truth.n_samples
@@ -266,16 +268,16 @@ def test_every_class_and_effect_gives_finite_detectable_data(motor_class, effect
     assert truth.motor_class == motor_class and truth.effect == effect
     assert 1e-3 <= truth.sample_period <= 0.02
     for k in ('input', 'speed', 'current'):
-        assert data[k].shape == (3000,) and np.all(np.isfinite(data[k]))
-    assert np.std(data['speed']) > 0 and np.std(data['current']) > 0
+        assert getattr(data, k).shape == (3000,) and np.all(np.isfinite(getattr(data, k)))
+    assert np.std(data.speed) > 0 and np.std(data.current) > 0
     assert truth.excitation not in sim.NOT_REVEALED_BY.get(effect, ())
     if effect == 'none':
         return
     motor = sim.Motor.from_dict(truth.motor)
     T = truth.sample_period
-    s1, c1, _ = sim.simulate(motor, data['input'], T, truth.sim_effects, (0.0, 0.0), 0,
+    s1, c1, _ = sim.simulate(motor, data.input, T, truth.sim_effects, (0.0, 0.0), 0,
                              truth.n_sub)
-    s0, c0, _ = sim.simulate(motor, data['input'], T, {}, (0.0, 0.0), 0, truth.n_sub)
+    s0, c0, _ = sim.simulate(motor, data.input, T, {}, (0.0, 0.0), 0, truth.n_sub)
     noise = truth.noise['speed']
     change = max(np.sqrt(np.mean((s1 - s0) ** 2)) / (noise * np.std(s0)),
                  np.sqrt(np.mean((c1 - c0) ** 2)) / (noise * np.std(c0)))

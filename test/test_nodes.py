@@ -376,7 +376,7 @@ def replay_args(rate, *extra):
 
 def test_replay_rate_feeds_a_live_identifier(client, launch):
     """`motor-id replay BAG --rate X` republishes the bag; a live identifier fits it."""
-    rows = read_samples(PAPER_BAG)['seq'].size
+    rows = read_samples(PAPER_BAG).seq.size
     proc = launch('identifier', identifier_args('generations:=60', 'window_s:=1000.0'))
     proc.wait_for('identifier ready')
     # this client's own samples subscriptions (earlier tests) count as subscribers too:

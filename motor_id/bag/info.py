@@ -1,5 +1,6 @@
 """What is in an MCAP file: topics, types, counts, time span, integrity (damaged files too)."""
 
+from dataclasses import asdict, dataclass
 import os
 from typing import Any
 
@@ -7,7 +8,63 @@ from motor_id.bag.metadata import METADATA_RECORD, read_ros_distro
 from motor_id.bag.scan import scan_file
 
 
-def bag_info(path: str | os.PathLike[str]) -> dict[str, Any]:
+@dataclass(frozen=True)
+class TopicSummary:
+    """One topic of a bag: its type, message count, encoding and offered QoS (YAML)."""
+
+    topic: str
+    type: str
+    count: int
+    encoding: str
+    qos: str
+
+
+@dataclass(frozen=True)
+class BagInfo:
+    """Summary of an MCAP file (see :func:`bag_info`).
+
+    Attributes
+    ----------
+    path : str
+    size_bytes : int
+    profile, library : str
+        The MCAP header's.
+    complete : bool
+        False for a truncated or damaged file; ``problem`` says why.
+    problem : str
+    messages, chunks : int
+    compression : list of str
+    start_ns, end_ns : int
+        First and last log time [ns] (0 without messages).
+    duration_s : float
+    topics : list of TopicSummary
+    metadata : list of str
+        Metadata record names.
+    ros_distro : str
+    """
+
+    path: str
+    size_bytes: int
+    profile: str
+    library: str
+    complete: bool
+    problem: str
+    messages: int
+    chunks: int
+    compression: list[str]
+    start_ns: int
+    end_ns: int
+    duration_s: float
+    topics: list[TopicSummary]
+    metadata: list[str]
+    ros_distro: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready (``motor-id bag info --json``)."""
+        return asdict(self)
+
+
+def bag_info(path: str | os.PathLike[str]) -> BagInfo:
     """Summary of an MCAP file: topics, types, counts, time span, integrity.
 
     Built on the tolerant scan, so it works on truncated or damaged files too (then
@@ -20,10 +77,7 @@ def bag_info(path: str | os.PathLike[str]) -> dict[str, Any]:
 
     Returns
     -------
-    dict
-        ``path, size_bytes, profile, library, complete, problem, messages, chunks,
-        compression, start_ns, end_ns, duration_s, topics`` (list of ``{topic, type,
-        count, encoding, qos}``), ``metadata`` (record names), ``ros_distro``.
+    BagInfo
 
     Raises
     ------
@@ -35,21 +89,18 @@ def bag_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     topics = []
     for ch in sorted(scan.channels.values(), key=lambda c: c.topic):
         schema = scan.schemas.get(ch.schema_id)
-        topics.append({'topic': ch.topic, 'type': schema.name if schema else '',
-                       'count': counts.get(ch.topic, 0), 'encoding': ch.message_encoding,
-                       'qos': ch.metadata.get('offered_qos_profiles', '')})
+        topics.append(TopicSummary(ch.topic, schema.name if schema else '',
+                                   counts.get(ch.topic, 0), ch.message_encoding,
+                                   ch.metadata.get('offered_qos_profiles', '')))
     times = [m.log_time for m in scan.messages]
     start = min(times) if times else 0
     end = max(times) if times else 0
-    return {
-        'path': scan.path, 'size_bytes': scan.size, 'profile': scan.profile,
-        'library': scan.library, 'complete': scan.complete, 'problem': scan.problem(),
-        'messages': len(scan.messages), 'chunks': scan.chunks,
-        'compression': sorted(scan.compressions), 'start_ns': start, 'end_ns': end,
-        'duration_s': (end - start) * 1e-9, 'topics': topics,
-        'metadata': [name for name, _ in scan.metadata],
-        'ros_distro': _ros_distro(scan.metadata),
-    }
+    return BagInfo(
+        path=scan.path, size_bytes=scan.size, profile=scan.profile, library=scan.library,
+        complete=scan.complete, problem=scan.problem(), messages=len(scan.messages),
+        chunks=scan.chunks, compression=sorted(scan.compressions), start_ns=start,
+        end_ns=end, duration_s=(end - start) * 1e-9, topics=topics,
+        metadata=[name for name, _ in scan.metadata], ros_distro=_ros_distro(scan.metadata))
 
 
 def _ros_distro(metadata: list[Any]) -> str:

@@ -7,6 +7,7 @@ metadata record ``rosbag2`` whose ``serialized_metadata`` is the bag's ``metadat
 """
 
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import yaml
@@ -27,9 +28,35 @@ ROSBAG2_METADATA_VERSION = 9
 METADATA_RECORD = 'rosbag2'
 
 
+@dataclass(frozen=True)
+class QosProfile:
+    """An offered QoS profile: keep last ``depth``, no deadline, lifespan or lease.
+
+    Attributes
+    ----------
+    reliability : {'reliable', 'best_effort'}
+    durability : {'volatile', 'transient_local'}
+    depth : int
+        History depth (keep last).
+    """
+
+    reliability: str
+    durability: str
+    depth: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """The form rosbag2 (metadata version 9) stores in ``offered_qos_profiles``."""
+        unset = {'sec': 0, 'nsec': 0}
+        return {'history': 'keep_last', 'depth': self.depth, 'reliability': self.reliability,
+                'durability': self.durability, 'deadline': dict(unset),
+                'lifespan': dict(unset), 'liveliness': 'automatic',
+                'liveliness_lease_duration': dict(unset),
+                'avoid_ros_namespace_conventions': False}
+
+
 def qos_profile(reliability: str = 'reliable', durability: str = 'volatile',
-                depth: int = 10) -> dict[str, Any]:
-    """An offered QoS profile in the form rosbag2 (metadata version 9) stores.
+                depth: int = 10) -> QosProfile:
+    """An offered QoS profile, checked.
 
     Parameters
     ----------
@@ -40,7 +67,12 @@ def qos_profile(reliability: str = 'reliable', durability: str = 'volatile',
 
     Returns
     -------
-    dict
+    QosProfile
+
+    Raises
+    ------
+    ConfigError
+        A reliability, durability or depth out of its domain.
     """
     if reliability not in ('reliable', 'best_effort'):
         raise ConfigError(f'reliability must be reliable or best_effort, got {reliability!r}')
@@ -48,14 +80,10 @@ def qos_profile(reliability: str = 'reliable', durability: str = 'volatile',
         raise ConfigError(f'durability must be volatile or transient_local, got {durability!r}')
     if int(depth) < 1:
         raise ConfigError(f'QoS depth must be >= 1, got {depth}')
-    unset = {'sec': 0, 'nsec': 0}
-    return {'history': 'keep_last', 'depth': int(depth), 'reliability': reliability,
-            'durability': durability, 'deadline': dict(unset), 'lifespan': dict(unset),
-            'liveliness': 'automatic', 'liveliness_lease_duration': dict(unset),
-            'avoid_ros_namespace_conventions': False}
+    return QosProfile(reliability, durability, int(depth))
 
 
-def default_qos(topic: str) -> dict[str, Any]:
+def default_qos(topic: str) -> QosProfile:
     """The QoS the nodes offer a topic of the motor_id layout with (depths from contracts).
 
     ``/samples``: reliable, volatile, :data:`~motor_id.contracts.SAMPLES_DEPTH`;
@@ -119,9 +147,10 @@ def _yaml(value: Any) -> str:
     return yaml.safe_dump(value, default_flow_style=False, sort_keys=False)
 
 
-def channel_metadata(msgtype: str, qos: dict[str, Any]) -> dict[str, str]:
+def channel_metadata(msgtype: str, qos: QosProfile) -> dict[str, str]:
     """MCAP channel metadata of a topic as rosbag2 writes it (QoS YAML, type hash)."""
-    return {'offered_qos_profiles': _yaml([qos]), 'topic_type_hash': type_hash(msgtype)}
+    return {'offered_qos_profiles': _yaml([qos.to_dict()]),
+            'topic_type_hash': type_hash(msgtype)}
 
 
 def offered_qos(metadata: Mapping[str, str]) -> list[dict[str, Any]]:

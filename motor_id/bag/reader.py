@@ -10,7 +10,7 @@ and :func:`samples_recording`.
 """
 
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 import json
 import os
 from typing import Any
@@ -146,7 +146,47 @@ def _batches(contents: _Contents,
         yield rows, msg.log_time
 
 
-def _samples(contents: _Contents, topic: str = BAG_SAMPLES_TOPIC) -> dict[str, Any]:
+@dataclass(frozen=True)
+class SampleGap:
+    """Missing sequence numbers: ``missing`` samples after ``after_seq`` (never filled)."""
+
+    after_seq: int
+    missing: int
+    t_before: float
+    t_after: float
+
+
+@dataclass(frozen=True)
+class SampleRows:
+    """A bag's sample rows in sequence order (repeats dropped, gaps listed).
+
+    Attributes
+    ----------
+    seq, t, voltage, speed, current, flags : ndarray
+        The columns of :data:`motor_id.contracts.SAMPLE_COLUMNS`, one entry per row.
+    log_time_ns : ndarray of int
+        Log time of each row's message [ns].
+    gaps : list of SampleGap
+    duplicates : int
+        Rows dropped for repeating a sequence number.
+    """
+
+    seq: NDArray[np.float64]
+    t: NDArray[np.float64]
+    voltage: NDArray[np.float64]
+    speed: NDArray[np.float64]
+    current: NDArray[np.float64]
+    flags: NDArray[np.float64]
+    log_time_ns: NDArray[np.int64]
+    gaps: list[SampleGap]
+    duplicates: int
+
+    def rows(self) -> NDArray[np.float64]:
+        """The rows again, shape (n, 6), columns :data:`~motor_id.contracts.SAMPLE_COLUMNS`."""
+        return np.column_stack([getattr(self, c) for c in SAMPLE_COLUMNS])
+
+
+def _samples(contents: _Contents, topic: str = BAG_SAMPLES_TOPIC) -> SampleRows:
     blocks, log_times = [], []
     for rows, log_time in _batches(contents, topic):
         blocks.append(rows)
@@ -156,7 +196,7 @@ def _samples(contents: _Contents, topic: str = BAG_SAMPLES_TOPIC) -> dict[str, A
     return sorted_samples(np.concatenate(blocks), np.concatenate(log_times))
 
 
-def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict[str, Any]:
+def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> SampleRows:
     """Sample rows in sequence order, repeats dropped, gaps listed (never filled).
 
     The one rule for every storage the rows come from (this reader's MCAP, or any rosbag2
@@ -171,9 +211,7 @@ def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict
 
     Returns
     -------
-    dict
-        The columns by name, ``log_time_ns``, ``gaps`` (``{after_seq, missing, t_before,
-        t_after}``) and ``duplicates``.
+    SampleRows
     """
     order = np.argsort(rows[:, SEQ], kind='stable')
     rows, log_ns = rows[order], log_ns[order]
@@ -181,12 +219,12 @@ def sorted_samples(rows: NDArray[np.float64], log_ns: NDArray[np.int64]) -> dict
     keep[1:] = np.diff(rows[:, SEQ]) != 0
     rows, log_ns = rows[keep], log_ns[keep]
     seq = rows[:, SEQ]
-    gaps = [{'after_seq': int(seq[k]), 'missing': int(seq[k + 1] - seq[k] - 1),
-             't_before': float(rows[k, T]), 't_after': float(rows[k + 1, T])}
+    gaps = [SampleGap(int(seq[k]), int(seq[k + 1] - seq[k] - 1), float(rows[k, T]),
+                      float(rows[k + 1, T]))
             for k in np.flatnonzero(seq_step(seq[:-1], seq[1:]) > 1)]
-    out = {name: rows[:, j].copy() for j, name in enumerate(SAMPLE_COLUMNS)}
-    out.update(log_time_ns=log_ns, gaps=gaps, duplicates=int(np.count_nonzero(~keep)))
-    return out
+    columns = {name: rows[:, j].copy() for j, name in enumerate(SAMPLE_COLUMNS)}
+    return SampleRows(**columns, log_time_ns=log_ns, gaps=gaps,
+                      duplicates=int(np.count_nonzero(~keep)))
 
 
 def _meta(contents: _Contents) -> dict[str, Any]:
@@ -205,7 +243,7 @@ def _meta(contents: _Contents) -> dict[str, Any]:
     return meta
 
 
-def read_samples(path: str | os.PathLike[str], topic: str = BAG_SAMPLES_TOPIC) -> dict[str, Any]:
+def read_samples(path: str | os.PathLike[str], topic: str = BAG_SAMPLES_TOPIC) -> SampleRows:
     """All rows of the ``/samples`` topic, sorted by sequence number.
 
     Parameters
@@ -216,10 +254,9 @@ def read_samples(path: str | os.PathLike[str], topic: str = BAG_SAMPLES_TOPIC) -
 
     Returns
     -------
-    dict
-        Arrays ``seq, t, voltage, speed, current, flags, log_time_ns`` (one entry per
-        row; a repeated ``seq`` keeps its first row), ``gaps`` (list of
-        ``{after_seq, missing, t_before, t_after}``; never filled) and ``duplicates``.
+    SampleRows
+        One entry per row (a repeated ``seq`` keeps its first row); gaps are listed,
+        never filled.
 
     Raises
     ------
@@ -252,7 +289,7 @@ def read_recording(path: str | os.PathLike[str]) -> Recording:
     contents = _read(path)
     samples = _samples(contents)
     rec = samples_recording(samples, _meta(contents), contents.path, contents.note)
-    _attach_position(contents, rec, np.round(samples['seq']).astype(np.int64))
+    _attach_position(contents, rec, np.round(samples.seq).astype(np.int64))
     return rec
 
 
@@ -288,7 +325,7 @@ def _attach_position(contents: _Contents, rec: Recording, wanted: NDArray[np.int
 
 
 
-def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str | os.PathLike[str],
+def samples_recording(samples: SampleRows, meta: dict[str, Any], path: str | os.PathLike[str],
                       note: str | None = None) -> Recording:
     """A :class:`Recording` from :func:`sorted_samples` output and ``/motor_id/meta``.
 
@@ -300,20 +337,18 @@ def samples_recording(samples: dict[str, Any], meta: dict[str, Any], path: str |
     if kind not in INPUT_KINDS:
         raise BagError(f'{path}: {BAG_META_TOPIC} input_kind must be voltage or '
                        f'torque, got {kind!r}')
-    segments = _runs(meta.pop('runs', None), samples['seq'], path)
-    current = samples['current']
-    current = current if np.any(np.isfinite(current)) else None
+    segments = _runs(meta.pop('runs', None), samples.seq, path)
+    current = samples.current if np.any(np.isfinite(samples.current)) else None
     meta['bag'] = str(path)
-    meta['gaps'] = samples['gaps']
-    if samples['duplicates']:
-        meta['duplicate_rows'] = samples['duplicates']
-    nonzero = int(np.count_nonzero(samples['flags']))
+    meta['gaps'] = [asdict(g) for g in samples.gaps]
+    if samples.duplicates:
+        meta['duplicate_rows'] = samples.duplicates
+    nonzero = int(np.count_nonzero(samples.flags))
     if nonzero:
         meta['flagged_rows'] = nonzero
     if note:
         meta['bag_note'] = note
-    return Recording(samples['t'], samples['voltage'], samples['speed'], current, kind, meta,
-                     segments)
+    return Recording(samples.t, samples.voltage, samples.speed, current, kind, meta, segments)
 
 
 def _runs(runs: Any, seq: NDArray[np.float64], path: str | os.PathLike[str]

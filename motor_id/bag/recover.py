@@ -1,8 +1,8 @@
 """Salvaging a truncated or damaged MCAP file (e.g. its writer was killed) into a clean one."""
 
+from dataclasses import dataclass
 import os
 from pathlib import Path
-from typing import Any
 
 from motor_id.bag.files import resolve
 from motor_id.bag.scan import scan_file
@@ -10,8 +10,42 @@ from motor_id.bag.writer import BagWriter, DEFAULT_CHUNK_SIZE
 from motor_id.errors import BagError
 
 
+@dataclass(frozen=True)
+class Recovered:
+    """What :func:`recover` salvaged.
+
+    Attributes
+    ----------
+    out : str
+        The clean file.
+    messages : int
+        Messages copied.
+    topics : dict
+        ``{topic: messages copied}``.
+    chunks, chunks_lost : int
+        Complete chunks read, corrupt chunks skipped.
+    bytes_dropped : int
+        The cut tail.
+    orphans : int
+        Messages of a channel whose definition was lost.
+    was_complete : bool
+    problem : str
+        What was wrong with the input ('' when nothing).
+    """
+
+    out: str
+    messages: int
+    topics: dict[str, int]
+    chunks: int
+    chunks_lost: int
+    bytes_dropped: int
+    orphans: int
+    was_complete: bool
+    problem: str
+
+
 def recover(path: str | os.PathLike[str], out_path: str | os.PathLike[str],
-            chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = 'zstd') -> dict[str, Any]:
+            chunk_size: int = DEFAULT_CHUNK_SIZE, compression: str = 'zstd') -> Recovered:
     """Copy every message that survives in a damaged MCAP file to a clean file.
 
     The tolerant scan (:func:`motor_id.bag.scan.scan_file`; no summary or footer
@@ -32,9 +66,7 @@ def recover(path: str | os.PathLike[str], out_path: str | os.PathLike[str],
 
     Returns
     -------
-    dict
-        ``{'out', 'messages', 'topics' ({topic: count}), 'chunks', 'chunks_lost',
-        'bytes_dropped' (the cut tail), 'orphans', 'was_complete', 'problem'}``.
+    Recovered
 
     Notes
     -----
@@ -62,7 +94,7 @@ def recover(path: str | os.PathLike[str], out_path: str | os.PathLike[str],
             bag.write_raw(ch.topic, schema, ch.message_encoding, msg.data, msg.log_time,
                           msg.publish_time, msg.sequence, ch.metadata)
             counts[ch.topic] = counts.get(ch.topic, 0) + 1
-    return {'out': str(out_path), 'messages': sum(counts.values()), 'topics': counts,
-            'chunks': scan.chunks, 'chunks_lost': len(scan.bad_chunks),
-            'bytes_dropped': scan.size - scan.stop_offset if not scan.footer else 0,
-            'orphans': orphans, 'was_complete': scan.complete, 'problem': scan.problem()}
+    return Recovered(out=str(out_path), messages=sum(counts.values()), topics=counts,
+                     chunks=scan.chunks, chunks_lost=len(scan.bad_chunks),
+                     bytes_dropped=scan.size - scan.stop_offset if not scan.footer else 0,
+                     orphans=orphans, was_complete=scan.complete, problem=scan.problem())

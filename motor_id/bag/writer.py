@@ -24,7 +24,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from motor_id import __version__
-from motor_id.bag.metadata import channel_metadata, default_qos, METADATA_RECORD, rosbag2_metadata
+from motor_id.bag.metadata import (
+    channel_metadata,
+    default_qos,
+    METADATA_RECORD,
+    QosProfile,
+    rosbag2_metadata,
+)
 from motor_id.bag.schemas import (
     DIAGNOSTIC_ARRAY,
     FLOAT64,
@@ -168,7 +174,7 @@ class BagWriter:
         return sum(t.count for t in self._topics.values())
 
     def add_topic(self, topic: str, msgtype: str,
-                  qos: dict[str, Any] | None = None) -> '_Topic':
+                  qos: QosProfile | None = None) -> '_Topic':
         """Declare a topic (done implicitly by the first write with the default QoS).
 
         Parameters
@@ -177,7 +183,7 @@ class BagWriter:
             Topic name; a relative name gets a leading ``/``.
         msgtype : str
             A ROS 2 Jazzy message type, e.g. ``'std_msgs/msg/String'``.
-        qos : dict, optional
+        qos : QosProfile, optional
             Offered QoS (:func:`~motor_id.bag.metadata.qos_profile`); default
             :func:`~motor_id.bag.metadata.default_qos`.
         """
@@ -420,9 +426,18 @@ def _version(dist: str) -> str:
         return 'unknown'
 
 
+@dataclass(frozen=True)
+class WrittenBag:
+    """A bag :func:`write_recording` wrote: its path, sample rows and messages."""
+
+    path: str
+    samples: int
+    messages: int
+
+
 def write_recording(rec: Recording, path: str | os.PathLike[str],
                     meta: dict[str, Any] | None = None, batch: int = 50, start_ns: int = 0,
-                    channels: bool = False, **writer_kw: Any) -> dict[str, Any]:
+                    channels: bool = False, **writer_kw: Any) -> 'WrittenBag':
     """Write a :class:`~motor_id.recording.Recording` to an MCAP bag.
 
     Parameters
@@ -445,8 +460,7 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
 
     Returns
     -------
-    dict
-        ``{'path', 'samples', 'messages'}``.
+    WrittenBag
     """
     if int(batch) < 1:
         raise ConfigError(f'batch must be >= 1 row, got {batch}')
@@ -455,7 +469,7 @@ def write_recording(rec: Recording, path: str | os.PathLike[str],
     with BagWriter(path, **writer_kw) as bag:
         write_recording_into(bag, rec, meta, batch, start_ns, channels)
         count = bag.message_count
-    return {'path': str(path), 'samples': len(rec), 'messages': count}
+    return WrittenBag(str(path), len(rec), count)
 
 
 def write_recording_into(bag: BagWriter, rec: Recording, meta: dict[str, Any] | None = None,

@@ -179,7 +179,7 @@ def _finish(report: dict[str, Any], truth: MotorParams, bag: str, out: str) -> N
              f'{100 * (p["value"] - t) / t:>8.2f}%')
     rec = read_recording(bag)
     _say(f'\nbag: {bag} ({len(rec)} samples on /samples)')
-    start, end = profile_span(read_samples(bag)['flags']) or (0, len(rec))
+    start, end = profile_span(read_samples(bag).flags) or (0, len(rec))
     ident = Identifier(R_m=truth.R_m, random_state=0).fit(rec.slice(start, end))
     plot = os.path.join(out, 'fit.png')
     plot_fit(ident.result_, plot, title='motor-id demo: simulated card, paper excitation')

@@ -50,8 +50,8 @@ def run(args: argparse.Namespace) -> int:
                           compression=args.compression)
     size = os.path.getsize(args.out)
     span = rec.time[-1] - rec.time[0]
-    print(f'{args.out}: {res["samples"]} samples over {span:.3f} s '
-          f'({rec.input_kind} input), {res["messages"]} messages, {size} bytes')
+    print(f'{args.out}: {res.samples} samples over {span:.3f} s '
+          f'({rec.input_kind} input), {res.messages} messages, {size} bytes')
     if len(rec.segment_ranges) > 1:
         names = rec.meta.get('segment_names') or []
         print(f'note: the bag holds the {len(rec.segment_ranges)} runs '

@@ -6,7 +6,7 @@ import numpy as np
 
 from motor_id.cli.data_args import add_data_arguments, load_from_args
 from motor_id.cli.fit import add_fit_arguments, identify_and_report
-from motor_id.contracts import profile_span, SAMPLE_COLUMNS
+from motor_id.contracts import profile_span
 from motor_id.errors import ConfigError
 
 LAST_RUN = 'last-run'
@@ -66,7 +66,7 @@ def _flags(path: str) -> np.ndarray | None:
     from motor_id.bag.files import is_single_mcap
     if not is_single_mcap(path):
         return None
-    return read_samples(path)['flags']
+    return read_samples(path).flags
 
 
 def _republish(args: argparse.Namespace) -> int:
@@ -78,8 +78,7 @@ def _republish(args: argparse.Namespace) -> int:
     rec = load_from_args(args, args.bag, validate=False)
     if rec.meta.get('mapping') is None and _flags(args.bag) is not None:
         from motor_id.bag import read_samples
-        s = read_samples(args.bag)
-        rows = np.column_stack([s[c] for c in SAMPLE_COLUMNS])
+        rows = read_samples(args.bag).rows()
     else:
         rows = rec.sample_rows()
     print(f'replaying {len(rows)} samples from {args.bag} at {args.rate:g}x')

@@ -25,11 +25,11 @@ a bag's topics and builds the function that reads one channel from a message; th
 reading itself is :mod:`motor_id.data.rosbag`.
 """
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 import os
 import re
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
@@ -37,6 +37,9 @@ from motor_id.bag.anyreader import topic_table
 from motor_id.contracts import INPUT_KINDS
 from motor_id.data.align import ALIGN_RULES
 from motor_id.errors import BagError, ConfigError
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import TopicInfo
 
 JOINT_STATE = 'sensor_msgs/msg/JointState'
 JOINT_FIELDS = ('position', 'velocity', 'effort')
@@ -214,7 +217,7 @@ def check_keys(entry: Any, where: str, known: Sequence[str]) -> dict[str, Any]:
     return entry
 
 
-def resolve(mapping: TopicMapping, topics: dict[str, Any],
+def resolve(mapping: TopicMapping, topics: Mapping[str, 'TopicInfo'],
             path: str | os.PathLike[str] = '') -> tuple[dict[str, FieldSpec], str, str | None]:
     """Field specs per role and the plant kind, by the rule of the module docstring.
 
@@ -259,7 +262,7 @@ def _check_settings(m: TopicMapping) -> None:
                           params=('align',))
 
 
-def _field_specs(m: TopicMapping, topics: dict[str, Any],
+def _field_specs(m: TopicMapping, topics: Mapping[str, 'TopicInfo'],
                  path: str | os.PathLike[str]) -> dict[str, FieldSpec]:
     """The mapped specs, each on a topic of the bag; the speed defaults to a JointState's."""
     specs = {r: parse_field_spec(getattr(m, r), r) for r in ROLES if getattr(m, r)}
@@ -276,15 +279,15 @@ def _field_specs(m: TopicMapping, topics: dict[str, Any],
     return specs
 
 
-def _is_joint(spec: FieldSpec, topics: dict[str, Any]) -> bool:
+def _is_joint(spec: FieldSpec, topics: Mapping[str, 'TopicInfo']) -> bool:
     return topics[spec.topic].msgtype == JOINT_STATE
 
 
-def _is_effort(spec: FieldSpec, role: str, topics: dict[str, Any]) -> bool:
+def _is_effort(spec: FieldSpec, role: str, topics: Mapping[str, 'TopicInfo']) -> bool:
     return _is_joint(spec, topics) and (spec.first or _DEFAULT_JOINT_FIELD[role]) == 'effort'
 
 
-def _effort_roles(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+def _effort_roles(m: TopicMapping, specs: dict[str, FieldSpec], topics: Mapping[str, 'TopicInfo'],
                   path: str | os.PathLike[str]) -> tuple[bool, bool]:
     """Map the speed topic's effort by ``effort_is``; whether the input / current is an effort."""
     speed = specs['speed']
@@ -302,7 +305,7 @@ def _effort_roles(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str
     return input_effort, current_effort
 
 
-def _plant_kind(m: TopicMapping, specs: dict[str, FieldSpec], topics: dict[str, Any],
+def _plant_kind(m: TopicMapping, specs: dict[str, FieldSpec], topics: Mapping[str, 'TopicInfo'],
                 input_effort: bool, current_effort: bool) -> tuple[str, str | None]:
     """``(input_kind, effort_is)`` after checking that the settings agree."""
     effort_is = m.effort_is
@@ -447,11 +450,19 @@ def _joint_getter(where: str, topic: str, spec: FieldSpec, role: str, joint: str
         raise BagError(f'{where}: {topic} carries no {field} for joint {joint or index} '
                        f'(it has {", ".join(have) or "no values"})')
     by_name = joint is not None and joint in names
-    cache: dict[str, Any] = {'names': names, 'index': index}
+    cache = _JointIndex(names, index)
 
     def get(m: Any) -> float:
-        if by_name and m.name != cache['names']:
-            cache['names'] = list(m.name)
-            cache['index'] = cache['names'].index(joint)
-        return float(getattr(m, field)[cache['index']])
+        if by_name and m.name != cache.names:
+            cache.names = list(m.name)
+            cache.index = cache.names.index(str(joint))
+        return float(getattr(m, field)[cache.index])
     return get
+
+
+@dataclass
+class _JointIndex:
+    """The joint names last seen on a JointState topic and the index of the mapped joint."""
+
+    names: list[str]
+    index: int

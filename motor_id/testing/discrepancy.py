@@ -24,7 +24,7 @@ candidate model) for named effects.
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field, replace
 import math
 import multiprocessing
 import time
@@ -71,6 +71,149 @@ class CaseSpec:
     motor_class: str | None = None
     n_samples: int | None = None
     r_m_error: float = 0.0
+
+
+@dataclass(frozen=True)
+class CaseFacts:
+    """What a generated case hides and how it was generated (never shown to the analysis).
+
+    Attributes
+    ----------
+    effect : str
+        The hidden effect ('none' for a clean case).
+    effect_params : dict
+        The hidden effect's parameters by name.
+    motor_class, excitation : str
+    sample_period : float
+        [s]
+    n_samples : int
+    R_m : float
+        The true resistance [ohm].
+    R_m_told_error : float
+        Relative error of the resistance told to the analysis.
+    """
+
+    effect: str
+    effect_params: dict[str, float]
+    motor_class: str
+    excitation: str
+    sample_period: float
+    n_samples: int
+    R_m: float
+    R_m_told_error: float
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One dynamic model of the analysis, as a failure listing shows it."""
+
+    name: str
+    gain: float | None
+    significant: bool
+    blocks_improved: float | None
+    failed: str
+    implausible: str
+    at_limit: list[str]
+    parameters: dict[str, float | None]
+
+
+@dataclass(frozen=True)
+class CaseRow:
+    """One analysed case: its spec, its truth, the verdict and how it compares.
+
+    ``named``: the hidden effect is in the verdict or in ``ambiguous``; ``exact``: the
+    verdict is the hidden effect alone; ``spurious``: a compound verdict on a case with
+    one hidden effect; ``false_alarm``: any verdict but ``none`` on a clean case;
+    ``param_error``: ``param_found / param_true - 1`` of the effect's magnitude.
+    """
+
+    spec: CaseSpec
+    truth: CaseFacts | None = None
+    verdict: str | None = None
+    found: list[str] = field(default_factory=list)
+    ambiguous: list[str] = field(default_factory=list)
+    named: bool = False
+    exact: bool = False
+    spurious: bool = False
+    false_alarm: bool = False
+    param: str | None = None
+    param_true: float | None = None
+    param_found: float | None = None
+    param_error: float | None = None
+    seconds: float | None = None
+    top: list[Candidate] = field(default_factory=list)
+    own: Candidate | None = None
+    unexplained: bool | None = None
+    cpu_seconds: float | None = None
+    measurement: dict[str, str] = field(default_factory=dict)
+    R_m_found_error: float | None = None
+    length: int | None = None
+    error: str = ''
+    generator_error: bool = False
+
+    @property
+    def generator(self) -> str:
+        """The spec's generator."""
+        return self.spec.generator
+
+    @property
+    def seed(self) -> int:
+        """The spec's seed."""
+        return self.spec.seed
+
+    @property
+    def noise(self) -> float:
+        """The spec's noise level."""
+        return self.spec.noise
+
+    @property
+    def effect(self) -> str:
+        """The hidden effect of the spec ('none' for a clean case)."""
+        return self.spec.effect
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the spec's fields, then the row's (a benchmark's ``cases``)."""
+        out = {**asdict(self.spec), **asdict(self)}
+        del out['spec']
+        if not self.generator_error:
+            del out['generator_error']
+        return out
+
+
+@dataclass(frozen=True)
+class Rates:
+    """Counts and rates of a set of rows: ``(k, n)`` pairs and ``k / n`` (None: n = 0)."""
+
+    cases: int
+    effect_cases: int
+    clean_cases: int
+    named: tuple[int, int]
+    exact: tuple[int, int]
+    false_alarm: tuple[int, int]
+    spurious: tuple[int, int]
+    grid_named: tuple[int, int]
+    errors: tuple[int, int]
+    median_s: float | None
+    median_cpu_s: float | None
+    median_length: float | None
+    max_s: float | None
+    median_param_error: float | None
+
+    def rate(self, key: str) -> float | None:
+        """``k / n`` of the pair ``key`` (None when n is 0)."""
+        k, n = getattr(self, key)
+        return k / n if n else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the fields, then ``<pair>_rate`` for each pair."""
+        out = asdict(self)
+        for key in RATE_PAIRS:
+            out[key + '_rate'] = self.rate(key)
+        return out
+
+
+RATE_PAIRS = ('named', 'exact', 'false_alarm', 'spurious', 'grid_named', 'errors')
+"""The ``(k, n)`` pairs of :class:`Rates`."""
 
 
 def generator_effects(generator: str) -> tuple[str, ...]:
@@ -132,8 +275,8 @@ def plan(generator: str, noise: float, n_cases: int, seed0: int = 0,
     return specs
 
 
-def make_recording(spec: CaseSpec) -> tuple[Recording, dict[str, Any], float]:
-    """Generate a case: ``(recording, truth dict, R_m told to the analysis)``."""
+def make_recording(spec: CaseSpec) -> tuple[Recording, CaseFacts, float]:
+    """Generate a case: ``(recording, its truth, R_m told to the analysis)``."""
     if spec.generator == 'hidden':
         rec, case = make_hidden_case(spec.seed, effect=spec.effect, n_samples=4000,
                                      noise=(spec.noise, spec.noise))
@@ -144,9 +287,7 @@ def make_recording(spec: CaseSpec) -> tuple[Recording, dict[str, Any], float]:
             r_known = r_true
         elif abs(r_known / r_true - 1.0) < 1e-9:  # the generator tells the exact value
             r_known = r_true * (1.0 + spec.r_m_error)
-        truth = {'effect': d['effect'], 'effect_params': d['effect_params'],
-                 'motor_class': 'paper (perturbed)', 'excitation': d['excitation'],
-                 'sample_period': d['sample_period'], 'n_samples': d['n_samples']}
+        motor_class = 'paper (perturbed)'
     elif spec.generator == 'independent':
         data, truth_case = independent_sim.make_case(
             spec.seed, effect=spec.effect, motor_class=spec.motor_class,
@@ -154,14 +295,12 @@ def make_recording(spec: CaseSpec) -> tuple[Recording, dict[str, Any], float]:
         rec = independent_sim.to_recording(data)
         d = truth_case.to_dict()
         r_true = float(d['motor']['R'])
-        r_known = float(data['known']['R_m'])
-        truth = {'effect': d['effect'], 'effect_params': d['effect_params'],
-                 'motor_class': d['motor_class'], 'excitation': d['excitation'],
-                 'sample_period': d['sample_period'], 'n_samples': d['n_samples']}
+        r_known = float(data.known['R_m'])
+        motor_class = d['motor_class']
     else:
         raise ValueError(f'unknown generator {spec.generator!r}; choose from {GENERATORS}')
-    truth['R_m'] = r_true
-    truth['R_m_told_error'] = r_known / r_true - 1.0
+    truth = CaseFacts(d['effect'], d['effect_params'], motor_class, d['excitation'],
+                      d['sample_period'], d['n_samples'], r_true, r_known / r_true - 1.0)
     return rec, truth, r_known
 
 
@@ -212,32 +351,32 @@ def _compact(params: Mapping[str, Any] | None, limit: int = 4) -> dict[str, floa
     return out
 
 
-def _candidate(d: Mapping[str, Any]) -> dict[str, Any]:
+def _candidate(d: Mapping[str, Any]) -> Candidate:
+    """A candidate from the JSON form of an analysis' effect entry."""
     ev = d.get('evidence', {})
-    return {'name': d['name'], 'gain': _value(d.get('gain')),
-            'significant': bool(ev.get('significant')),
-            'blocks_improved': _value(ev.get('heldout_blocks_improved')),
-            'failed': ev.get('failed', ''), 'implausible': ev.get('implausible', ''),
-            'at_limit': ev.get('at_search_limit') or [],
-            'parameters': _compact(d.get('parameters'))}
+    return Candidate(name=d['name'], gain=_value(d.get('gain')),
+                     significant=bool(ev.get('significant')),
+                     blocks_improved=_value(ev.get('heldout_blocks_improved')),
+                     failed=ev.get('failed', ''), implausible=ev.get('implausible', ''),
+                     at_limit=ev.get('at_search_limit') or [],
+                     parameters=_compact(d.get('parameters')))
 
 
 def top_candidates(rep: Any, k: int = 3, effect: str | None = None,
-                   ) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+                   ) -> tuple[list[Candidate], Candidate | None]:
     """The k dynamic models with the largest held-out gain, and ``effect``'s own model.
 
     Returns
     -------
-    top : list of dict
-        Name, gain, significance, held-out blocks improved, failure, parameters.
-    own : dict or None
+    top : list of Candidate
+    own : Candidate or None
         The same for the single-effect model of ``effect`` when it is not in ``top``.
     """
     rows = [_candidate(e.to_dict()) for e in rep.effects
             if e.to_dict().get('evidence', {}).get('kind') != 'measurement']
-    rows.sort(key=lambda r: -(r['gain'] if r['gain'] is not None else -math.inf))
+    rows.sort(key=lambda r: -(r.gain if r.gain is not None else -math.inf))
     top = rows[:k]
-    own = next((r for r in rows[k:] if r['name'] == effect), None)
+    own = next((r for r in rows[k:] if r.name == effect), None)
     return top, own
 
 
@@ -253,68 +392,56 @@ def _names(entries: Iterable[Any] | None) -> list[str]:
     return [getattr(a, 'name', str(a)) for a in entries or []]
 
 
-def analyse(spec: CaseSpec, candidates: Sequence[str] | None = None) -> dict[str, Any]:
-    """Generate and analyse one case; returns a row (a plain dict)."""
-    row = {**asdict(spec), 'truth': None, 'verdict': None, 'found': [], 'ambiguous': [],
-           'named': False, 'exact': False, 'spurious': False, 'false_alarm': False,
-           'param': None, 'param_true': None, 'param_found': None, 'param_error': None,
-           'seconds': None, 'top': [], 'own': None, 'unexplained': None,
-           'cpu_seconds': None, 'measurement': {}, 'R_m_found_error': None, 'length': None,
-           'error': ''}
+def analyse(spec: CaseSpec, candidates: Sequence[str] | None = None) -> CaseRow:
+    """Generate and analyse one case; returns its row."""
     hidden = None if spec.effect == 'none' else spec.effect
     try:
         rec, truth, r_known = make_recording(spec)
     except Exception as exc:  # noqa: BLE001 - a generator failure is a row, not a crash
-        row['error'] = f'generator: {type(exc).__name__}: {exc}'
-        row['generator_error'] = True
-        return row
-    row['truth'] = truth
-    row['length'] = truth['n_samples']  # the spec's n_samples stays as planned (None: drawn)
+        return CaseRow(spec, error=f'generator: {type(exc).__name__}: {exc}',
+                       generator_error=True)
+    # the spec's n_samples stays as planned (None: drawn); the row's length is the truth's
+    row = CaseRow(spec, truth=truth, length=truth.n_samples)
     try:
         t0, c0 = time.perf_counter(), time.process_time()
         ana = DiscrepancyAnalysis(R_m=r_known, candidates=candidates, random_state=spec.seed)
         ana.fit(rec)
-        row['seconds'] = time.perf_counter() - t0
-        row['cpu_seconds'] = time.process_time() - c0
+        seconds = time.perf_counter() - t0
+        row = replace(row, seconds=seconds, cpu_seconds=time.process_time() - c0)
     except Exception as exc:  # noqa: BLE001 - an analysis crash is a miss, listed
-        row['error'] = f'analysis: {type(exc).__name__}: {exc}'
-        return row
+        return replace(row, error=f'analysis: {type(exc).__name__}: {exc}')
     rep = ana.report_
     found = [] if rep.verdict == 'none' else rep.verdict.split('+')
     amb = _names(rep.ambiguous_with)
     top, own = top_candidates(rep, effect=hidden)
     r_found = _lookup(rep.parameters, '', 'R_m')
-    row.update(verdict=rep.verdict, found=found, ambiguous=amb, top=top, own=own,
-               unexplained=bool(rep.unexplained), measurement=_measurement_notes(rep),
-               R_m_found_error=None if r_found is None else r_found / truth['R_m'] - 1.0)
+    row = replace(row, verdict=rep.verdict, found=found, ambiguous=amb, top=top, own=own,
+                  unexplained=bool(rep.unexplained), measurement=_measurement_notes(rep),
+                  R_m_found_error=None if r_found is None else r_found / truth.R_m - 1.0)
     if hidden is None:
-        row['false_alarm'] = bool(found)
-        return row
-    row['named'] = hidden in found or hidden in amb
-    row['exact'] = found == [hidden]
-    row['spurious'] = len(found) > 1
+        return replace(row, false_alarm=bool(found))
+    named = hidden in found or hidden in amb
+    row = replace(row, named=named, exact=found == [hidden], spurious=len(found) > 1)
     name = MAGNITUDE.get(hidden)
-    true_v = _value(truth['effect_params'].get(name)) if name else None
+    true_v = _value(truth.effect_params.get(name)) if name else None
     if true_v is not None:
-        row['param'] = name
-        row['param_true'] = true_v
-        if row['named']:
+        row = replace(row, param=name, param_true=true_v)
+        if named:
             v = found_parameter(rep, hidden, found)
-            row['param_found'] = v
-            if v is not None and true_v != 0.0:
-                row['param_error'] = v / true_v - 1.0
+            row = replace(row, param_found=v, param_error=(
+                v / true_v - 1.0 if v is not None and true_v != 0.0 else None))
     return row
 
 
-def _analyse_job(job: tuple[CaseSpec, Sequence[str] | None]) -> dict[str, Any]:
+def _analyse_job(job: tuple[CaseSpec, Sequence[str] | None]) -> CaseRow:
     spec, candidates = job
     return analyse(spec, candidates)
 
 
 def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None,
               jobs: int = 1,
-              progress: Callable[[int, int, dict[str, Any]], None] | None = None,
-              ) -> list[dict[str, Any]]:
+              progress: Callable[[int, int, CaseRow], None] | None = None,
+              ) -> list[CaseRow]:
     """Analyse every case (in ``jobs`` worker processes); rows in the order of ``specs``.
 
     Workers start from a fork server (a clean process, not a fork of a caller that may
@@ -338,52 +465,48 @@ def run_cases(specs: Sequence[CaseSpec], candidates: Sequence[str] | None = None
     return rows
 
 
-def rates(rows: Iterable[dict[str, Any]]) -> dict[str, Any]:
+def _pair(rows: list[CaseRow], key: str) -> tuple[int, int]:
+    return (sum(bool(getattr(r, key)) for r in rows), len(rows))
+
+
+def _median(values: list[float]) -> float | None:
+    return float(np.median(values)) if values else None
+
+
+def rates(rows: Iterable[CaseRow]) -> Rates:
     """Counts and rates of a set of rows (generator failures excluded)."""
-    rows = [r for r in rows if not r.get('generator_error')]
-    eff = [r for r in rows if r['effect'] != 'none']
-    clean = [r for r in rows if r['effect'] == 'none']
-    grid = [r for r in eff if r['effect'] == 'speed_quantization']
-    secs = [r['seconds'] for r in rows if r['seconds'] is not None]
-    cpus = [r['cpu_seconds'] for r in rows if r.get('cpu_seconds') is not None]
-    errs = [abs(r['param_error']) for r in eff if r['param_error'] is not None]
-
-    def frac(rs: list[dict[str, Any]], key: str) -> tuple[int, int]:
-        return (sum(bool(r[key]) for r in rs), len(rs))
-
-    out: dict[str, Any] = {
-        'cases': len(rows), 'effect_cases': len(eff), 'clean_cases': len(clean),
-        'named': frac(eff, 'named'), 'exact': frac(eff, 'exact'),
-        'false_alarm': frac(clean, 'false_alarm'), 'spurious': frac(eff, 'spurious'),
-        'grid_named': frac(grid, 'named'),
-        'errors': (sum(bool(r['error']) for r in rows), len(rows)),
-        'median_s': float(np.median(secs)) if secs else None,
-        'median_cpu_s': float(np.median(cpus)) if cpus else None,
-        'median_length': (float(np.median([r['length'] for r in rows if r.get('length')]))
-                          if any(r.get('length') for r in rows) else None),
-        'max_s': float(np.max(secs)) if secs else None,
-        'median_param_error': float(np.median(errs)) if errs else None,
-    }
-    for key in ('named', 'exact', 'false_alarm', 'spurious', 'grid_named', 'errors'):
-        k, n = out[key]
-        out[key + '_rate'] = k / n if n else None
-    return out
+    rows = [r for r in rows if not r.generator_error]
+    eff = [r for r in rows if r.effect != 'none']
+    clean = [r for r in rows if r.effect == 'none']
+    grid = [r for r in eff if r.effect == 'speed_quantization']
+    secs = [r.seconds for r in rows if r.seconds is not None]
+    return Rates(
+        cases=len(rows), effect_cases=len(eff), clean_cases=len(clean),
+        named=_pair(eff, 'named'), exact=_pair(eff, 'exact'),
+        false_alarm=_pair(clean, 'false_alarm'), spurious=_pair(eff, 'spurious'),
+        grid_named=_pair(grid, 'named'), errors=_pair(rows, 'error'),
+        median_s=_median(secs),
+        median_cpu_s=_median([r.cpu_seconds for r in rows if r.cpu_seconds is not None]),
+        median_length=_median([r.length for r in rows if r.length]),
+        max_s=float(np.max(secs)) if secs else None,
+        median_param_error=_median([abs(r.param_error) for r in eff
+                                    if r.param_error is not None]))
 
 
-def is_failure(row: Mapping[str, Any]) -> str:
+def is_failure(row: CaseRow) -> str:
     """Why a row is listed among the failures ('' when it is not)."""
-    if row['error']:
+    if row.error:
         return 'error'
-    if row['effect'] == 'none':
-        return 'false alarm' if row['false_alarm'] else ''
-    if not row['named']:
+    if row.effect == 'none':
+        return 'false alarm' if row.false_alarm else ''
+    if not row.named:
         return 'missed'
-    if row['spurious']:
+    if row.spurious:
         return 'spurious second effect'
-    if not row['exact']:
-        return 'named only as ambiguous' if row['effect'] in row['ambiguous'] else 'inexact'
-    if row['param_error'] is not None and abs(row['param_error']) > PARAM_OFF:
-        return f'parameter off by {100 * row["param_error"]:+.0f} %'
+    if not row.exact:
+        return 'named only as ambiguous' if row.effect in row.ambiguous else 'inexact'
+    if row.param_error is not None and abs(row.param_error) > PARAM_OFF:
+        return f'parameter off by {100 * row.param_error:+.0f} %'
     return ''
 
 
@@ -392,30 +515,30 @@ def _fmt_params(params: Mapping[str, Any] | None) -> str:
                      for k, v in (params or {}).items()) or '-'
 
 
-def _candidate_line(c: Mapping[str, Any], label: str = '') -> str:
-    flags = [f for f, on in (('significant', c['significant']),
-                             (f'failed: {c["failed"]}', c['failed']),
-                             (f'implausible: {c["implausible"]}', c['implausible']),
-                             (f'at limit {c["at_limit"]}', c['at_limit'])) if on]
-    gain = '-' if c['gain'] is None else f'{c["gain"]:.3f}'
-    blocks = '' if c['blocks_improved'] is None else f', blocks {c["blocks_improved"]:.2f}'
-    return (f'  - {c["name"]}{label}: gain {gain}{blocks}'
+def _candidate_line(c: Candidate, label: str = '') -> str:
+    flags = [f for f, on in (('significant', c.significant),
+                             (f'failed: {c.failed}', c.failed),
+                             (f'implausible: {c.implausible}', c.implausible),
+                             (f'at limit {c.at_limit}', c.at_limit)) if on]
+    gain = '-' if c.gain is None else f'{c.gain:.3f}'
+    blocks = '' if c.blocks_improved is None else f', blocks {c.blocks_improved:.2f}'
+    return (f'  - {c.name}{label}: gain {gain}{blocks}'
             + (f' ({"; ".join(flags)})' if flags else '')
-            + f' {_fmt_params(c["parameters"])}')
+            + f' {_fmt_params(c.parameters)}')
 
 
-def _case_head(r: Mapping[str, Any], why: str) -> str:
-    t = r['truth'] or {}
-    head = (f'- **{why}** [{r["generator"]} seed {r["seed"]}, noise {100 * r["noise"]:g} %] '
-            f'truth `{r["effect"]}`')
+def _case_head(r: CaseRow, why: str) -> str:
+    t = r.truth
+    head = (f'- **{why}** [{r.generator} seed {r.seed}, noise {100 * r.noise:g} %] '
+            f'truth `{r.effect}`')
     if t:
-        head += (f' ({_fmt_params(t["effect_params"])}); {t["motor_class"]}, '
-                 f'T = {1e3 * t["sample_period"]:.3g} ms, n = {t["n_samples"]}, '
-                 f'{t["excitation"]}, R_m told {100 * t["R_m_told_error"]:+.1f} %')
+        head += (f' ({_fmt_params(t.effect_params)}); {t.motor_class}, '
+                 f'T = {1e3 * t.sample_period:.3g} ms, n = {t.n_samples}, '
+                 f'{t.excitation}, R_m told {100 * t.R_m_told_error:+.1f} %')
     return head
 
 
-def failure_lines(rows: Iterable[dict[str, Any]]) -> list[str]:
+def failure_lines(rows: Iterable[CaseRow]) -> list[str]:
     """Markdown lines: one bullet per failing case with truth, verdict and top candidates."""
     lines = []
     for r in rows:
@@ -423,22 +546,21 @@ def failure_lines(rows: Iterable[dict[str, Any]]) -> list[str]:
         if not why:
             continue
         lines.append(_case_head(r, why))
-        if r['error']:
-            lines.append(f'  - {r["error"]}')
+        if r.error:
+            lines.append(f'  - {r.error}')
             continue
-        found = ('' if r['param_found'] is None else
-                 f'; found {r["param"]} = {r["param_found"]:.4g} vs true {r["param_true"]:.4g}')
-        lines.append(f'  - verdict `{r["verdict"]}`, ambiguous with {r["ambiguous"] or "-"}, '
-                     f'unexplained {r["unexplained"]}, {r["seconds"]:.1f} s{found}')
-        if r.get('R_m_found_error') is not None:
-            lines.append(f'  - R_m used by the analysis: {100 * r["R_m_found_error"]:+.1f} % '
+        found = ('' if r.param_found is None else
+                 f'; found {r.param} = {r.param_found:.4g} vs true {r.param_true:.4g}')
+        lines.append(f'  - verdict `{r.verdict}`, ambiguous with {r.ambiguous or "-"}, '
+                     f'unexplained {r.unexplained}, {r.seconds:.1f} s{found}')
+        if r.R_m_found_error is not None:
+            lines.append(f'  - R_m used by the analysis: {100 * r.R_m_found_error:+.1f} % '
                          'from the truth')
-        if r['effect'] in ('speed_quantization', 'current_quantization', 'none'):
-            lines += [f'  - {ch} grid: {note}'
-                      for ch, note in r.get('measurement', {}).items()]
-        lines += [_candidate_line(c) for c in r['top']]
-        if r.get('own'):
-            lines.append(_candidate_line(r['own'], ' (the truth; not in the top 3)'))
+        if r.effect in ('speed_quantization', 'current_quantization', 'none'):
+            lines += [f'  - {ch} grid: {note}' for ch, note in r.measurement.items()]
+        lines += [_candidate_line(c) for c in r.top]
+        if r.own:
+            lines.append(_candidate_line(r.own, ' (the truth; not in the top 3)'))
     return lines
 
 

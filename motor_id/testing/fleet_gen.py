@@ -33,11 +33,14 @@ import json
 import os
 from pathlib import Path
 import shutil
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import expm
+
+if TYPE_CHECKING:
+    from motor_id.fleet.history import DriftRow
 
 ALPHA_CU = 0.00393
 """Temperature coefficient of copper resistance [1/K]."""
@@ -160,17 +163,59 @@ class FleetSpec:
         return [f'robot_{k:02d}' for k in range(self.robots)]
 
 
+@dataclass(frozen=True)
+class FleetRecording:
+    """One generated recording: whose, which day, where, and how it is damaged.
+
+    Attributes
+    ----------
+    robot : str
+    day : int
+        Days from the fleet's start.
+    date : str
+        ISO date.
+    path : str
+        The bag folder (or file).
+    start_ns : int
+        Wall-clock time of its first tick [ns since the epoch].
+    broken : str or None
+        ``'truncated'``, ``'no_command'`` or None.
+    """
+
+    robot: str
+    day: int
+    date: str
+    path: str
+    start_ns: int
+    broken: str | None
+
+
+@dataclass(frozen=True)
+class DetectionScore:
+    """How the fleet's drift rows match one generated drift (see :func:`score_detection`)."""
+
+    motor: str
+    drift: str
+    onset: str
+    flagged: bool
+    change: float | None
+    since: str | None
+    dated: int | None
+    detect: int | None
+    delay: int | None
+    other_flags: str
+
+
 @dataclass
 class FleetTruth:
     """What was generated: the recordings and every motor's true parameters per day.
 
-    ``recordings``: list of ``{'robot', 'day', 'date', 'path', 'start_ns', 'broken'}``;
     ``truth``: ``{(robot, motor): [MotorTruth per day]}``; ``profile``: the fleet profile
-    dict (``motors:`` keys of ``motor-id fleet --profile``).
+    (the YAML document of ``motor-id fleet --profile``, ``motors:`` keys).
     """
 
     spec: FleetSpec
-    recordings: list[dict[str, Any]]
+    recordings: list[FleetRecording]
     truth: dict[tuple[str, str], list[MotorTruth]]
     profile: dict[str, Any]
 
@@ -323,7 +368,7 @@ def generate_fleet(spec: FleetSpec, out_dir: str | os.PathLike[str]) -> FleetTru
     start = dt.date.fromisoformat(spec.start)
     n = int(round(spec.duration_s / spec.period_s))
     broken = {(r, d): kind for r, d, kind in spec.broken}
-    recs: list[dict[str, Any]] = []
+    recs: list[FleetRecording] = []
     for robot in spec.robot_names():
         for day in range(spec.days):
             date = start + dt.timedelta(days=day)
@@ -353,8 +398,8 @@ def generate_fleet(spec: FleetSpec, out_dir: str | os.PathLike[str]) -> FleetTru
                 path = target
             if kind == 'truncated':
                 _truncate(path)
-            recs.append({'robot': robot, 'day': day, 'date': date.isoformat(),
-                         'path': str(path), 'start_ns': start_ns, 'broken': kind})
+            recs.append(FleetRecording(robot, day, date.isoformat(), str(path), start_ns,
+                                       kind))
     profile = fleet_profile(spec)
     with open(out / 'fleet.yaml', 'w', encoding='utf-8') as fh:
         yaml.safe_dump(profile, fh, sort_keys=False)
@@ -367,7 +412,7 @@ def generate_fleet(spec: FleetSpec, out_dir: str | os.PathLike[str]) -> FleetTru
 def truth_json(truth: FleetTruth) -> dict[str, Any]:
     """The generated truth as JSON-ready data (drifts, recordings, per-day parameters)."""
     return {'drifts': [asdict(d) for d in truth.spec.drifts],
-            'recordings': truth.recordings,
+            'recordings': [asdict(r) for r in truth.recordings],
             'parameters': {f'{r}/{m}': [asdict(p) for p in days]
                            for (r, m), days in truth.truth.items()}}
 
@@ -485,13 +530,13 @@ def random_drifts(spec: FleetSpec, rng: np.random.Generator, count: int,
     return tuple(out)
 
 
-def score_detection(spec: FleetSpec, drift_rows: Iterable[Any]
-                    ) -> tuple[list[dict[str, Any]], list[str], int]:
+def score_detection(spec: FleetSpec, drift_rows: Iterable[DriftRow]
+                    ) -> tuple[list[DetectionScore], list[str], int]:
     """How the drift rows (:class:`motor_id.fleet.history.DriftRow`) match the drifts.
 
     Returns
     -------
-    rows : list of dict
+    rows : list of DetectionScore
         Per drift: ``motor``, ``drift``, ``onset``, ``flagged``, ``change``, ``since``,
         ``dated`` (recordings from the onset to ``since``: 0 is right), ``detect``
         (recordings from the onset to the first flag, the onset recording counting 1),
@@ -503,33 +548,33 @@ def score_detection(spec: FleetSpec, drift_rows: Iterable[Any]
     clean_series : int
         Histories of motors without a drift.
     """
-    by: dict[tuple[str, str], dict[str, Any]] = {}
+    by: dict[tuple[str, str], dict[str, DriftRow]] = {}
     for d in drift_rows:
         by.setdefault((d.robot, d.motor), {})[d.parameter] = d
     start = dt.date.fromisoformat(spec.start)
 
     def day(iso: str | None) -> int:
         return (dt.date.fromisoformat((iso or spec.start)[:10]) - start).days
-    rows: list[dict[str, Any]] = []
+    rows: list[DetectionScore] = []
     for dr in spec.drifts:
         per = by.get((dr.robot, dr.motor), {})
-        d = per.get(dr.parameter)
+        found = per.get(dr.parameter)
         cp = None
-        if d is not None and d.detected:     # the change nearest the onset
-            cp = min(d.finding.change_points, key=lambda c: abs(day(c.since) - dr.onset))
+        if found is not None and found.detected:     # the change nearest the onset
+            cp = min(found.finding.change_points, key=lambda c: abs(day(c.since) - dr.onset))
         others = sorted(p for p, x in per.items() if x.detected and p != dr.parameter
                         and not (dr.parameter == 'K_T' and p == 'K_b'))
         flagged = None if cp is None else day(cp.flagged_at)
-        rows.append({
-            'motor': f'{dr.robot}/{dr.motor}',
-            'drift': f'{dr.parameter} {dr.size * 100:+.0f} % {dr.kind}',
-            'onset': (start + dt.timedelta(days=dr.onset)).isoformat(),
-            'flagged': cp is not None, 'change': None if cp is None else cp.change,
-            'since': None if cp is None else (cp.since or '')[:10],
-            'dated': None if cp is None else day(cp.since) - dr.onset,
-            'detect': None if flagged is None else flagged - dr.onset + 1,
-            'delay': None if flagged is None else flagged - dr.full_day() + 1,
-            'other_flags': ', '.join(others) or '-'})
+        rows.append(DetectionScore(
+            motor=f'{dr.robot}/{dr.motor}',
+            drift=f'{dr.parameter} {dr.size * 100:+.0f} % {dr.kind}',
+            onset=(start + dt.timedelta(days=dr.onset)).isoformat(),
+            flagged=cp is not None, change=None if cp is None else cp.change,
+            since=None if cp is None else (cp.since or '')[:10],
+            dated=None if cp is None else day(cp.since) - dr.onset,
+            detect=None if flagged is None else flagged - dr.onset + 1,
+            delay=None if flagged is None else flagged - dr.full_day() + 1,
+            other_flags=', '.join(others) or '-'))
     drifting = {(dr.robot, dr.motor) for dr in spec.drifts}
     false = sorted(f'{k[0]}/{k[1]} {p}' for k, per in by.items() if k not in drifting
                    for p, x in per.items() if x.detected)

@@ -35,7 +35,6 @@ zone look alike on it.
 """
 
 
-from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 import math
 from typing import Any, TYPE_CHECKING
@@ -104,6 +103,28 @@ class CaseTruth:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return asdict(self)
+
+
+@dataclass(frozen=True)
+class CaseData:
+    """What the user of a generated motor has: the record and the told resistance.
+
+    Attributes
+    ----------
+    time, input, speed, current : ndarray
+        [s], [V], [rad/s], [A].
+    known : dict
+        ``{'R_m': R0 (1 + r_m_error)}`` [ohm].
+    input_kind : str
+        ``'voltage'``.
+    """
+
+    time: np.ndarray
+    input: np.ndarray
+    speed: np.ndarray
+    current: np.ndarray
+    known: dict[str, float]
+    input_kind: str = 'voltage'
 
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -213,7 +234,7 @@ def make_excitation(kind: str, n_samples: int, sample_period: float, amplitude: 
 
 def _draw_effect(name: str, rng: np.random.Generator, motor: Motor, amplitude: float,
                  command: np.ndarray, T: float,
-                 n_sub: int) -> tuple[dict[str, Any], dict[str, Any]]:
+                 n_sub: int) -> tuple[dict[str, float], dict[str, float]]:
     """Return (simulator parameters, analysis parameters) of effect ``name``."""
     stall = motor.K * amplitude / motor.R
     w_nl = motor.no_load_speed(amplitude)
@@ -264,7 +285,7 @@ def _draw_effect(name: str, rng: np.random.Generator, motor: Motor, amplitude: f
 
 
 def _draw_heating(rng: np.random.Generator, motor: Motor, command: np.ndarray, T: float,
-                  n_sub: int) -> tuple[dict[str, Any], dict[str, Any]]:
+                  n_sub: int) -> tuple[dict[str, float], dict[str, float]]:
     """Thermal R_th, C_th giving a drawn resistance rise over the record (two passes)."""
     rise = float(rng.uniform(0.10, 0.40))
     n_sub = default_n_sub(motor, T, {'resistance_drift': {}})  # the final run's sub-steps
@@ -290,7 +311,7 @@ def _draw_heating(rng: np.random.Generator, motor: Motor, command: np.ndarray, T
 def make_case(seed: int, effect: str | None = None, motor_class: str | None = None,
               sample_period: float | None = None, n_samples: int | None = None,
               noise: float | tuple[float, float] = 0.005, r_m_error: float = 0.0,
-              excitation: str | None = None) -> tuple[dict[str, Any], CaseTruth]:
+              excitation: str | None = None) -> tuple[CaseData, CaseTruth]:
     """Generate one seeded case: motor, excitation, at most one effect, noise.
 
     Parameters
@@ -314,9 +335,8 @@ def make_case(seed: int, effect: str | None = None, motor_class: str | None = No
 
     Returns
     -------
-    data : dict
-        ``{'time', 'input', 'speed', 'current'}`` (ndarrays, [s], [V], [rad/s], [A]),
-        ``'input_kind': 'voltage'`` and ``'known': {'R_m': R0 (1 + r_m_error)}``.
+    data : CaseData
+        What a user of the motor would have (``known``: ``R_m`` = R0 (1 + r_m_error)).
     truth : CaseTruth
     """
     if sample_period is not None and not 0.0 < sample_period <= 1.0:
@@ -349,8 +369,8 @@ def make_case(seed: int, effect: str | None = None, motor_class: str | None = No
     command = make_excitation(excitation, n_samples, sample_period, amplitude, motor.tau_m,
                               rng)
     n_sub = default_n_sub(motor, sample_period)
-    sim_effects: dict[str, Any] = {}
-    effect_params: dict[str, Any] = {}
+    sim_effects: dict[str, dict[str, float]] = {}
+    effect_params: dict[str, float] = {}
     if effect != 'none':
         sim_params, effect_params = _draw_effect(effect, rng, motor, amplitude, command,
                                                  sample_period, n_sub)
@@ -360,8 +380,7 @@ def make_case(seed: int, effect: str | None = None, motor_class: str | None = No
     speed, current, _ = simulate(motor, command, sample_period, sim_effects, levels, rng, n_sub)
     t = np.arange(n_samples) * sample_period
     known = {'R_m': motor.R * (1.0 + r_m_error)}
-    data = {'time': t, 'input': command, 'speed': speed, 'current': current,
-            'input_kind': 'voltage', 'known': dict(known)}
+    data = CaseData(t, command, speed, current, dict(known))
     truth = CaseTruth(seed=int(seed), effect=effect, effect_params=effect_params,
                       sim_effects=sim_effects, motor=motor.to_dict(), motor_class=motor_class,
                       excitation=excitation, amplitude=amplitude,
@@ -379,12 +398,11 @@ def _noise_levels(noise: float | tuple[float, float]) -> tuple[float, float]:
     return float(speed), float(current)
 
 
-def to_recording(data: Mapping[str, Any]) -> 'Recording':
+def to_recording(data: CaseData) -> 'Recording':
     """Build a ``motor_id.recording.Recording`` from the data of :func:`make_case`."""
     from motor_id.recording import Recording
-    meta = {'source': 'motor_id.testing.independent_sim', 'known': dict(data['known'])}
-    return Recording(data['time'], data['input'], data['speed'], data['current'],
-                     data['input_kind'], meta)
+    meta = {'source': 'motor_id.testing.independent_sim', 'known': dict(data.known)}
+    return Recording(data.time, data.input, data.speed, data.current, data.input_kind, meta)
 
 
 def main() -> None:
@@ -398,7 +416,7 @@ def main() -> None:
                                     sample_period=T, n_samples=25000)
             motor = Motor.from_dict(truth.motor)
             t0 = time.perf_counter()
-            simulate(motor, data['input'], T, truth.sim_effects, rng=0, n_sub=truth.n_sub)
+            simulate(motor, data.input, T, truth.sim_effects, rng=0, n_sub=truth.n_sub)
             elapsed = time.perf_counter() - t0
             print(f'{motor_class:<11}{T * 1e3:>7.0f}{truth.n_sub:>7d}{elapsed:>14.3f}')
 
