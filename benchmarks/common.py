@@ -98,7 +98,7 @@ class Objective:
     def __init__(self, rec, start, **identifier_kwargs):
         self.rec = rec
         self.kwargs = dict(identifier_kwargs)
-        idf = CountingIdentifier(start=start, use_ga=False, **self.kwargs).fit(rec)
+        idf = CountingIdentifier(**self.kwargs).warm_start(start).fit(rec)
         self.identifier = idf
         self.problem = idf.problem_
         self.bounds = self.problem.bounds
@@ -146,7 +146,7 @@ class Objective:
         """
         start = dict(zip(self.names, np.asarray(x, dtype=float), strict=True))
         t0 = time.perf_counter()
-        idf = CountingIdentifier(start=start, use_ga=False, **self.kwargs).fit(self.rec)
+        idf = CountingIdentifier(**self.kwargs).warm_start(start).fit(self.rec)
         seconds = time.perf_counter() - t0
         values = idf.result_.values()
         return np.array([values[n] for n in self.names]), seconds, idf.evaluations

@@ -5,8 +5,9 @@ The few names a user needs, each with an example in its docstring:
 - load a recording: :func:`load_recording` (CSV, rosbag2, SysId log) into a
   :class:`Recording`;
 - fit: :class:`Identifier` (``Identifier(R_m=2.3).fit(rec).result_``, an
-  :class:`IdentificationResult`), or :func:`fit_report` for the full :class:`FitReport`
-  (the fit, the data and the controller block: kS, kV, kA, loop gains);
+  :class:`IdentificationResult`; its settings are one validated :class:`FitSettings`),
+  or :func:`fit_report` for the full :class:`FitReport` (the fit, the data and the
+  controller block: kS, kV, kA, loop gains);
 - analyze: :class:`DiscrepancyAnalysis` (``.fit(rec).report_``, a
   :class:`DiscrepancyReport`): which named effect the linear model misses;
 - validate: :func:`validate` a :class:`SavedModel` on another recording
@@ -46,6 +47,7 @@ if TYPE_CHECKING:
     from motor_id.data.load import load_recording
     from motor_id.identify.estimator import Identifier
     from motor_id.identify.result import IdentificationResult
+    from motor_id.identify.settings import FitSettings
     from motor_id.identify.validation import SavedModel, validate, Validation
     from motor_id.pipeline import fit_report, FitReport
     from motor_id.recording import Recording
@@ -57,6 +59,7 @@ _LAZY = {
     'Recording': 'motor_id.recording',
     'Identifier': 'motor_id.identify.estimator',
     'IdentificationResult': 'motor_id.identify.result',
+    'FitSettings': 'motor_id.identify.settings',
     'fit_report': 'motor_id.pipeline',
     'FitReport': 'motor_id.pipeline',
     'DiscrepancyAnalysis': 'motor_id.analysis.analyzer',
@@ -69,9 +72,9 @@ _LAZY = {
 
 __all__ = [
     'BagError', 'ConfigError', 'DataError', 'DiscrepancyAnalysis', 'DiscrepancyReport',
-    'fit_report', 'FitReport', 'IdentificationError', 'IdentificationResult', 'Identifier',
-    'load_recording', 'MotorIdError', 'ProtocolError', 'Recording', 'SavedModel', 'validate',
-    'Validation',
+    'fit_report', 'FitReport', 'FitSettings', 'IdentificationError', 'IdentificationResult',
+    'Identifier', 'load_recording', 'MotorIdError', 'ProtocolError', 'Recording', 'SavedModel',
+    'validate', 'Validation',
 ]
 
 

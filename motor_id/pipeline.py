@@ -8,7 +8,6 @@ ROS parameters file and the node's parameters say the same thing.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-import copy
 from dataclasses import dataclass, field, replace
 import math
 from typing import Any
@@ -155,14 +154,13 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any
         The report's ``effect_search`` block (the ranges searched), None when nothing was
         changed.
     """
-    free = [fe for fe in identifier.free_effects or ()
-            if fe not in (identifier.bounds or {})]
-    if not free or identifier.start is not None or not identifier.use_ga:
+    s = identifier.settings
+    free = [fe for fe in s.free_effects or () if fe not in (s.bounds or {})]
+    if not free or s.start is not None or not identifier.stages.use_ga:
         return None
-    linear = copy.copy(identifier)
-    linear.effects, linear.free_effects = None, None
-    linear.bounds = {k: v for k, v in (identifier.bounds or {}).items() if '.' not in k} \
-        or None
+    linear = identifier.with_settings(
+        effects=None, free_effects=None,
+        bounds={k: v for k, v in (s.bounds or {}).items() if '.' not in k} or None)
     with np.errstate(all='ignore'):
         linear.fit(rec)
     physical = {k: v for k, v in linear.result_.values().items() if v is not None}
@@ -174,21 +172,20 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any
     for fe in free:
         e, _, p = fe.partition('.')
         ranges[fe] = next(q for q in EFFECTS[e].params if q.name == p).search_range(scales)
-    held = linear.result_.parameters['K_T'].value is None and \
-        'K_T' not in (identifier.fixed or {})
-    scaled = copy.copy(identifier)
-    scaled.bounds = {**(identifier.bounds or {}), **ranges}
-    scaled.start = {k: v for k, v in physical.items() if k != 'R_m'}
+    held = linear.result_.parameters['K_T'].value is None and 'K_T' not in (s.fixed or {})
+    start = {k: v for k, v in physical.items() if k != 'R_m'}
+    changes: dict[str, Any] = {}
     if held:   # at the R_m the linear fit used (an internal one where R_m does not enter)
-        scaled.fixed = {**(identifier.fixed or {}), 'K_T': physical['K_T']}
-        scaled.R_m = physical['R_m']
-        scaled.start.pop('K_T')
+        changes = {'fixed': {**(s.fixed or {}), 'K_T': physical['K_T']},
+                   'R_m': physical['R_m']}
+        start.pop('K_T')
+    scaled = identifier.with_settings(bounds={**(s.bounds or {}), **ranges}, start=start,
+                                      **changes)
     with np.errstate(all='ignore'):
         scaled.fit(rec)
     values = {k: v for k, v in scaled.result_.values().items() if v is not None}
-    identifier.start = {**{k: v for k, v in values.items() if k != 'R_m'},
-                        **{fe: _effect_value(scaled.result_.effects, fe) for fe in free}}
-    identifier.use_ga = False
+    identifier.warm_start({**{k: v for k, v in values.items() if k != 'R_m'},
+                           **{fe: _effect_value(scaled.result_.effects, fe) for fe in free}})
     return {'linear_first': True, 'K_T_held': held,
             'ranges': {k: list(v) for k, v in ranges.items()},
             'note': 'each effect parameter searched on the scale of this record (its '
@@ -220,12 +217,12 @@ def aliased_poles(result: IdentificationResult, sample_period: float) -> float |
     return w / (2 * math.pi) if w > math.pi / sample_period else None
 
 
-def alias_guard(rec: Recording, identifier: Identifier, settings: Identifier
+def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
                 ) -> dict[str, Any] | None:
     """Refit a speed-only fit whose poles alias (:func:`aliased_poles`) with the
     electrical time constant below half a sample period (where speed cannot see it).
 
-    ``settings`` is ``identifier`` as it was given. The refit replaces the fit in
+    ``given`` is ``identifier`` as it was given (unfitted). The refit replaces the fit in
     ``identifier`` when it explains the speed as well (within 0.05 fit-% points): the
     record cannot prefer the aliased pair, and a motor's electrical time constant this
     short is the rule. Otherwise the fit stays and a warning says kA is not to be trusted.
@@ -237,19 +234,21 @@ def alias_guard(rec: Recording, identifier: Identifier, settings: Identifier
     """
     T = rec.sample_period
     hz = aliased_poles(identifier.result_, T)
-    if hz is None or 'L_m' in (identifier.fixed or {}):
+    if hz is None or 'L_m' in (identifier.settings.fixed or {}):
         return None
     r_m = identifier.result_.values()['R_m'] or 1.0
-    refit = copy.copy(settings)
-    low = (settings.bounds or {}).get('L_m', (1e-5 * r_m * T, 0.0))[0]
-    refit.bounds = {**(settings.bounds or {}), 'L_m': (min(low, r_m * T / 4), r_m * T / 2)}
+    bounds = given.settings.bounds or {}
+    low = bounds.get('L_m', (1e-5 * r_m * T, 0.0))[0]
+    refit = given.with_settings(bounds={**bounds,
+                                        'L_m': (min(low, r_m * T / 4), r_m * T / 2)})
     scale_effect_search(rec, refit)
     with np.errstate(all='ignore'):
         refit.fit(rec)
     before = identifier.result_.fit.channels['speed'].fit_percent
     after = refit.result_.fit.channels['speed'].fit_percent
     out = {'aliased_pair_hz': hz, 'nyquist_hz': 0.5 / T, 'fit_percent': before,
-           'refit_fit_percent': after, 'L_m_bounds': list(refit.bounds['L_m'])}
+           'refit_fit_percent': after,
+           'L_m_bounds': list((refit.settings.bounds or {})['L_m'])}
     if after >= before - 0.05 and aliased_poles(refit.result_, T) is None:
         identifier.__dict__.update({k: v for k, v in refit.__dict__.items()
                                     if k.endswith('_')})
@@ -327,10 +326,10 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     ['adequate', 'assumptions', 'channels', 'controller']
     """
     check_mechanism(rec, mechanism)   # before the fit: a missing position is found at once
-    settings = copy.copy(identifier)
+    given = identifier.with_settings()   # before the search changes it
     search = scale_effect_search(rec, identifier)
     identifier.fit(rec, progress=progress)
-    guard = alias_guard(rec, identifier, settings)
+    guard = alias_guard(rec, identifier, given)
     res = with_gravity(identifier, rec, mechanism).result_
     extra = {**dict(extra or {}), **({'effect_search': search} if search else {}),
              **({'alias_guard': guard} if guard else {})}

@@ -316,9 +316,10 @@ def emps_fit():
     under test here; with it the result is the same to 7 digits, 5 s slower).
     """
     rec = load_recording(str(EMPS_BAG))
-    est = Identifier(random_state=0, use_ga=False, start={'J': 80.0, 'B': 150.0},
+    est = Identifier(random_state=0,
                      effects={'coulomb_friction': {'T_c': 20.0}, 'load_torque': {'T_L': -3.0}},
                      free_effects=['coulomb_friction.T_c', 'load_torque.T_L'])
+    est.warm_start({'J': 80.0, 'B': 150.0})
     with np.errstate(all='ignore'):
         return est.fit(rec).result_.to_dict()
 

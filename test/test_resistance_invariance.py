@@ -105,4 +105,6 @@ def test_a_measured_current_still_needs_r(tmp_path, capsys):
 
 def test_a_fixed_parameter_ties_the_others_to_r(routine, capsys):
     assert main(['fit', routine, '-q', '--fix', 'J=1e-4']) == 2
-    assert 'a --fix other than R_m' in capsys.readouterr().err
+    err = capsys.readouterr().err   # the library names parameters, the command line its flags
+    assert 'a fixed parameter other than R_m' in err
+    assert '(command line: -R/--resistance, --fix)' in err

@@ -37,9 +37,12 @@ def _dunker(path, motor):
     return load_dunker(path, motor=motor)
 
 
-def _fit(rec, **kw):
+def _fit(rec, warm_start=None, **kw):
+    est = Identifier(random_state=kw.pop('seed', 0), **kw)
+    if warm_start is not None:
+        est.warm_start(warm_start)   # refine from it, no GA
     with np.errstate(all='ignore'):
-        return Identifier(random_state=kw.pop('seed', 0), **kw).fit(rec).result_
+        return est.fit(rec).result_
 
 
 def _z(a, b):
@@ -316,7 +319,7 @@ def test_the_halves_of_the_emps_record_agree_within_their_error_bars():
     n = len(rec)
     fits = []
     for part in (rec.slice(0, n // 2), rec.slice(n // 2, n)):
-        res = _fit(part, use_ga=False, start={'J': 80.0, 'B': 150.0},
+        res = _fit(part, warm_start={'J': 80.0, 'B': 150.0},
                    effects={'coulomb_friction': {'T_c': 20.0}, 'load_torque': {'T_L': -3.0}},
                    free_effects=['coulomb_friction.T_c', 'load_torque.T_L']).to_dict()
         vals = {p: res['parameters'][p] for p in ('J', 'B')}

@@ -41,6 +41,7 @@ from motor_id.errors import (
 )
 from motor_id.identify.mechanism import check_mechanism
 from motor_id.identify.scales import data_scales, default_max_delay
+from motor_id.identify.settings import require_resistance
 from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.identify.validation import RunScore, SavedModel, validate
 from motor_id.metrics import noise_floor
@@ -183,9 +184,7 @@ class DiscrepancyAnalysis:
 
     def _check(self, rec: Recording) -> list[str]:
         rec.validate()  # also rejects corrupt cells (1e300) whose squares would overflow
-        if self.R_m is None and resistance_enters(rec.input_kind, rec.has_current):
-            raise ConfigError('R_m (the armature resistance in Ohm, as measured) is required '
-                              'for voltage-input data', params=('R_m',))
+        require_resistance(self.R_m, rec.input_kind, rec.has_current)
         if len(rec) < 10 * self.n_blocks:
             raise DataError(f'too few samples for a held-out analysis: {len(rec)} '
                             f'(need at least {10 * self.n_blocks})')
@@ -237,7 +236,8 @@ class DiscrepancyAnalysis:
         base = self._speed_reading(ctx, base)
         ctx.resistance = f.resistance
         counted = any(m.name in count_reading() for m in ctx.measurement)
-        r_m = f.R_m if f.R_m is not None else base.physical.get('R_m', SPEED_ONLY_R_M)
+        given = f.settings.R_m
+        r_m = given if given is not None else base.physical.get('R_m', SPEED_ONLY_R_M)
         f.scales = data_scales(rec, base.physical, r_m, float(rec.time[-1] - rec.time[0]),
                                float(np.median(np.diff(rec.time))), f.max_delay, counted)
         if ctx.electrical:

@@ -22,8 +22,10 @@ from numpy.typing import ArrayLike
 from motor_id.analysis.report import ModelScore
 from motor_id.effects import EFFECTS, mechanism_effect
 from motor_id.errors import FIT_ERRORS
-from motor_id.identify import Identifier
+from motor_id.identify import FitSettings, Identifier
+from motor_id.identify.estimator import staged
 from motor_id.identify.mechanism import with_gravity
+from motor_id.identify.settings import STAGE_NAMES
 from motor_id.simulate import simulate_runs
 
 if TYPE_CHECKING:
@@ -139,10 +141,10 @@ class CandidateFitter:
         self.rec = rec
         self.mechanism = mechanism
         self.gravity = mechanism_effect(mechanism)
-        self.R_m_tolerance = R_m_tolerance
         self.split = split
-        self.R_m = R_m
-        self.random_state = random_state
+        self.settings = FitSettings(R_m=R_m, R_m_tolerance=R_m_tolerance,
+                                    random_state=random_state)
+        """The fits' common settings: the resistance, its prior and the seed."""
         self.starts = starts
         self.max_delay = max_delay
         self.scales: dict[str, float] = {}
@@ -159,11 +161,12 @@ class CandidateFitter:
     # ----------------------------------------------------------------- fitting
     def identifier(self, **kw: Any) -> Identifier:
         """An :class:`Identifier` with this analysis' resistance, its prior and seed
-        (and the speed reading :attr:`reading`, fixed, in every model)."""
+        (and the speed reading :attr:`reading`, fixed, in every model); ``kw``: fit
+        settings and stage knobs (:class:`motor_id.identify.settings.FitStages`)."""
         if self.reading:
             kw['effects'] = {**(kw.get('effects') or {}), **self.reading}
-        return Identifier(R_m=self.R_m, random_state=self.random_state,
-                          R_m_tolerance=self.R_m_tolerance, **kw)
+        stages = {k: kw.pop(k) for k in STAGE_NAMES if k in kw}
+        return staged(self.settings.replace(**kw), **stages)
 
     def fit_model(self, effects: Mapping[str, Mapping[str, float]], free: Sequence[str],
                   start: Mapping[str, float], weight: bool = True) -> Identifier:
@@ -171,11 +174,10 @@ class CandidateFitter:
         kw: dict[str, Any] = {}
         if effects:
             kw = {'effects': effects, 'free_effects': free}
-        est = self.identifier(start=start, use_ga=False, settle=False, reweight=1,
-                              max_nfev=CANDIDATE_NFEV, quick_jacobian=weight, **kw)
         bounds = {**self.physical_bounds, **{fe: self.bounds_for(fe) for fe in free}}
-        if bounds:
-            est.bounds = bounds
+        est = self.identifier(start=start, use_ga=False, settle=False, reweight=1,
+                              max_nfev=CANDIDATE_NFEV, quick_jacobian=weight,
+                              bounds=bounds or None, **kw)
         sw = self.split.train.astype(float) if weight else None
         with np.errstate(all='ignore'):
             est.fit(self.rec, sample_weight=sw)
@@ -218,7 +220,7 @@ class CandidateFitter:
 
     def _at_bound(self, est: Identifier, eff: Mapping[str, Mapping[str, float]]) -> list[str]:
         out: list[str] = []
-        for key, (lo, hi) in (est.bounds or {}).items():
+        for key, (lo, hi) in (est.settings.bounds or {}).items():
             e, _, p = key.partition('.')
             if e not in eff or p not in eff[e]:
                 continue

@@ -9,7 +9,7 @@ from motor_id.analysis.workers import usable_cores
 from motor_id.cli.common import add_mechanism_argument, mechanism_for
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.errors import ConfigError
-from motor_id.identify.space import resistance_enters
+from motor_id.identify.settings import require_resistance
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,10 +44,7 @@ def run(args: argparse.Namespace) -> int:
     cands = None
     if args.candidates:
         cands = [c.strip() for c in args.candidates.split(',') if c.strip()]
-    if args.resistance is None and resistance_enters(rec.input_kind, rec.has_current):
-        raise ConfigError('--resistance R (the known armature resistance in Ohm) is required '
-                          'for voltage-input data with a measured current (speed alone does '
-                          'not need it)')
+    require_resistance(args.resistance, rec.input_kind, rec.has_current)   # before any work
 
     def progress(msg: str) -> None:
         if not args.quiet:

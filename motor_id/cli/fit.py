@@ -17,8 +17,7 @@ from motor_id.cli.common import add_mechanism_argument, mechanism_for
 from motor_id.cli.data_args import add_data_arguments, DATA_HELP, load_runs
 from motor_id.effects import EFFECTS, parse_effect_args, role_params
 from motor_id.errors import ConfigError
-from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
-from motor_id.identify.space import resistance_enters
+from motor_id.identify import FitSettings, Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.output import plot_fit, write_json
 from motor_id.simulate import warm_up
 
@@ -112,14 +111,9 @@ def progress_printer(quiet: bool, stream: TextIO | None = None
     return progress
 
 
-def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
-    """The :class:`Identifier` the options ask for (checked before any work)."""
+def fit_settings(rec: Recording, args: argparse.Namespace) -> FitSettings:
+    """The :class:`FitSettings` the options ask for (checked before any work)."""
     fixed = parse_fixed(args.fix, '--fix')
-    r_m = fixed.get('R_m', args.resistance)
-    if r_m is None and resistance_enters(rec.input_kind, rec.has_current, fixed):
-        raise ConfigError('--resistance R (the armature resistance in Ohm, as measured) is '
-                          'required for voltage-input data with a measured current or a '
-                          '--fix other than R_m (speed alone does not need it)')
     tol = getattr(args, 'resistance_tolerance', 10.0)
     if not (math.isfinite(tol) and tol > 0):
         raise ConfigError(f'--resistance-tolerance must be a percentage > 0, got {tol}')
@@ -132,13 +126,16 @@ def build_identifier(rec: Recording, args: argparse.Namespace) -> Identifier:
     # a parameter a least-squares refinement cannot move (a whole number of samples, a
     # grid step) is kept at the value given
     free = [f'{e}.{p.name}' for e in effects for p in EFFECTS[e].params if p.refined]
-    return Identifier(method=args.method, R_m=r_m, R_m_tolerance=tol / 100.0, tie=args.tie,
-                      population=args.population, generations=args.generations,
-                      crossover=args.crossover, mutation=args.mutation,
-                      random_state=args.seed, fixed=fixed or None,
-                      bounds=parse_bounds(args.bounds, '--bounds') or None,
-                      bootstrap=args.bootstrap, effects=effects or None,
-                      free_effects=free or None)
+    settings = FitSettings(
+        method=args.method, R_m=fixed.get('R_m', args.resistance), R_m_tolerance=tol / 100.0,
+        tie=args.tie,
+        population=args.population, generations=args.generations,
+        crossover=args.crossover, mutation=args.mutation, random_state=args.seed,
+        fixed=fixed or None,
+        bounds=parse_bounds(args.bounds, '--bounds') or None, bootstrap=args.bootstrap,
+        effects=effects or None, free_effects=free or None)
+    settings.check_resistance(rec.input_kind, rec.has_current)
+    return settings
 
 
 def model_effects(rec: Recording, items: list[str]) -> dict[str, dict[str, float]]:
@@ -185,9 +182,10 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
                         extra: Mapping[str, Any] | None = None
                         ) -> tuple[IdentificationResult, dict[str, Any]]:
     """Run the identification on a recording and print / write what the options ask."""
-    est = build_identifier(rec, args)
-    if not args.quiet and est.effects and not getattr(args, 'effect', []):
-        print(f'model: linear + {", ".join(est.effects)} (a SysId log measures static '
+    est = Identifier(fit_settings(rec, args))
+    effects = est.settings.effects
+    if not args.quiet and effects and not getattr(args, 'effect', []):
+        print(f'model: linear + {", ".join(effects)} (a SysId log measures static '
               'friction: its kS is part of the feedforward; --effect none fits the linear '
               'model alone)', file=sys.stderr)
     if not args.quiet:

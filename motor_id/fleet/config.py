@@ -36,6 +36,7 @@ from motor_id.data.mapping import (
 )
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
+from motor_id.identify.settings import FitSettings
 
 MOTOR_KEYS = tuple(k for k in PROFILE_KEYS if k != 'columns') + (
     'resistance', 'resistance_tolerance', 'fix', 'bounds', 'type')
@@ -76,13 +77,22 @@ class MotorSpec:
 
 @dataclass(frozen=True)
 class FleetFit:
-    """Identifier settings shared by every task."""
+    """The ``fit:`` keys shared by every task (their settings hash as written)."""
 
     method: str = 'zoh'
     seed: int = 0
     population: int = 20
     generations: int = 160
     tie: bool | None = None
+
+    def settings(self, motor: MotorSpec) -> FitSettings:
+        """The :class:`~motor_id.identify.FitSettings` of ``motor``'s fit (validated)."""
+        fixed = dict(motor.fix) or None
+        return FitSettings(method=self.method, R_m=(fixed or {}).get('R_m', motor.resistance),
+                           R_m_tolerance=motor.resistance_tolerance / 100.0, tie=self.tie,
+                           population=self.population, generations=self.generations,
+                           random_state=self.seed, fixed=fixed,
+                           bounds=dict(motor.bounds) or None)
 
 
 @dataclass(frozen=True)
@@ -148,7 +158,13 @@ def parse_fleet_config(data: Any, where: str = 'fleet configuration') -> FleetCo
         drift = DriftRule.from_dict(data.get('drift'))
     except (TypeError, ConfigError) as exc:
         raise ConfigError(f'{where}: {exc}') from None
-    return FleetConfig(tuple(motors), FleetFit(**fit), drift)
+    config = FleetConfig(tuple(motors), FleetFit(**fit), drift)
+    for m in config.motors:   # every motor's fit settings, checked once, here
+        try:
+            config.fit.settings(m)
+        except ConfigError as exc:
+            raise ConfigError(f'{where}: motor {m.name}: {exc}', params=exc.params) from None
+    return config
 
 
 _keys = check_keys

@@ -23,7 +23,7 @@ from motor_id.fleet.rows import EstimateRow, ParameterValue, TaskFailure, TaskRe
 from motor_id.model import PARAM_NAMES
 
 if TYPE_CHECKING:
-    from motor_id.identify import Identifier
+    from motor_id.identify import FitSettings
     from motor_id.recording import Recording
 
 
@@ -108,27 +108,22 @@ def _start_time(rec: Recording, task: Task) -> str:
         timespec='milliseconds').replace('+00:00', 'Z')
 
 
-def identifier(task: Task, input_kind: str) -> Identifier:
-    """The :class:`~motor_id.identify.Identifier` of a task's settings."""
-    from motor_id.errors import ConfigError
-    from motor_id.identify import Identifier, parse_bounds, parse_fixed
-    m, f = task.motor, task.fit
-    fixed = parse_fixed([f'{k}={v}' for k, v in m.fix.items()], 'fix') or None
-    bounds = parse_bounds([f'{k}={lo}:{hi}' for k, (lo, hi) in m.bounds.items()],
-                          'bounds') or None
-    r_m = (fixed or {}).get('R_m', m.resistance)
-    if input_kind == 'voltage' and r_m is None:
-        raise ConfigError(f'motor {m.name}: a voltage plant needs "resistance" (R_m in Ohm, '
-                          'as measured) in the profile')
-    return Identifier(method=f.method, R_m=r_m, R_m_tolerance=m.resistance_tolerance / 100.0,
-                      tie=f.tie, population=f.population, generations=f.generations,
-                      random_state=f.seed, fixed=fixed, bounds=bounds)
+def fit_settings(task: Task, rec: Recording) -> FitSettings:
+    """The task's :class:`~motor_id.identify.FitSettings`; R_m checked for ``rec``."""
+    settings = task.fit.settings(task.motor)
+    try:
+        settings.check_resistance(rec.input_kind, rec.has_current)
+    except MotorIdError as exc:
+        raise type(exc)(f'motor {task.motor.name}: {exc} (the motor\'s "resistance" in the '
+                        'fleet configuration)', params=exc.params) from None
+    return settings
 
 
 def fit_row(rec: Recording, task: Task, source: EstimateRow) -> EstimateRow:
     """The numbers a fit leaves: every parameter's value, std and determined flag, fit %,
     adequacy and warnings, added to ``source`` (the row's robot, motor, recording, ...)."""
-    result = identifier(task, rec.input_kind).fit(rec).result_
+    from motor_id.identify import Identifier
+    result = Identifier(fit_settings(task, rec)).fit(rec).result_
     params = {}
     for name in PARAM_NAMES:
         p = result.parameters.get(name)

@@ -6,7 +6,7 @@ in a widened box, a settling refit); the search itself is :mod:`.optimize`, the 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import replace
 import math
 import time
@@ -20,6 +20,7 @@ from motor_id.identify import blocks, determinacy, estimates, optimize, uncertai
 from motor_id.identify.optimize import Progress
 from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.result import ValueStd
+from motor_id.identify.settings import FitSettings, FitStages, STAGE_NAMES
 from motor_id.identify.space import resistance_enters, SPEED_ONLY_R_M
 from motor_id.model import PARAM_NAMES
 
@@ -34,10 +35,6 @@ estimate than the data do."""
 WIDEN_ROUNDS = 3
 """Largest number of widenings (a freed inertia may push the viscous friction to its
 bound, as on a hobby motor)."""
-_SETTINGS = ('method', 'R_m', 'tie', 'population', 'generations', 'crossover', 'mutation',
-             'random_state', 'fixed', 'bounds', 'channels', 'effects', 'free_effects',
-             'start', 'use_ga', 'bootstrap', 'refine_starts', 'R_m_tolerance', 'widen',
-             'error_blocks', 'settle', 'reweight', 'max_nfev', 'quick_jacobian')
 
 
 class Identifier:
@@ -45,61 +42,24 @@ class Identifier:
 
     Parameters
     ----------
-    method : {'zoh', 'euler', 'paper'}
-    R_m : float
-        Given armature resistance [Ohm] (an ohmmeter reading); required for a voltage
-        plant. With a fitted current channel (not ``paper``) and R_m not in ``fixed``,
-        R_m is estimated with this value as a Gaussian prior; otherwise it is held fixed.
-    R_m_tolerance : float
-        Relative standard deviation of that prior (0.10: the given value is good to
-        about 10 %).
-    tie : bool or None
-        Impose K_T = K_b (SI units). ``None``: on when a current channel is present and
-        the method is not ``paper``.
-    population, generations, crossover, mutation : GA settings (the paper's defaults).
-    random_state : int, Generator or None
-    fixed : dict, optional
-        Known values ``{name: value}``: an explicit extra assumption; those parameters are
-        not fitted (``{'R_m': v}`` holds R_m fixed).
-    bounds : dict, optional
-        ``{name: (low, high)}`` search ranges overriding the defaults; effect
-        parameters are named ``effect.param``.
-    channels : tuple, optional
-        Output channels to fit; default all measured (``paper``: speed only).
-    effects : dict, optional
-        ``{effect: {param: value}}`` terms included in the model (from
-        :data:`motor_id.effects.EFFECTS`).
-    free_effects : sequence of str, optional
-        ``'effect.param'`` entries of ``effects`` to estimate.
-    start : dict, optional
-        A starting parameter set; seeds the GA and the refinement.
-    use_ga : bool
-        False skips the GA and refines from ``start`` only (warm starts).
-    bootstrap : int
-        Number of residual-bootstrap refits for percentile intervals (0 = off).
-    refine_starts : int
-        Number of distinct GA individuals the refinement starts from.
-    widen : bool
-        A physical parameter that the GA's fit leaves on a side of the *default* box (a
-        hobby motor's inertia below 1e-6 kg m^2, say) is not an estimate: that side is
-        moved :data:`WIDEN` times outward and the fit repeated, up to
-        :data:`WIDEN_ROUNDS` times, keeping the lower cost. Ranges given in ``bounds``,
-        fixed parameters and R_m (held by its prior) are never widened; nor are warm
-        starts (``use_ga=False``). ``widened_`` holds the ranges that were moved.
-    error_blocks : int
-        Contiguous blocks per run of the robust covariance's score variance
-        (:func:`motor_id.identify.uncertainty.robust_covariance`).
-    settle : bool
-        Refit without what the record cannot carry (a current channel the model does not
-        explain, an R_m its prior holds): see :meth:`_settle`. The discrepancy analysis
-        turns it off for its candidates, which must all be scored on the same channels.
-    reweight : int
-        Largest number of refinements re-weighted by the estimated noise levels.
-    max_nfev : int
-        Largest number of residual evaluations of each least-squares refinement.
-    quick_jacobian : bool
-        One-sided differences in the refinement's Jacobian (the analysis ranks its
-        candidates with them); the covariance always uses central differences.
+    settings : FitSettings, optional
+        What the fit is asked to do (:class:`motor_id.identify.FitSettings`, validated
+        when made); default ``FitSettings()``.
+    **values
+        Fields of :class:`~motor_id.identify.FitSettings` replacing those of ``settings``
+        (``Identifier(R_m=2.3, random_state=0)``); an unknown name is a
+        :class:`~motor_id.errors.ConfigError`.
+
+    Notes
+    -----
+    A fit runs in stages: the GA and a least-squares refinement from its best
+    individuals; where a physical parameter sits on a side of the *default* box (a hobby
+    motor's inertia below 1e-6 kg m^2, say) that side is moved :data:`WIDEN` times
+    outward and the fit repeated, up to :data:`WIDEN_ROUNDS` times, keeping the lower
+    cost (ranges given in ``bounds``, fixed parameters and R_m are never widened, nor are
+    warm starts; ``widened_`` holds the ranges that were moved); then a refit without
+    what the record cannot carry (:meth:`_settle`). Their knobs are internal
+    (:class:`motor_id.identify.settings.FitStages`).
 
     Examples
     --------
@@ -113,43 +73,24 @@ class Identifier:
     (0.66, True, True)
     """
 
-    def __init__(self, method: str = 'zoh', R_m: float | None = None, tie: bool | None = None,
-                 population: int = 20, generations: int = 160, crossover: float = 0.75,
-                 mutation: float = 0.04,
-                 random_state: int | np.random.Generator | None = None,
-                 fixed: Mapping[str, float] | None = None,
-                 bounds: Mapping[str, tuple[float, float]] | None = None,
-                 channels: Iterable[str] | None = None,
-                 effects: Mapping[str, Mapping[str, float]] | None = None,
-                 free_effects: Iterable[str] | None = None,
-                 start: Mapping[str, float] | None = None, use_ga: bool = True,
-                 bootstrap: int = 0, refine_starts: int = 3, R_m_tolerance: float = 0.10,
-                 widen: bool = True, error_blocks: int = 10, settle: bool = True,
-                 reweight: int = 4, max_nfev: int = 60, quick_jacobian: bool = False) -> None:
-        self.method = method
-        self.R_m = R_m
-        self.tie = tie
-        self.population = population
-        self.generations = generations
-        self.crossover = crossover
-        self.mutation = mutation
-        self.random_state = random_state
-        self.fixed = fixed
-        self.bounds = bounds
-        self.channels = channels
-        self.effects = effects
-        self.free_effects = free_effects
-        self.start = start
-        self.use_ga = use_ga
-        self.bootstrap = bootstrap
-        self.refine_starts = refine_starts
-        self.R_m_tolerance = R_m_tolerance
-        self.widen = widen
-        self.error_blocks = error_blocks
-        self.settle = settle
-        self.reweight = reweight
-        self.max_nfev = max_nfev
-        self.quick_jacobian = quick_jacobian
+    def __init__(self, settings: FitSettings | None = None, **values: Any) -> None:
+        self.settings = (FitSettings() if settings is None else settings).replace(**values)
+        self._stages = FitStages()
+
+    @property
+    def stages(self) -> FitStages:
+        """The internal knobs of the fit's stages (read only)."""
+        return self._stages
+
+    def with_settings(self, **changes: Any) -> Identifier:
+        """A new, unfitted Identifier with these settings changed (the same stages)."""
+        return _make(self.settings.replace(**changes), self._stages)
+
+    def warm_start(self, start: Mapping[str, float]) -> Identifier:
+        """Refine from ``start`` at the next fit, without the GA; returns self."""
+        self.settings = self.settings.replace(start=start)
+        self._stages = replace(self._stages, use_ga=False)
+        return self
 
     def fit(self, rec: Recording, progress: Progress | None = None,
             sample_weight: ArrayLike | None = None) -> Identifier:
@@ -184,12 +125,13 @@ class Identifier:
         """
         t_start = time.perf_counter()
         rec.validate()
+        self.settings.check_resistance(rec.input_kind, rec.has_current)
         try:
             self._fit(rec, progress, sample_weight)
             self.widened_: dict[str, tuple[float, float]] = {}
-            if self.widen and self.use_ga:
+            if self._stages.widen and self._stages.use_ga:
                 self._widen(rec, progress, sample_weight)
-            if self.settle:
+            if self._stages.settle:
                 self._settle(rec, progress, sample_weight)
         except MotorIdError:
             raise
@@ -206,7 +148,8 @@ class Identifier:
             sides = self._on_default_bound()
             if not sides:
                 return
-            again = self._variant(bounds={**(self.bounds or {}), **self.widened_, **sides})
+            bounds = {**(self.settings.bounds or {}), **self.widened_, **sides}
+            again = self._variant(bounds=bounds)
             again._fit(rec, progress, sample_weight)
             if not again.result_.fit.cost <= self.result_.fit.cost:
                 return
@@ -227,9 +170,9 @@ class Identifier:
         """
         res = self.result_
         notes: list[str] = []
-        channels, fixed = self.channels, dict(self.fixed or {})
+        channels, fixed = self.settings.channels, dict(self.settings.fixed or {})
         cur = res.fit.channels.get('current')
-        if cur is not None and self.channels is None and rec.current is not None:
+        if cur is not None and self.settings.channels is None and rec.current is not None:
             levels = determinacy.channel_levels(rec.current)
             why: str | None
             if levels < determinacy.MIN_LEVELS:
@@ -243,7 +186,7 @@ class Identifier:
                 notes.append(f'{why}: it cannot carry R_m or L_m; fitted on the speed '
                              'alone with R_m at the given value')
         r = res.resistance
-        if channels is self.channels and r is not None and r.estimated and (
+        if channels is self.settings.channels and r is not None and r.estimated and (
                 r.std is None or r.prior_std is None or r.std > PRIOR_DOMINATES * r.prior_std
                 or res.identifiability.r_m_determined_by_data is False) and \
                 r.given is not None:
@@ -254,19 +197,22 @@ class Identifier:
             return
         start = {k: v for k, v in self.params_.items() if v is not None}
         again = self._variant(fixed=fixed, channels=channels, start=start, use_ga=False,
-                              bounds={**(self.bounds or {}), **self.widened_} or None)
+                              bounds={**(self.settings.bounds or {}), **self.widened_} or None)
         again._fit(rec, None, sample_weight)
         res2 = again.result_
         res2.ga, res2.warnings = res.ga, notes + res2.warnings
-        if res2.resistance is not None and 'R_m' in fixed and 'R_m' not in (self.fixed or {}):
+        given = self.settings.fixed or {}
+        if res2.resistance is not None and 'R_m' in fixed and 'R_m' not in given:
             res2.resistance = replace(res2.resistance, note=notes[-1], data_estimate=ValueStd(
                 value=None if r is None else r.estimate, std=None if r is None else r.std))
         self._adopt(again)
 
     def _variant(self, **changes: Any) -> Identifier:
-        """An unwidened Identifier with these settings changed (the refits above)."""
-        return Identifier(**{**{k: getattr(self, k) for k in _SETTINGS}, 'widen': False,
-                             **changes})
+        """An unwidened Identifier with these settings (and stage knobs) changed (the
+        refits above, :func:`motor_id.identify.mechanism.with_gravity`)."""
+        stages = {k: changes.pop(k) for k in STAGE_NAMES if k in changes}
+        return _make(self.settings.replace(**changes),
+                     replace(self._stages, **{'widen': False, **stages}))
 
     def _adopt(self, other: Identifier, *extra: str) -> None:
         """Take over the fitted state of ``other`` (and the ``extra`` attributes)."""
@@ -278,7 +224,7 @@ class Identifier:
         fit left on a side of the default box (never one the caller bounded)."""
         prob = self.problem_
         params = self.result_.to_dict()['parameters']
-        caller = set(self.bounds or {})
+        caller = set(self.settings.bounds or {})
         out: dict[str, tuple[float, float]] = {}
         for name, lo, hi in zip(prob.bounds.names, prob.bounds.low, prob.bounds.high, strict=True):
             v = params.get(name, {})
@@ -299,22 +245,22 @@ class Identifier:
 
     def _fit(self, rec: Recording, progress: Progress | None,
              sample_weight: ArrayLike | None) -> None:
-        unseen, R_m, fixed = _resistance_used(rec, self.R_m, self.fixed)
+        s, st = self.settings, self._stages
+        unseen, R_m, fixed = _resistance_used(rec, s.R_m, s.fixed)
         problem = IdentificationProblem(
-            rec, method=self.method, R_m=R_m, R_m_tolerance=self.R_m_tolerance,
-            tie=self.tie, fixed=fixed, bounds=self.bounds, channels=self.channels,
-            effects=self.effects, free_effects=self.free_effects,
-            sample_weight=sample_weight)
+            rec, method=s.method, R_m=R_m, R_m_tolerance=s.R_m_tolerance, tie=s.tie,
+            fixed=fixed, bounds=s.bounds, channels=s.channels, effects=s.effects,
+            free_effects=s.free_effects, sample_weight=sample_weight)
         self.problem_ = problem
-        rng = np.random.default_rng(self.random_state)   # a Generator comes back as is
+        rng = np.random.default_rng(s.random_state)   # a Generator comes back as is
         ga, best, ga_seconds = optimize.run_ga(
-            problem, rng, progress, start=self.start, use_ga=self.use_ga,
-            population=self.population, generations=self.generations,
-            crossover=self.crossover, mutation=self.mutation)
-        problem.forward_differences = bool(self.quick_jacobian)
+            problem, rng, progress, start=s.start, use_ga=st.use_ga,
+            population=s.population, generations=s.generations, crossover=s.crossover,
+            mutation=s.mutation)
+        problem.forward_differences = bool(st.quick_jacobian)
         z_best, refine_info = optimize.refine(
-            problem, ga, best, method=self.method, refine_starts=self.refine_starts,
-            reweight=self.reweight, max_nfev=self.max_nfev)
+            problem, ga, best, method=s.method, refine_starts=st.refine_starts,
+            reweight=st.reweight, max_nfev=st.max_nfev)
         problem.forward_differences = False
         x_best = problem.from_z(z_best)
         with np.errstate(all='ignore'):
@@ -326,17 +272,28 @@ class Identifier:
         sigma, w = uncertainty.noise_levels(problem, z_best)
         J = problem.jacobian_z(z_best, w)
         result, self.covariance_ = estimates.build_result(
-            rec, problem, x_best, z_best, J, sigma, w, pred, error_blocks=self.error_blocks,
+            rec, problem, x_best, z_best, J, sigma, w, pred, error_blocks=st.error_blocks,
             r_m_fixed_by_caller='R_m' in (fixed or {}))
         if unseen:
-            blocks.unseen_resistance(result, (self.fixed or {}).get('R_m', self.R_m))
+            blocks.unseen_resistance(result, s.resistance)
         result.ga = blocks.ga_block(problem, ga, ga_seconds)
         result.refinement = refine_info
-        if self.bootstrap and self.method != 'paper':
-            estimates.bootstrap_intervals(problem, result, z_best, w, rng, self.bootstrap)
+        if s.bootstrap and s.method != 'paper':
+            estimates.bootstrap_intervals(problem, result, z_best, w, rng, s.bootstrap)
         self.result_ = result
         self.params_ = result.values()
         self.history_ = [] if ga is None else [h.to_dict() for h in ga.history_]
+
+def _make(settings: FitSettings, stages: FitStages) -> Identifier:
+    est = Identifier(settings)
+    est._stages = stages
+    return est
+
+
+def staged(settings: FitSettings, **stages: Any) -> Identifier:
+    """An Identifier with internal stage knobs set (:class:`FitStages`: the analysis's
+    candidate refits, warm starts); not part of the public API."""
+    return _make(settings, FitStages(**stages))
 
 
 def _resistance_used(rec: Recording, R_m: float | None, fixed: Mapping[str, float] | None

@@ -147,8 +147,8 @@ def with_gravity(fitted: Identifier, rec: Recording, mechanism: str,
     theta = equation_error(rec, gravity)
     start = position_start(rec, gravity, per_input, theta=theta)
     keys = {f'{gravity}.{k}': v for k, v in start.items()}
-    effects = {**(fitted.effects or {}), gravity: start}
-    free = [*(fitted.free_effects or ()), *keys]
+    effects = {**(fitted.settings.effects or {}), gravity: start}
+    free = [*(fitted.settings.free_effects or ()), *keys]
     best: Identifier | None = None
     whole = plant_start(rec, gravity, theta, p, effects)
     for begin in ({**p, **keys}, *(() if whole is None else ({**p, **whole},))):

@@ -24,7 +24,7 @@ from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.fleet.history import DriftRow
 from motor_id.fleet.live import drift_message, EstimateHistory
-from motor_id.identify import Identifier, METHODS, parse_bounds, parse_fixed
+from motor_id.identify import FitSettings, Identifier, METHODS, parse_bounds, parse_fixed
 from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
 from motor_id.nodes.common import (
@@ -62,6 +62,15 @@ def bound_values(text: str, name: str = 'bounds') -> dict[str, tuple[float, floa
         raise ConfigError(f'{name}: {", ".join(unknown)} is not fitted; use '
                           f'{", ".join(FITTED)}')
     return bounds
+
+
+def fit_settings(p: dict[str, Any]) -> FitSettings:
+    """The :class:`~motor_id.identify.FitSettings` of the node's parameter values."""
+    return FitSettings(method=p['method'], R_m=p['R_m'],
+                       tie=None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb']),
+                       population=p['population'], generations=p['generations'],
+                       random_state=p['seed'], fixed=fixed_values(p['fix']) or None,
+                       bounds=bound_values(p['bounds']) or None)
 
 
 PARAMETERS = (
@@ -227,10 +236,10 @@ class IdentifierNode(Node):
         u = np.where((t // 0.25) % 2 > 0, 6.0, -3.0)
         rec = simulate.simulate_recording(Plant(input_kind=self.input_kind), t, u, 0.01,
                                           0.01, random_state=0)
-        tie = None if self.settings['tie_kt_kb'] == 'auto' else bool(self.settings['tie_kt_kb'])
         try:
-            Identifier(method=self.settings['method'], R_m=self.settings['R_m'], tie=tie,
-                       population=4, generations=2, random_state=0).fit(rec)
+            tiny = fit_settings(self.settings).replace(population=4, generations=2,
+                                                       random_state=0, fixed=None, bounds=None)
+            Identifier(tiny).fit(rec)
         except MotorIdError as exc:
             self.get_logger().warning(f'warm-up fit: {exc}')
         self.get_logger().info(
@@ -312,11 +321,7 @@ class IdentifierNode(Node):
                 snap = snap.profile_segment()
             rec = snap.recording(p['min_samples'], p['allow_gaps'], self.input_kind,
                                  {'source': 'identifier node'})
-            tie = None if p['tie_kt_kb'] == 'auto' else bool(p['tie_kt_kb'])
-            est = Identifier(method=p['method'], R_m=p['R_m'], tie=tie,
-                             population=p['population'], generations=p['generations'],
-                             random_state=p['seed'], fixed=fixed_values(p['fix']) or None,
-                             bounds=bound_values(p['bounds']) or None)
+            est = Identifier(fit_settings(p))
             self.get_logger().info(
                 f'fitting {len(rec)} samples ({rec.time[-1] - rec.time[0]:.2f} s of card '
                 f'time, seq {rec.meta["seq_first"]}..{rec.meta["seq_last"]})')
