@@ -419,3 +419,30 @@ def test_real_log_fit_agrees_with_sysid_on_kv(tmp_path):
     sysid = fit_acceleration(prepare(load_sysid(REAL_LOG)))
     assert kV == pytest.approx(sysid.kV, rel=0.05)
     assert report['fit']['channels']['speed']['fit_percent'] > 95.0
+
+
+def test_a_position_that_disagrees_with_the_velocity_is_left_out(tmp_path, capsys):
+    """A drivetrain log whose positions took the units per rotation twice (as a public
+    swerve log does: their rate is 0.233 x the velocity): the position is left out with a
+    warning, the speed kept; an arm, which reads the position, is then refused."""
+    log = make_sysid_log(4, test='Drivetrain', units='Meters', **SHORT)
+    good = load_sysid(log.write(tmp_path / 'good.json'), 'left')
+    assert good.has_position and 'warnings' not in good.meta
+    factor = UNITS_PER_ROTATION['Meters']   # 0.1 m per rotation, applied twice
+    data = copy.deepcopy(log.data)
+    for name in TESTS:
+        for row in data[name]:
+            row[3] *= factor
+    path = tmp_path / 'bad.json'
+    path.write_text(json.dumps(data))
+    rec = load_sysid(path, 'left')
+    assert not rec.has_position
+    np.testing.assert_array_equal(rec.speed, good.speed)
+    [warning] = rec.meta['warnings']
+    assert 'the logged position does not follow the logged velocity: its rate is' in warning
+    ratio = float(warning.split('its rate is ')[1].split(' x')[0])
+    np.testing.assert_allclose(ratio, factor, rtol=0.02)
+    right = load_sysid(path, 'right')   # the other side's position is as logged
+    assert right.has_position and 'warnings' not in right.meta
+    assert main(['fit', str(path), '--joint', 'left', '--mechanism', 'arm', '-q']) == 2
+    assert 'needs the measured position' in capsys.readouterr().err

@@ -21,6 +21,7 @@ the linear ones.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -150,6 +151,7 @@ def sysid_recording(path: str, runs: list[Recording], names: list[str], warnings
     Recording
         Validated; a :class:`DataError` names ``path``.
     """
+    runs = _position_checked(runs, linear, warnings)
     rec = Recording.concatenate(runs)
     rec.meta = {
         'source': os.path.basename(path),
@@ -191,6 +193,37 @@ def _read_json(path: str) -> dict[str, Any]:
         found = 'missing' if 'sysid' not in log else f'{log["sysid"]!r}'
         raise DataError(f'{path}: not a WPILib SysId log ("sysid" is {found}, not true)')
     return log
+
+
+POSITION_AGREEMENT = 0.1
+"""Largest relative difference between the logged position's rate and the logged velocity
+(their least-squares ratio over every test) for the position to be kept."""
+
+
+def _position_checked(runs: list[Recording], linear: bool,
+                      warnings: list[str]) -> list[Recording]:
+    """The runs, without their positions where the positions' rate disagrees with the
+    velocity (a gear ratio or a unit applied to one of them only), with a warning.
+
+    The ratio is ``sum(dp * w dt) / sum((w dt)^2)`` over every interval of every test (``w``
+    the interval's mean velocity): 1 where they agree, whatever the noise.
+    """
+    if not runs or any(r.position is None for r in runs):
+        return runs
+    num = den = 0.0
+    for r in runs:
+        step = 0.5 * (r.speed[1:] + r.speed[:-1]) * np.diff(r.time)
+        num += float(np.diff(r.position) @ step)
+        den += float(step @ step)
+    ratio = num / den if den > 0 else 1.0
+    if abs(ratio - 1.0) <= POSITION_AGREEMENT:
+        return runs
+    unit = 'm' if linear else 'rad'
+    warnings.append(f'the logged position does not follow the logged velocity: its rate is '
+                    f'{ratio:.4g} x the velocity (a gear ratio or a unit applied to one of '
+                    f'them only?); the position is left out and the speed, in {unit}/s, '
+                    'taken as logged (a mechanism that reads the position cannot be fitted)')
+    return [dataclasses.replace(r, position=None) for r in runs]
 
 
 def _header(path: str, log: dict[str, Any]) -> tuple[str, str, float]:
