@@ -208,12 +208,13 @@ def _position_checked(runs: list[Recording], linear: bool,
     The ratio is ``sum(dp * w dt) / sum((w dt)^2)`` over every interval of every test (``w``
     the interval's mean velocity): 1 where they agree, whatever the noise.
     """
-    if not runs or any(r.position is None for r in runs):
+    positions = [r.position for r in runs]
+    if not runs or any(p is None for p in positions):
         return runs
     num = den = 0.0
-    for r in runs:
+    for r, p in zip(runs, positions, strict=True):
         step = 0.5 * (r.speed[1:] + r.speed[:-1]) * np.diff(r.time)
-        num += float(np.diff(r.position) @ step)
+        num += float(np.diff(np.asarray(p)) @ step)
         den += float(step @ step)
     ratio = num / den if den > 0 else 1.0
     if abs(ratio - 1.0) <= POSITION_AGREEMENT:
