@@ -21,7 +21,7 @@ from motor_id.data.load import load_recording
 from motor_id.data.mapping import TopicMapping
 from motor_id.data.sysid import load_sysid, MIN_TEST_ROWS, TESTS
 from motor_id.errors import BagError, ConfigError, DataError
-from motor_id.identify.validation import SavedModel
+from motor_id.identify.validation import SavedModel, validate
 from motor_id.testing.sysid_log import make_sysid_log, UNITS_PER_ROTATION
 from motor_id.testing.sysid_ols import (
     fit_acceleration,
@@ -442,6 +442,14 @@ def test_a_position_that_disagrees_with_the_velocity_is_left_out(tmp_path, capsy
     assert 'the logged position does not follow the logged velocity: its rate is' in warning
     ratio = float(warning.split('its rate is ')[1].split(' x')[0])
     np.testing.assert_allclose(ratio, factor, rtol=0.02)
+    # a speed-only voltage record is simulated from its first samples (the current by
+    # least squares over a grid of starts: one batch member per start)
+    model = tmp_path / 'fit.json'
+    assert main(['fit', str(path), '--joint', 'left', '-q', '--json', str(model)]) == 0
+    scores = validate(SavedModel.from_report(json.loads(model.read_text())), rec).runs
+    assert [r.name for r in scores] == list(TESTS)
+    assert all(r.channels['speed']['fit_percent'] > 90 for r in scores)
+    capsys.readouterr()
     right = load_sysid(path, 'right')   # the other side's position is as logged
     assert right.has_position and 'warnings' not in right.meta
     assert main(['fit', str(path), '--joint', 'left', '--mechanism', 'arm', '-q']) == 2

@@ -334,8 +334,9 @@ def _initial_state(model: SavedModel, rec: Recording, n_init: int,
     head = rec.slice(0, n_init)
     scale = max(abs(guess), float(np.max(np.abs(rec.input))) / p['R_m'], 1e-12)
     grid = guess + scale * np.linspace(-2.0, 2.0, 81)
+    batch = {k: np.full(grid.size, float(v)) for k, v in p.items()}   # one per start
     with np.errstate(all='ignore'):
-        out = simulate_batch(p, head.time, head.input, 'voltage', 'zoh', model.effects,
+        out = simulate_batch(batch, head.time, head.input, 'voltage', 'zoh', model.effects,
                              np.column_stack([np.full(grid.size, speed0), grid]),
                              measured_position=head.position)
     cost = np.sum((out['speed'] - head.speed[None, :]) ** 2, axis=1)
