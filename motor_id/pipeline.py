@@ -25,16 +25,59 @@ from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.model import PARAM_NAMES
 from motor_id.output import attach_units
 from motor_id.recording import Recording
+from motor_id.records import optional, Record
 
 
-def data_block(rec: Recording, **extra: Any) -> dict[str, Any]:
-    """What the report says about the data it was fitted to."""
-    out = {'source': rec.meta.get('source'), 'samples': len(rec),
-           'sample_period': rec.sample_period, 'regular': rec.is_regular,
-           'channels': list(rec.channels()), 'input_kind': rec.input_kind,
-           'runs': len(rec.segment_ranges), 'linear': rec.linear}
-    out.update(extra)
-    return out
+@dataclass(frozen=True)
+class DataBlock(Record):
+    """What the report says about the data it was fitted to (the node adds the card's
+    sequence numbers and times of its window)."""
+
+    source: str | None
+    samples: int
+    sample_period: float
+    regular: bool
+    channels: list[str]
+    input_kind: str
+    runs: int
+    linear: bool
+    seq_first: int | None = optional()
+    seq_last: int | None = optional()
+    t_first: float | None = optional()
+    t_last: float | None = optional()
+    gaps_skipped: int | None = optional()
+
+
+def data_block(rec: Recording, **extra: Any) -> DataBlock:
+    """What the report says about the data it was fitted to (``extra``: more of
+    :class:`DataBlock`'s fields, or another ``source``)."""
+    return DataBlock(source=extra.pop('source', rec.meta.get('source')), samples=len(rec),
+                     sample_period=rec.sample_period, regular=rec.is_regular,
+                     channels=list(rec.channels()), input_kind=rec.input_kind,
+                     runs=len(rec.segment_ranges), linear=rec.linear, **extra)
+
+
+@dataclass(frozen=True)
+class EffectSearch(Record):
+    """How a fit's effects were searched on the record's own scale
+    (:func:`scale_effect_search`)."""
+
+    linear_first: bool
+    K_T_held: bool
+    ranges: dict[str, tuple[float, float]]
+    note: str
+
+
+@dataclass(frozen=True)
+class AliasGuard(Record):
+    """A speed-only fit whose poles aliased, refitted (:func:`alias_guard`)."""
+
+    aliased_pair_hz: float
+    nyquist_hz: float
+    fit_percent: float
+    refit_fit_percent: float
+    L_m_bounds: tuple[float, float]
+    kept: str
 
 
 @dataclass
@@ -44,22 +87,27 @@ class FitReport:
     Attributes
     ----------
     result : IdentificationResult
-    data : dict
+    data : DataBlock
         :func:`data_block` of the recording.
     design : ControllerDesign or None
         The controller design, None when there is none (``controller``: its JSON).
     controller_error : str or None
         Why there is no controller design.
     extra : dict
-        Further top-level keys (a shift check, the bag, the hardware id, units).
+        Further top-level keys the caller gives (a shift check, the bag, the hardware id,
+        units).
+    effect_search, alias_guard : EffectSearch, AliasGuard or None
+        How the effects were searched; a refit of aliased poles.
     """
 
     result: IdentificationResult
-    data: dict[str, Any]
+    data: DataBlock
     design: ControllerDesign | None = None
     controller_error: str | None = None
     controller_summary: str = ''
     extra: dict[str, Any] = field(default_factory=dict)
+    effect_search: EffectSearch | None = None
+    alias_guard: AliasGuard | None = None
 
     @property
     def controller(self) -> dict[str, Any] | None:
@@ -75,13 +123,17 @@ class FitReport:
         """The ``--json`` shape (docs/user-guide.md): the fit, ``data``, ``controller``,
         extras; every constant with its ``unit`` (:func:`motor_id.output.attach_units`)."""
         d = self.result.to_dict()
-        d['data'] = dict(self.data)
+        d['data'] = self.data.to_dict()
         if self.design is not None:
             d['controller'] = self.design.to_dict()
         elif self.controller_error is not None:
             d['controller'] = {'error': self.controller_error}
         d.update(self.extra)
-        return attach_units(d, self.result.input_kind, bool(self.data.get('linear')))
+        for key, block in (('effect_search', self.effect_search),
+                           ('alias_guard', self.alias_guard)):
+            if block is not None:
+                d[key] = block.to_dict()
+        return attach_units(d, self.result.input_kind, bool(self.data.linear))
 
     def to_ros_parameters(self, node_name: str = '/**', unknown: str = 'omit'
                           ) -> dict[str, Any]:
@@ -131,7 +183,7 @@ def controller_for(result: IdentificationResult, linear: bool, sample_period: fl
     return design, None, design.summary()
 
 
-def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any] | None:
+def scale_effect_search(rec: Recording, identifier: Identifier) -> EffectSearch | None:
     """Search a fit's effects on the record's own scale: a linear fit first.
 
     An effect parameter's allowed range spans every motor (a Coulomb torque of 0 to
@@ -150,7 +202,7 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any
 
     Returns
     -------
-    dict or None
+    EffectSearch or None
         The report's ``effect_search`` block (the ranges searched), None when nothing was
         changed.
     """
@@ -186,13 +238,14 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> dict[str, Any
     values = {k: v for k, v in scaled.result_.values().items() if v is not None}
     identifier.warm_start({**{k: v for k, v in values.items() if k != 'R_m'},
                            **{fe: _effect_value(scaled.result_.effects, fe) for fe in free}})
-    return {'linear_first': True, 'K_T_held': held,
-            'ranges': {k: list(v) for k, v in ranges.items()},
-            'note': 'each effect parameter searched on the scale of this record (its '
-                    "catalogue search range at the linear fit's torque, speed and input "
-                    'scales) by the GA from the linear fit'
-                    + (', K_T held at its particular value (speed alone cannot tell it), '
-                       'then refined with K_T free' if held else '')}
+    return EffectSearch(
+        linear_first=True, K_T_held=held,
+        ranges={k: (float(v[0]), float(v[1])) for k, v in ranges.items()},
+        note='each effect parameter searched on the scale of this record (its catalogue '
+             "search range at the linear fit's torque, speed and input scales) by the GA "
+             'from the linear fit' + (', K_T held at its particular value (speed alone '
+                                      'cannot tell it), then refined with K_T free'
+                                      if held else ''))
 
 
 def aliased_poles(result: IdentificationResult, sample_period: float) -> float | None:
@@ -218,7 +271,7 @@ def aliased_poles(result: IdentificationResult, sample_period: float) -> float |
 
 
 def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
-                ) -> dict[str, Any] | None:
+                ) -> AliasGuard | None:
     """Refit a speed-only fit whose poles alias (:func:`aliased_poles`) with the
     electrical time constant below half a sample period (where speed cannot see it).
 
@@ -229,7 +282,7 @@ def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
 
     Returns
     -------
-    dict or None
+    AliasGuard or None
         The report's ``alias_guard`` block; None when the poles do not alias.
     """
     T = rec.sample_period
@@ -246,20 +299,18 @@ def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
         refit.fit(rec)
     before = identifier.result_.fit.channels['speed'].fit_percent
     after = refit.result_.fit.channels['speed'].fit_percent
-    out = {'aliased_pair_hz': hz, 'nyquist_hz': 0.5 / T, 'fit_percent': before,
-           'refit_fit_percent': after,
-           'L_m_bounds': list((refit.settings.bounds or {})['L_m'])}
+    lo, hi = (refit.settings.bounds or {})['L_m']
     if after >= before - 0.05 and aliased_poles(refit.result_, T) is None:
         identifier.__dict__.update({k: v for k, v in refit.__dict__.items()
                                     if k.endswith('_')})
-        out['kept'] = 'refit'
+        kept = 'refit'
         identifier.result_.warnings.append(
             f'the first fit had oscillatory poles at {hz:.3g} Hz, above the Nyquist '
             f'frequency {0.5 / T:.3g} Hz of the samples (an alias of a slow real pole); '
             'refitted with the electrical time constant L_m/R_m below half a sample '
             f'period: speed fit {after:.2f} % (was {before:.2f} %)')
     else:
-        out['kept'] = 'first fit'
+        kept = 'first fit'
         identifier.result_.identifiable_combinations = [
             replace(c, determined=False, note='the fitted poles alias at this sample period')
             if c.name == 'kA' else c for c in identifier.result_.identifiable_combinations]
@@ -267,7 +318,8 @@ def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
             f'the fitted poles oscillate at {hz:.3g} Hz, above the Nyquist frequency '
             f'{0.5 / T:.3g} Hz of the samples: they alias, and kA is not to be trusted '
             '(record at a shorter loop period)')
-    return out
+    return AliasGuard(aliased_pair_hz=hz, nyquist_hz=0.5 / T, fit_percent=before,
+                      refit_fit_percent=after, L_m_bounds=(lo, hi), kept=kept)
 
 
 def _effect_value(effects: Mapping[str, Any], key: str) -> float:
@@ -331,11 +383,9 @@ def fit_report(rec: Recording, identifier: Identifier, *,
     identifier.fit(rec, progress=progress)
     guard = alias_guard(rec, identifier, given)
     res = with_gravity(identifier, rec, mechanism).result_
-    extra = {**dict(extra or {}), **({'effect_search': search} if search else {}),
-             **({'alias_guard': guard} if guard else {})}
     block = data_block(rec, **dict(data or {}))
     period = sample_period if sample_period is not None else rec.sample_period
-    design, error, text = controller_for(res, bool(block.get('linear', False)), period,
-                                         controller_options)
+    design, error, text = controller_for(res, block.linear, period, controller_options)
     return FitReport(result=res, data=block, design=design, controller_error=error,
-                     controller_summary=text, extra=dict(extra or {}))
+                     controller_summary=text, extra=dict(extra or {}), effect_search=search,
+                     alias_guard=guard)
