@@ -41,7 +41,7 @@ import json, sys, time
 from motor_id.data.load import load_recording
 from motor_id.identify import Identifier
 from motor_id import simulate
-warm = simulate.warm_up() if sys.argv[2] == 'warm' else None
+warm = simulate.warm_up().to_dict() if sys.argv[2] == 'warm' else None
 rec = load_recording(sys.argv[1])
 stamps = []
 def progress(gen, gens, best):

@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from motor_id.errors import ConfigError, DataError
 from motor_id.ga import Bounds, GeneticAlgorithm
+from motor_id.records import Record
 
 
 @dataclass
@@ -44,8 +45,8 @@ class ElmanWeights:
             x = self.W_xc @ x + self.W_xu * u[k]
         return y
 
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
+    def to_dict(self) -> dict[str, list[float] | list[list[float]]]:
+        """JSON-ready: the weight matrices as nested lists."""
         return {'W_xc': self.W_xc.tolist(), 'W_xu': self.W_xu.tolist(),
                 'W_yx': self.W_yx.tolist()}
 
@@ -84,9 +85,9 @@ def _arx(u: np.ndarray, y: np.ndarray, n: int) -> np.ndarray:
     return theta
 
 
-@dataclass
-class OrderEvidence:
-    """Evidence for one net order."""
+@dataclass(frozen=True)
+class OrderEvidence(Record):
+    """Evidence for one net order (``to_dict()``: these keys in this order)."""
 
     order: int
     n_params: int
@@ -94,13 +95,7 @@ class OrderEvidence:
     validation_rmse: float
     aic: float
     bic: float
-    weights: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready."""
-        return {'order': self.order, 'n_params': self.n_params,
-                'train_rmse': self.train_rmse, 'validation_rmse': self.validation_rmse,
-                'aic': self.aic, 'bic': self.bic, 'weights': self.weights}
+    weights: dict[str, list[float] | list[list[float]]] = field(default_factory=dict)
 
 
 class FreeElmanOrderSelection:

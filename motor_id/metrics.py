@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import math
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -52,8 +51,22 @@ def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
     return np.array([np.dot(a[:n - k], b[k:]) / den for k in range(max_lag + 1)])
 
 
+@dataclass(frozen=True)
+class ResidualTests(Record):
+    """Whiteness and independence of a residual sequence (:func:`residual_diagnostics`)."""
+
+    max_lag: int
+    band: float
+    autocorrelation: list[float]
+    cross_correlation: list[float]
+    autocorrelation_outside: float
+    cross_correlation_outside: float
+    white: bool
+    independent: bool
+
+
 def residual_diagnostics(residual: ArrayLike, u: np.ndarray, max_lag: int = 25
-                         ) -> dict[str, Any]:
+                         ) -> ResidualTests:
     """Whiteness and independence tests of a residual sequence.
 
     Parameters
@@ -66,7 +79,7 @@ def residual_diagnostics(residual: ArrayLike, u: np.ndarray, max_lag: int = 25
 
     Returns
     -------
-    dict
+    ResidualTests
         ``autocorrelation`` (lags 1..max_lag), ``cross_correlation`` with the input
         (lags 0..max_lag), the 99 % confidence ``band`` (2.58/sqrt(N)), and the share
         of lags outside the band for each (``*_outside``); ``white`` / ``independent``
@@ -79,10 +92,10 @@ def residual_diagnostics(residual: ArrayLike, u: np.ndarray, max_lag: int = 25
     cc = correlation(u, e, max_lag)
     ac_out = float(np.mean(np.abs(ac) > band))
     cc_out = float(np.mean(np.abs(cc) > band))
-    return {'max_lag': max_lag, 'band': float(band),
-            'autocorrelation': ac.tolist(), 'cross_correlation': cc.tolist(),
-            'autocorrelation_outside': ac_out, 'cross_correlation_outside': cc_out,
-            'white': ac_out <= 0.05, 'independent': cc_out <= 0.05}
+    return ResidualTests(max_lag=max_lag, band=float(band), autocorrelation=ac.tolist(),
+                         cross_correlation=cc.tolist(), autocorrelation_outside=ac_out,
+                         cross_correlation_outside=cc_out, white=ac_out <= 0.05,
+                         independent=cc_out <= 0.05)
 
 
 def channel_metrics(y: ArrayLike, y_hat: ArrayLike, u: np.ndarray, max_lag: int = 25
@@ -90,9 +103,14 @@ def channel_metrics(y: ArrayLike, y_hat: ArrayLike, u: np.ndarray, max_lag: int 
     """Fit %, RMS error and residual diagnostics of one output channel."""
     y = np.asarray(y, dtype=float)
     e = y - np.asarray(y_hat, dtype=float)
+    d = residual_diagnostics(e, u, max_lag)
     return ChannelFit(fit_percent=normalised_fit(y, y_hat),
                       rms=float(np.sqrt(np.mean(e * e))), n_samples=int(y.size),
-                      **residual_diagnostics(e, u, max_lag))
+                      max_lag=d.max_lag, band=d.band, autocorrelation=d.autocorrelation,
+                      cross_correlation=d.cross_correlation,
+                      autocorrelation_outside=d.autocorrelation_outside,
+                      cross_correlation_outside=d.cross_correlation_outside, white=d.white,
+                      independent=d.independent)
 
 
 def noise_floor(y: ArrayLike) -> float:

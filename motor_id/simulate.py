@@ -23,6 +23,7 @@ from numpy.typing import ArrayLike
 from motor_id.effects import as_batch, EFFECTS, FRICTION_COLUMNS, validate_effects
 from motor_id.errors import ConfigError
 from motor_id.model import continuous_matrices, discretize, interval_integrals, Plant
+from motor_id.records import Record
 from motor_id.simulate_kernels import (
     _kernel,
     _linear2_kernel,
@@ -39,7 +40,17 @@ if TYPE_CHECKING:
 REGULAR_RTOL = 1e-6
 
 
-def warm_up() -> dict[str, Any]:
+@dataclass(frozen=True)
+class WarmUp(Record):
+    """What :func:`warm_up` did."""
+
+    seconds: float
+    compiled: int
+    kernels: int
+    cache_dir: str
+
+
+def warm_up() -> WarmUp:
     """Load (the first time ever: compile) every simulation kernel, before a fit needs it.
 
     Without it the first simulation of a process pays for numba's import and type-system
@@ -49,10 +60,10 @@ def warm_up() -> dict[str, Any]:
 
     Returns
     -------
-    dict
-        ``'seconds'``: wall time of this call [s]; ``'compiled'``: kernels that had to
-        be compiled now (0 when numba's cache served them all); ``'kernels'``: compiled
-        kernel signatures now ready in this process; ``'cache_dir'``: numba's cache
+    WarmUp
+        ``seconds``: wall time of this call [s]; ``'compiled'``: kernels that had to
+        be compiled now (0 when numba's cache served them all); ``kernels``: compiled
+        kernel signatures now ready in this process; ``cache_dir``: numba's cache
         directory for the kernels' module.
 
     Notes
@@ -68,9 +79,9 @@ def warm_up() -> dict[str, Any]:
     t0 = time.perf_counter()
     ready: list[Any] = [loaded(f) for f in KERNELS]
     if all(d is not None and d.signatures for d in ready):  # done before: nothing to load
-        return {'seconds': time.perf_counter() - t0, 'compiled': 0,
-                'kernels': sum(len(d.signatures) for d in ready),
-                'cache_dir': ready[0].stats.cache_path}
+        return WarmUp(seconds=time.perf_counter() - t0, compiled=0,
+                      kernels=sum(len(d.signatures) for d in ready),
+                      cache_dir=str(ready[0].stats.cache_path))
     from numba.core import event
 
     p = {'J': 0.05, 'K_T': 0.5, 'K_b': 0.5, 'B': 1e-3, 'L_m': 0.01, 'R_m': 2.0}
@@ -84,9 +95,9 @@ def warm_up() -> dict[str, Any]:
     ours = {id(compiled(f)) for f in KERNELS}
     fresh = sum(1 for _, ev in recorder.buffer  # (time, event) pairs
                 if ev.is_start and id(ev.data['dispatcher']) in ours)
-    return {'seconds': time.perf_counter() - t0, 'compiled': fresh,
-            'kernels': sum(len(compiled(f).signatures) for f in KERNELS),
-            'cache_dir': compiled(_kernel).stats.cache_path}
+    return WarmUp(seconds=time.perf_counter() - t0, compiled=fresh,
+                  kernels=sum(len(compiled(f).signatures) for f in KERNELS),
+                  cache_dir=str(compiled(_kernel).stats.cache_path))
 
 
 def interval_table(t: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +143,8 @@ the whole record."""
 
 
 def split_input_maps(effects: Mapping[str, Mapping[str, ArrayLike]]
-                     ) -> tuple[dict[str, Any], dict[str, Any]]:
+                     ) -> tuple[dict[str, Mapping[str, ArrayLike]],
+                                dict[str, Mapping[str, ArrayLike]]]:
     """``effects`` as ``(input maps, the rest)``."""
     maps = {e: v for e, v in effects.items() if e in INPUT_MAPS}
     return maps, {e: v for e, v in effects.items() if e not in INPUT_MAPS}

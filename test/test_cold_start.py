@@ -7,7 +7,8 @@ import sys
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-WARM_UP = 'import json; from motor_id import simulate; print(json.dumps(simulate.warm_up()))'
+WARM_UP = ('import json; from motor_id import simulate; '
+           'print(json.dumps(simulate.warm_up().to_dict()))')
 
 
 def _fresh(code, **env):
@@ -52,7 +53,7 @@ def test_warm_up_in_process_reports_ready_kernels():
 
     first = simulate.warm_up()
     again = simulate.warm_up()
-    assert first['kernels'] == again['kernels'] == 4
-    assert again['compiled'] == 0
-    assert again['seconds'] >= 0.0 and set(again) == {'seconds', 'compiled', 'kernels',
-                                                      'cache_dir'}
+    assert first.kernels == again.kernels == 4
+    assert again.compiled == 0
+    assert again.seconds >= 0.0 and list(again.to_dict()) == ['seconds', 'compiled',
+                                                              'kernels', 'cache_dir']

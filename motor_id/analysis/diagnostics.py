@@ -186,8 +186,8 @@ def _residual_test(r: np.ndarray, u: np.ndarray, full: bool) -> ResidualTest:
     band and the correlations."""
     dd = residual_diagnostics(r, u)
     return ResidualTest(
-        autocorrelation_outside=dd['autocorrelation_outside'],
-        cross_correlation_outside=dd['cross_correlation_outside'], white=dd['white'],
-        independent=dd['independent'], band=dd['band'] if full else None,
-        autocorrelation=dd['autocorrelation'] if full else None,
-        cross_correlation=dd['cross_correlation'] if full else None)
+        autocorrelation_outside=dd.autocorrelation_outside,
+        cross_correlation_outside=dd.cross_correlation_outside, white=dd.white,
+        independent=dd.independent, band=dd.band if full else None,
+        autocorrelation=dd.autocorrelation if full else None,
+        cross_correlation=dd.cross_correlation if full else None)

@@ -149,9 +149,9 @@ def model_effects(rec: Recording, items: list[str]) -> dict[str, dict[str, float
     return parse_effect_args(items)
 
 
-def controller_options(args: argparse.Namespace, input_kind: str) -> dict[str, Any]:
+def controller_options(args: argparse.Namespace, input_kind: str) -> dict[str, float]:
     """The controller design's loop bandwidths the options ask for."""
-    kw: dict[str, Any] = {}
+    kw: dict[str, float] = {}
     if getattr(args, 'current_bandwidth', None) is not None and input_kind == 'voltage':
         kw['current_bandwidth_hz'] = args.current_bandwidth
     if getattr(args, 'speed_bandwidth', None) is not None:

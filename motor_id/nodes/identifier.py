@@ -244,7 +244,7 @@ class IdentifierNode(Node):
             self.get_logger().warning(f'warm-up fit: {exc}')
         self.get_logger().info(
             f'warmed up in {time.perf_counter() - started:.2f} s (kernels '
-            f'{kernels["seconds"]:.2f} s, {kernels["compiled"]} compiled; a tiny fit)')
+            f'{kernels.seconds:.2f} s, {kernels.compiled} compiled; a tiny fit)')
 
     # ------------------------------------------------------------- callbacks
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
@@ -278,7 +278,7 @@ class IdentifierNode(Node):
 
     def _publish_diagnostics(self) -> None:
         snap_rows = len(self.buffer)
-        values: dict[str, Any] = {
+        values: dict[str, messages.DiagnosticValue] = {
             'rows': snap_rows, 'received': self.buffer.received,
             'duplicates': self.buffer.duplicates, 'gaps': self.buffer.gaps,
             'malformed_messages': self._bad_messages, 'fits_ok': self._fits['ok'],

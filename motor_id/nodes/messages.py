@@ -144,7 +144,12 @@ def _fmt(value: Any) -> str:
     return str(value)
 
 
-def status(name: str, level: int, message: str, values: Mapping[str, Any] | None = None,
+DiagnosticValue = int | float | bool | str | None
+"""A diagnostic key's value (written as its string)."""
+
+
+def status(name: str, level: int, message: str,
+           values: Mapping[str, DiagnosticValue] | None = None,
            hardware_id: str = '') -> DiagnosticStatus:
     """One ``diagnostic_msgs/DiagnosticStatus`` with string key/values."""
     st = DiagnosticStatus(level=level, name=name, message=str(message),
@@ -161,14 +166,14 @@ def diagnostic_array(stamp: Any, statuses: Iterable[DiagnosticStatus]) -> Diagno
     return msg
 
 
-def estimate_values(report: Mapping[str, Any]) -> dict[str, Any]:
+def estimate_values(report: Mapping[str, Any]) -> dict[str, DiagnosticValue]:
     """Flatten a fit report dict into ordered key/values.
 
     Keys are ``NAME``, ``NAME_std``, ``NAME_unit`` (SI, from
     :data:`motor_id.contracts.UNITS`), ``NAME_determined`` for each parameter, then
     ``fit_percent_<channel>``, ``method`` and ``samples`` when present.
     """
-    values = {}
+    values: dict[str, DiagnosticValue] = {}
     units = units_of(report.get('input_kind', 'voltage'))
     for name, p in report.get('parameters', {}).items():
         values[name] = p.get('value')

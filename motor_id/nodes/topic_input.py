@@ -5,6 +5,7 @@ import math
 from typing import Any, cast
 
 from rclpy.node import Node
+from rclpy.subscription import Subscription
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
@@ -49,7 +50,7 @@ class TopicInput:
         self.origin: float | None = None
         self.index: int | None = None
         self._warned: set[str] = set()
-        self.subscriptions: dict[str, Any] = {}
+        self.subscriptions: dict[str, Subscription] = {}
         self.watches = [TopicWatch(node, messages.JOINT_STATES_TOPIC,
                                    messages.TYPE_NAMES[JointState],
                                    lambda eps: self._subscribe('joint', eps))]
@@ -127,7 +128,7 @@ class TopicInput:
         if len(rows):
             self.buffer.extend(rows)
 
-    def counts(self) -> dict[str, Any]:
+    def counts(self) -> dict[str, int | str]:
         """Counters for the diagnostics."""
         return {'dropped_no_command': self.aligner.dropped_no_command,
                 'dropped_out_of_order': self.aligner.dropped_out_of_order,
