@@ -51,6 +51,8 @@ CHANNEL_COLUMNS = dict(zip(CHANNEL_TOPICS, (INPUT, SPEED, CURRENT), strict=True)
 JOINT_STATES_TOPIC = 'joint_states'
 VOLTAGE_COMMAND_TOPIC = 'voltage_command'
 DIAGNOSTICS_TOPIC = '/diagnostics'
+DiagnosticValue = str | int | float | bool | None
+"""A value of a diagnostic key/value pair (sent as text in ``diagnostic_msgs/KeyValue``)."""
 ESTIMATE_TOPIC = 'estimate'
 REPORT_TOPIC = 'report'
 # The same topics as a bag records them (absolute names).

@@ -85,7 +85,8 @@ def test_speed_only_stage_reports_what_the_data_determine(tmp_path, seed):
     """From a start 30 % off, the stage's kS, kV, kA cover the generator's within 3 error
     bars; J, K_T, K_b, B, L_m are reported as not determined (no error bar)."""
     rec, truth = _log(tmp_path, seed, hold=4, jitter=0.2, kS=0.4, noise=0.004)
-    ff = {k: truth[k] for k in ('kS', 'kV', 'kA')}   # SI (the log is in radians)
+    # SI (the log is in radians)
+    ff = {k: getattr(truth.feedforward, k) for k in ('kS', 'kV', 'kA')}
     start = SavedModel('voltage', {'J': 1.3 * MOTOR.J, 'K_T': 0.8 * MOTOR.K,
                                    'K_b': 1.2 * MOTOR.K, 'B': 1.3 * MOTOR.B,
                                    'L_m': 3 * MOTOR.L, 'R_m': MOTOR.R},

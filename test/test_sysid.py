@@ -79,7 +79,7 @@ def test_reader_converts_rotations_to_si_and_keeps_the_four_runs(tmp_path, units
     rows = {name: np.array(log.data[name]) for name in TESTS}
     assert rec.meta['segment_names'] == list(TESTS)
     assert [b - a for a, b in rec.segment_ranges] == [rows[n].shape[0] for n in TESTS]
-    si_per_raw = log.truth['si_per_raw']   # the generator's own unit table
+    si_per_raw = log.truth.si_per_raw   # the generator's own unit table
     for name, (a, b) in zip(TESTS, rec.segment_ranges, strict=True):
         r = rows[name]
         np.testing.assert_array_equal(rec.input[a:b], r[:, 1])
@@ -93,8 +93,8 @@ def test_reader_converts_rotations_to_si_and_keeps_the_four_runs(tmp_path, units
     assert info['units'] == units and info['test'] == 'Simple' and info['joint'] is None
     assert info['unitsPerRotation'] == pytest.approx(UNITS_PER_ROTATION[units], rel=1e-15)
     # a gain per SI unit of speed, in the log's units
-    assert log.truth['kV'] / info['si_to_units'] == pytest.approx(log.truth['kV_log'],
-                                                                  rel=1e-12)
+    side = log.truth.feedforward
+    assert side.kV / info['si_to_units'] == pytest.approx(side.kV_log, rel=1e-12)
     linear = units in ('Meters', 'Feet', 'Inches')
     assert rec.meta['units']['speed'] == ('m/s' if linear else 'rad/s')
 
@@ -103,7 +103,7 @@ def test_reader_reads_each_side_of_a_drivetrain_log(tmp_path):
     log = make_sysid_log(4, test='Drivetrain', units='Meters', kS=0.1, kS_right=0.3,
                          **SHORT)
     path = log.write(tmp_path / 'dt.json')
-    scale = log.truth['si_per_raw']
+    scale = log.truth.si_per_raw
     left, right = load_sysid(path, 'left'), load_sysid(path, joint='RIGHT')
     for rec, iv, ip, iw in ((left, 1, 3, 5), (right, 2, 4, 6)):
         r = np.concatenate([np.array(log.data[n]) for n in TESTS])
@@ -307,12 +307,12 @@ def test_fit_recovers_the_feedforward_constants(clean_log, tmp_path):
     ff = report['controller']['feedforward']
     kV, kA = ff['kV']['value'], ff['kA']['value']
     t = log.truth
-    assert kV == pytest.approx(t['kV'], rel=0.01) and ff['kV']['std'] < 0.01 * kV
-    assert kA == pytest.approx(t['kA'], rel=0.03) and ff['kA']['std'] < 0.03 * kA
+    assert kV == pytest.approx(t.feedforward.kV, rel=0.01) and ff['kV']['std'] < 0.01 * kV
+    assert kA == pytest.approx(t.feedforward.kA, rel=0.03) and ff['kA']['std'] < 0.03 * kA
     kS, kV_model, kA_model = first_order_gains(SavedModel.from_report(report))
     assert (kV_model, kA_model) == pytest.approx((kV, kA), rel=1e-6)
     # kS = T_c R_m / K_T is determined too (T_c / K_T is), from the saved model
-    assert kS == pytest.approx(t['kS'], rel=0.05)
+    assert kS == pytest.approx(t.feedforward.kS, rel=0.05)
     # the model explains each test when simulated from the input alone
     val = tmp_path / 'val.json'
     motor_id('validate', js, path, '--json', val)
@@ -325,12 +325,12 @@ def test_fit_on_a_log_with_latency_and_held_readings(real_like_log, tmp_path):
     motor_id('fit', path, '-R', '0.5', '--effect', 'coulomb_friction', '--json', js, '-q')
     kS, kV, kA = first_order_gains(SavedModel.from_report(json.loads(js.read_text())))
     t = log.truth
-    assert kV == pytest.approx(t['kV'], rel=0.02)    # the steady state is unaffected
-    assert kS == pytest.approx(t['kS'], rel=0.15)
+    assert kV == pytest.approx(t.feedforward.kV, rel=0.02)    # the steady state is unaffected
+    assert kS == pytest.approx(t.feedforward.kS, rel=0.15)
     # without a delay term the model takes the latency and the held readings into its
     # dynamics; their low-frequency equivalent adds at most kV x (delay + hold period)
-    lag = t['latency'] + t['hold'] * t['sample_period']
-    assert 0.95 * t['kA'] <= kA <= t['kA'] + 1.1 * t['kV'] * lag
+    lag = t.latency + t.hold * t.sample_period
+    assert 0.95 * t.feedforward.kA <= kA <= t.feedforward.kA + 1.1 * t.feedforward.kV * lag
 
 
 @pytest.mark.slow   # the discrepancy analysis: about 20 s
@@ -357,10 +357,10 @@ def test_sysid_ols_recovers_a_clean_motor(clean_log):
     prep = prepare(load_sysid(path))
     t = log.truth
     acc = fit_acceleration(prep)
-    assert (acc.kS, acc.kV, acc.kA) == pytest.approx((t['kS'], t['kV'], t['kA']), rel=0.02)
+    true = (t.feedforward.kS, t.feedforward.kV, t.feedforward.kA)
+    assert (acc.kS, acc.kV, acc.kA) == pytest.approx(true, rel=0.02)
     disc = fit_discrete(prep)
-    assert (disc.kS, disc.kV, disc.kA) == pytest.approx((t['kS'], t['kV'], t['kA']),
-                                                        rel=0.03)
+    assert (disc.kS, disc.kV, disc.kA) == pytest.approx(true, rel=0.03)
     assert acc.r_squared > 0.9 and disc.r_squared > 0.99   # a differentiated speed is noisy
     rows = prep.rows()
     assert set(rows) == set(TESTS) and all(n > 100 for n in rows.values())

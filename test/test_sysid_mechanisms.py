@@ -68,12 +68,12 @@ def feedforward(report):
 def check_arm(ff, truth):
     """The issue's targets: kG 10 %, offset 0.1 rad, kV 10 %, kS 0.1 V, kA 30 % or not
     determined; each with an error bar and a unit."""
-    np.testing.assert_allclose(ff['kG']['value'], truth['kG'], rtol=0.10)
-    np.testing.assert_allclose(ff['offset']['value'], truth['offset'], atol=0.1)
-    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.10)
-    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.1)
+    np.testing.assert_allclose(ff['kG']['value'], truth.kG, rtol=0.10)
+    np.testing.assert_allclose(ff['offset']['value'], truth.offset, atol=0.1)
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.10)
+    np.testing.assert_allclose(ff['kS']['value'], truth.kS, atol=0.1)
     if ff['kA']['value'] is not None:
-        np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.30)
+        np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.30)
     for k in ('kG', 'offset', 'kV', 'kS'):
         assert ff[k]['std'] > 0
     assert (ff['kG']['unit'], ff['offset']['unit']) == ('V', 'rad')
@@ -86,7 +86,7 @@ def test_the_generated_arm_hangs_and_lifts(arm):
         np.testing.assert_allclose(rec.position[a] + OFFSET, -math.pi / 2, atol=1e-9)
     a, b = rec.segment_ranges[0]      # the ramp lifts it to near horizontal, not over
     assert -0.5 < rec.position[b - 1] + OFFSET < 1.0
-    assert arm.truth['motors']['arm']['kG'] == pytest.approx(KG, rel=1e-12)
+    assert arm.truth.motors['arm'].kG == pytest.approx(KG, rel=1e-12)
 
 
 def test_fit_of_an_arm_routine(arm, tmp_path, capsys):
@@ -94,7 +94,7 @@ def test_fit_of_an_arm_routine(arm, tmp_path, capsys):
     assert main(['fit', arm.path, '--mechanism', 'arm', '-q', '--json', str(out)]) == 0
     capsys.readouterr()
     report = json.loads(out.read_text())
-    check_arm(feedforward(report), arm.truth['motors']['arm'])
+    check_arm(feedforward(report), arm.truth.motors['arm'])
 
 
 def test_analyze_of_an_arm_routine(arm, tmp_path, capsys):
@@ -102,7 +102,7 @@ def test_analyze_of_an_arm_routine(arm, tmp_path, capsys):
     assert main(['analyze', arm.path, '--mechanism', 'arm', '-q', '--json', str(out)]) == 0
     text = capsys.readouterr().out
     report = json.loads(out.read_text())
-    check_arm(feedforward(report), arm.truth['motors']['arm'])
+    check_arm(feedforward(report), arm.truth.motors['arm'])
     assert [r['name'] for r in report['runs']] == list(ROUTINE)
     assert all(r['channels']['speed']['fit_percent'] > 90 for r in report['runs'])
     assert 'kG' in text and 'offset' in text
@@ -126,7 +126,7 @@ def test_a_json_arm_log_fits_as_an_arm(arm, tmp_path, capsys):
     out = tmp_path / 'fit.json'
     assert main(['fit', str(path), '-q', '--json', str(out)]) == 0
     assert "mechanism: arm (the log's test" in capsys.readouterr().err
-    check_arm(feedforward(json.loads(out.read_text())), arm.truth['motors']['arm'])
+    check_arm(feedforward(json.loads(out.read_text())), arm.truth.motors['arm'])
     # --mechanism overrides the log: an arm fitted as a simple mechanism has no kG
     assert main(['fit', str(path), '-q', '--mechanism', 'simple', '--json', str(out)]) == 0
     assert 'kG' not in feedforward(json.loads(out.read_text()))
@@ -143,21 +143,21 @@ def test_analyze_of_a_flywheel_routine(tmp_path, capsys):
     assert main(['analyze', log.path, '-q', '--json', str(out)]) == 0
     capsys.readouterr()
     ff = feedforward(json.loads(out.read_text()))
-    truth = log.truth['motors']['flywheel']
-    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.05)
-    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.03)
+    truth = log.truth.motors['flywheel']
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.05)
+    np.testing.assert_allclose(ff['kS']['value'], truth.kS, atol=0.03)
     if ff['kA']['value'] is not None:
-        np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.30)
+        np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.30)
 
 
 def check_elevator(ff, truth):
     """The issue's targets for an elevator: kG 10 %, kS 0.1 V, kV 10 %, kA 30 % or not
     determined; per metre."""
-    np.testing.assert_allclose(ff['kG']['value'], truth['kG'], rtol=0.10)
-    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.1)
-    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.10)
+    np.testing.assert_allclose(ff['kG']['value'], truth.kG, rtol=0.10)
+    np.testing.assert_allclose(ff['kS']['value'], truth.kS, atol=0.1)
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.10)
     if ff['kA']['value'] is not None:
-        np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.30)
+        np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.30)
     assert (ff['kG']['unit'], ff['kV']['unit'], ff['kA']['unit']) == ('V', 'V s/m', 'V s^2/m')
     assert ff['kG']['std'] > 0 and ff['kS']['std'] > 0
 
@@ -167,7 +167,7 @@ def test_the_generated_elevator_falls_when_undriven(elevator):
     assert rec.meta['segment_names'] == list(ROUTINE)
     a, b = rec.segment_ranges[0]   # the ramp starts below kG - kS: the carriage falls first
     assert rec.speed[a + 10] < -0.01 and rec.speed[b - 1] > 0.01
-    assert elevator.truth['motors']['elevator']['kG'] == pytest.approx(EL_KG, rel=1e-12)
+    assert elevator.truth.motors['elevator'].kG == pytest.approx(EL_KG, rel=1e-12)
 
 
 def test_fit_of_an_elevator_routine(elevator, tmp_path, capsys):
@@ -179,7 +179,7 @@ def test_fit_of_an_elevator_routine(elevator, tmp_path, capsys):
                  str(out)]) == 0
     capsys.readouterr()
     report = json.loads(out.read_text())
-    check_elevator(feedforward(report), elevator.truth['motors']['elevator'])
+    check_elevator(feedforward(report), elevator.truth.motors['elevator'])
     assert report['fit']['channels']['speed']['fit_percent'] > 95
 
 
@@ -191,5 +191,5 @@ def test_analyze_of_an_elevator_routine(elevator, tmp_path, capsys):
                  str(out)]) == 0
     capsys.readouterr()
     report = json.loads(out.read_text())
-    check_elevator(feedforward(report), elevator.truth['motors']['elevator'])
+    check_elevator(feedforward(report), elevator.truth.motors['elevator'])
     assert all(r['channels']['speed']['fit_percent'] > 90 for r in report['runs'])

@@ -292,9 +292,9 @@ def test_fit_reads_a_wpilog_and_recovers_kv_ka(tmp_path):
     proc = _cli('fit', log.path, '-R', '0.5', '--json', out, '-q')
     assert proc.returncode == 0, proc.stderr
     ff = json.loads(out.read_text())['controller']['feedforward']
-    truth = log.truth['motors']['flywheel']
-    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.02)
-    np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.1)
+    truth = log.truth.motors['flywheel']
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.02)
+    np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.1)
 
 
 def test_validate_scores_each_test_by_name(tmp_path):
@@ -359,11 +359,11 @@ def test_fit_of_a_sysid_log_reports_ks(friction_logs, tmp_path, period):
     assert 'overflow' not in proc.stderr
     report = json.loads(out.read_text())
     assert report['adequate'] and 'coulomb_friction' in report['effects']
-    truth = log.truth['motors']['lift']
+    truth = log.truth.motors['lift']
     ff = report['controller']['feedforward']
-    np.testing.assert_allclose(ff['kS']['value'], truth['kS'], atol=0.01)
-    np.testing.assert_allclose(ff['kV']['value'], truth['kV'], rtol=0.01)
-    np.testing.assert_allclose(ff['kA']['value'], truth['kA'], rtol=0.05)
+    np.testing.assert_allclose(ff['kS']['value'], truth.kS, atol=0.01)
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.01)
+    np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.05)
     assert ff['kS']['std'] > 0 and ff['kS']['unit'] == 'V'
     if 'alias_guard' in report:   # a first fit aliased a pole pair onto the 50 ms lag
         assert report['alias_guard']['kept'] == 'refit'

@@ -9,7 +9,7 @@ and no footer; :func:`motor_id.bag.recover` salvages every complete chunk into a
 file. (A power cut can lose more: the writer does not fsync.)
 """
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 import json
@@ -50,6 +50,7 @@ from motor_id.contracts import (
     BATCH_LABEL,
     CHANNEL_TOPICS,
     channel_units,
+    DiagnosticValue,
     POSITION_LABEL,
     SAMPLE_COLUMNS,
     SAMPLES_LABEL,
@@ -327,7 +328,7 @@ class BagWriter:
             raise ConfigError(f'bag metadata is not JSON-serialisable: {exc}') from exc
         self.write(BAG_META_TOPIC, STRING, {'data': text}, log_time_ns)
 
-    def write_estimate(self, values: dict[str, Any], log_time_ns: int,
+    def write_estimate(self, values: Mapping[str, DiagnosticValue], log_time_ns: int,
                        name: str = 'motor_id identifier', message: str = '', level: int = 0,
                        hardware_id: str = '', topic: str = BAG_ESTIMATE_TOPIC) -> None:
         """Write a DiagnosticArray with one status holding ``values`` as key/value strings.

@@ -9,7 +9,6 @@ from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 import math
-from typing import Any
 
 import numpy as np
 
@@ -92,7 +91,8 @@ class FaultConfig:
         (probabilities per frame), ``disconnect=EVERY[:DOWN]`` (wall-clock seconds) and
         ``current_spike=EVERY[:AMPS]`` (card seconds, amperes).
         """
-        values: dict[str, Any] = {}
+        values: dict[str, float] = {}
+        garbage_max = FaultConfig.garbage_max
         for item in items or ():
             name, _, value = item.partition('=')
             first, _, second = value.partition(':')
@@ -115,12 +115,12 @@ class FaultConfig:
                 elif name == 'garbage':
                     values['garbage'] = float(first)
                     if second:
-                        values['garbage_max'] = int(second)
+                        garbage_max = int(second)
                 else:
                     values[name] = float(first)
             except ValueError:
                 raise ConfigError(f'fault {item!r} needs a number, e.g. {name}=0.01') from None
-        return cls(**values)
+        return cls(garbage_max=garbage_max, **values)
 
 
 class FaultInjector:

@@ -12,7 +12,6 @@ from collections.abc import Callable
 import math
 import threading
 import time
-from typing import Any
 
 import serial
 
@@ -27,7 +26,7 @@ from motor_id.card.protocol import (
 from motor_id.card.sequence import SequenceTracker
 from motor_id.card.stream import FrameParser
 from motor_id.card.transport import open_transport, read_available, TransportError, write_all
-from motor_id.contracts import FLAG_STARTUP
+from motor_id.contracts import DiagnosticValue, FLAG_STARTUP
 from motor_id.errors import ConfigError, MotorIdError, ProtocolError
 
 GARBLED_BYTES = 4 * MAX_FRAME
@@ -344,18 +343,18 @@ class CardLink:
         self.fault('line_overload', self.capacity_warning)
 
     # ------------------------------------------------------------ diagnostics
-    def values(self) -> dict[str, Any]:
+    def values(self) -> dict[str, DiagnosticValue]:
         """Diagnostic key/values of the link (counters and state)."""
         tr = self.tracker
         bad = {k: v for k, v in sorted(self.counts.items()) if k.startswith('frame_')}
-        values = {'link': self.state, 'device': self.url,
-                  'frames_ok': self.counts['frames_ok'], 'frames_bad': sum(bad.values()),
-                  'garbage_bytes': self.parser.garbage_bytes, 'lost': tr.lost,
-                  'duplicates': tr.duplicates, 'late': tr.late, 'resets': tr.resets,
-                  'last_seq': tr.last, 'opens': self.counts['opened'],
-                  'device_lost': self.counts['lost_device'],
-                  'open_failures': self.counts['open_failed'],
-                  'commands_sent': self.counts['commands_sent']}
+        values: dict[str, DiagnosticValue] = {
+            'link': self.state, 'device': self.url, 'frames_ok': self.counts['frames_ok'],
+            'frames_bad': sum(bad.values()), 'garbage_bytes': self.parser.garbage_bytes,
+            'lost': tr.lost, 'duplicates': tr.duplicates, 'late': tr.late,
+            'resets': tr.resets, 'last_seq': tr.last, 'opens': self.counts['opened'],
+            'device_lost': self.counts['lost_device'],
+            'open_failures': self.counts['open_failed'],
+            'commands_sent': self.counts['commands_sent']}
         values.update(bad)
         if self.capacity_warning not in ('', 'ok', 'not checked'):
             values['line_overload'] = self.capacity_warning

@@ -15,7 +15,6 @@ while the card plays a profile on its own.
 
 from dataclasses import replace
 import time
-from typing import Any
 
 from motor_id.card.link import CardLink, LogFn
 from motor_id.card.profile import profile_samples
@@ -30,7 +29,7 @@ from motor_id.card.protocol import (
     Stop,
 )
 from motor_id.card.supervisor import Limits, Supervisor
-from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END
+from motor_id.contracts import DiagnosticValue, FLAG_PROFILE, FLAG_PROFILE_END
 from motor_id.errors import MotorIdError
 
 
@@ -336,7 +335,7 @@ class Session:
         except MotorIdError as exc:
             self.link.fault('command_failed', f'{type(command).__name__} not sent: {exc}')
 
-    def values(self) -> dict[str, Any]:
+    def values(self) -> dict[str, DiagnosticValue]:
         """Diagnostic key/values (the supervisor's and where profiles are played)."""
         values = self.supervisor.values()
         values['profile_source'] = 'card' if self.card_profiles else 'driver'

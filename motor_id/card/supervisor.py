@@ -19,12 +19,11 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 import math
 import time
-from typing import Any
 
 import numpy as np
 
 from motor_id.card.protocol import Command, Sample, SetVoltage, Stop
-from motor_id.contracts import channel_units, FLAG_LIMIT
+from motor_id.contracts import channel_units, DiagnosticValue, FLAG_LIMIT
 from motor_id.errors import ConfigError, MotorIdError
 
 _F32_EPS = float(np.finfo(np.float32).eps)
@@ -226,7 +225,7 @@ class Supervisor:
         self.watchdog_holding = False
         self._last_command = None
 
-    def values(self) -> dict[str, Any]:
+    def values(self) -> dict[str, DiagnosticValue]:
         """Diagnostic key/values."""
         trip = self.trip
         return {'limit_state': 'tripped' if trip else ('watchdog' if self.watchdog_holding

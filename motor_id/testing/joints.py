@@ -7,7 +7,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -30,7 +29,7 @@ class JointCase:
     recording: Recording
     truth: dict[str, float]
     """The true feedforward constants (kS, kV, kA, kG, offset) of the physics."""
-    effects: dict[str, Any]
+    effects: dict[str, dict[str, float]]
 
 
 def joint_case(mechanism: str, out: str | Path, seed: int = 0, *, T_g: float = 3.0,
@@ -70,7 +69,7 @@ def joint_case(mechanism: str, out: str | Path, seed: int = 0, *, T_g: float = 3
         motor = motor or ARM_MOTOR
         rest = -math.pi / 2.0 - offset
         lo, hi = travel or (-1.2, 1.2)
-        effects: dict[str, Any] = {'arm_gravity': gravity,
+        effects: dict[str, dict[str, float]] = {'arm_gravity': gravity,
                                    'hard_stops': {'low': rest + lo - 0.2,
                                                   'high': rest + hi + 0.2}}
         window = Travel(rest + lo, rest + hi)
@@ -120,7 +119,7 @@ def elevator_open_loop(seed: int = 0, *, T_g: float = 3.0, T_c: float = 0.2,
 
     rng = np.random.default_rng(seed)
     motor = motor or ELEVATOR_MOTOR
-    effects: dict[str, Any] = {'elevator_gravity': {'T_g': T_g}}
+    effects: dict[str, dict[str, float]] = {'elevator_gravity': {'T_g': T_g}}
     if T_c > 0:
         effects['coulomb_friction'] = {'T_c': T_c, 'T_s': T_c}
     hold = motor.R * T_g / motor.K

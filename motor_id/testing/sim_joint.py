@@ -19,7 +19,7 @@ instants on the way; each sample leaves ``latency`` later (:meth:`JointSim.due`)
 """
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 import json
 import math
 import os
@@ -57,7 +57,7 @@ class Mechanism:
 
     name: str
     motor: Motor
-    effects: Mapping[str, Any]
+    effects: Mapping[str, Mapping[str, float]]
     joint: str
     joints: tuple[str, ...]
     stops: tuple[float, float]
@@ -128,7 +128,7 @@ class SimConfig:
         return (low if self.stop_low is None else self.stop_low,
                 high if self.stop_high is None else self.stop_high)
 
-    def effects(self) -> dict[str, Any]:
+    def effects(self) -> dict[str, dict[str, float]]:
         """The physics' effects: the mechanism's, the arm's offset, the stops."""
         effects = {k: dict(v) for k, v in MECHANISMS[self.mechanism].effects.items()}
         if 'arm_gravity' in effects:
@@ -150,6 +150,27 @@ class Sample:
     effort: float
 
 
+@dataclass(frozen=True)
+class ReceivedCommand:
+    """A command the robot received: when, its values, and what was applied.
+
+    Attributes
+    ----------
+    time : float
+        Receive time, the epoch [s].
+    t : float
+        Receive time from the start [s].
+    values : list of float
+    applied : float or None
+        None: ignored.
+    """
+
+    time: float
+    t: float
+    values: list[float]
+    applied: float | None
+
+
 @dataclass
 class _Tally:
     """What the truth file reports besides the constants."""
@@ -157,7 +178,7 @@ class _Tally:
     low: float
     high: float
     samples: int = 0
-    commands: list[dict[str, Any]] = field(default_factory=list)
+    commands: list[ReceivedCommand] = field(default_factory=list)
 
 
 class JointSim:
@@ -245,8 +266,8 @@ class JointSim:
                        applied: float | None) -> None:
         """Keep a received command: its receive time (``now`` on the caller's clock,
         ``wall`` the epoch [s]), its values, what was applied (None: ignored)."""
-        self.tally.commands.append({'time': wall, 't': now - self.start,
-                                    'values': list(values), 'applied': applied})
+        self.tally.commands.append(ReceivedCommand(wall, now - self.start, list(values),
+                                                   applied))
 
     def truth(self) -> dict[str, Any]:
         """The JSON of the truth file (every constant with its unit)."""
@@ -256,7 +277,7 @@ class JointSim:
         units = truth_units(cfg.input_kind, mech.linear)
         pos_unit = 'm' if mech.linear else 'rad'
         low, high = cfg.stops()
-        commands = self.tally.commands
+        commands = [asdict(c) for c in self.tally.commands]
         return {
             'mechanism': mech.name, 'joint': mech.joint, 'input_kind': cfg.input_kind,
             'feedforward': {k: {'value': v, 'unit': units[k]} for k, v in ff.items()},

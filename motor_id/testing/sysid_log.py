@@ -21,7 +21,7 @@ inductance neglected) are ``kV = (K^2 + R B) / K``, ``kA = J R / K``, ``kS = T_c
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import json
 import math
 import os
@@ -31,8 +31,9 @@ import numpy as np
 
 from motor_id.testing.independent_physics import integrate, Motor
 
-__all__ = ['DEFAULT_MOTOR', 'feedforward', 'make_sysid_log', 'measure', 'SysIdLog', 'TESTS',
-           'routine_commands', 'Timing', 'UNITS_PER_ROTATION']
+__all__ = ['DEFAULT_MOTOR', 'feedforward', 'FeedforwardTruth', 'make_sysid_log', 'measure',
+           'SysIdLog', 'SysIdTruth', 'TESTS', 'routine_commands', 'Timing',
+           'UNITS_PER_ROTATION']
 
 TESTS = ('slow-forward', 'slow-backward', 'fast-forward', 'fast-backward')
 
@@ -54,6 +55,76 @@ def feedforward(motor: Motor, kS: float = 0.0) -> dict[str, float]:
             'kA': motor.J * motor.R / motor.K}
 
 
+@dataclass(frozen=True)
+class FeedforwardTruth:
+    """One motor's true feedforward constants.
+
+    Attributes
+    ----------
+    kS : float
+        [V]
+    kV, kA : float
+        SI: [V s/rad] and [V s^2/rad], or per m for linear units.
+    kV_log, kA_log : float
+        The same per position unit of the log.
+    motor : Motor
+        The nameplate behind them.
+    kG : float
+        A joint's gravity [V] (0: none).
+    offset : float
+        An arm's encoder offset [rad] (0: none).
+    """
+
+    kS: float  # noqa: N815 - kS, kV, kA, kG: WPILib's symbols
+    kV: float  # noqa: N815
+    kA: float  # noqa: N815
+    kV_log: float  # noqa: N815
+    kA_log: float  # noqa: N815
+    motor: Motor
+    kG: float = 0.0  # noqa: N815
+    offset: float = 0.0
+
+
+@dataclass(frozen=True)
+class SysIdTruth:
+    """The truth behind a generated SysId log (never in the data).
+
+    Attributes
+    ----------
+    seed : int
+    units : str
+        The log's position unit.
+    si_per_raw, si_per_unit : float
+        SI value of one raw encoder unit and of one log unit.
+    latency, start_latency : float
+        [s]
+    hold : int
+        Loops per sensor refresh.
+    jitter, sample_period : float
+        Relative loop jitter, loop period [s].
+    noise, speed_noise_std : float
+        Speed noise as a fraction of the no-load speed, and its std [rad/s or m/s].
+    feedforward : FeedforwardTruth
+        The motor's constants (a drivetrain's left side).
+    right : FeedforwardTruth or None
+        A drivetrain's right side.
+    """
+
+    seed: int
+    units: str
+    si_per_raw: float
+    si_per_unit: float
+    latency: float
+    start_latency: float
+    hold: int
+    jitter: float
+    sample_period: float
+    noise: float
+    speed_noise_std: float
+    feedforward: FeedforwardTruth
+    right: FeedforwardTruth | None = None
+
+
 @dataclass
 class SysIdLog:
     """A generated log: the JSON's top level and the truth behind it (never in the data).
@@ -61,14 +132,13 @@ class SysIdLog:
     Attributes
     ----------
     data : dict
-        ``{'sysid': True, 'test', 'units', 'unitsPerRotation', 'slow-forward', ...}``.
-    truth : dict
-        The feedforward constants in SI and in the log's units, the motor(s), the
-        latency, hold, jitter, noise and the seed.
+        The JSON document: ``{'sysid': True, 'test', 'units', 'unitsPerRotation',
+        'slow-forward', ...}``.
+    truth : SysIdTruth
     """
 
     data: dict[str, Any]
-    truth: dict[str, Any] = field(default_factory=dict)
+    truth: SysIdTruth
 
     def write(self, path: str | os.PathLike[str]) -> str:
         """Write :attr:`data` as JSON to ``path`` and return the path."""
@@ -262,21 +332,15 @@ def _rows(t: np.ndarray, cols: list[tuple[np.ndarray, np.ndarray, np.ndarray]], 
 
 
 def _truth(seed: int, sides: list[tuple[Motor, float]], units: str, si_per_raw: float,
-           timing: Timing, noise: float, w_noise: float) -> dict[str, Any]:
+           timing: Timing, noise: float, w_noise: float) -> SysIdTruth:
     """The constants behind the log, in SI and in the log's units."""
     si_per_unit = _SI_PER[units]
-    out: dict[str, Any] = {'seed': int(seed), 'units': units, 'si_per_raw': si_per_raw,
-                           'si_per_unit': si_per_unit, 'latency': timing.latency,
-                           'start_latency': timing.start_latency,
-                           'hold': timing.hold, 'jitter': timing.jitter,
-                           'sample_period': timing.sample_period, 'noise': noise,
-                           'speed_noise_std': w_noise}
-    for name, (m, ks) in zip(('left', 'right'), sides, strict=False):
+
+    def side(m: Motor, ks: float) -> FeedforwardTruth:
         ff = feedforward(m, ks)
-        side = {**ff, 'kV_log': ff['kV'] * si_per_unit, 'kA_log': ff['kA'] * si_per_unit,
-                'motor': m.to_dict()}
-        if len(sides) == 1:
-            out.update(side)
-        else:
-            out[name] = side
-    return out
+        return FeedforwardTruth(ff['kS'], ff['kV'], ff['kA'], ff['kV'] * si_per_unit,
+                                ff['kA'] * si_per_unit, m)
+    return SysIdTruth(int(seed), units, si_per_raw, si_per_unit, timing.latency,
+                      timing.start_latency, timing.hold, timing.jitter,
+                      timing.sample_period, noise, w_noise, side(*sides[0]),
+                      side(*sides[1]) if len(sides) > 1 else None)

@@ -35,7 +35,7 @@ the exact discretisation of each interval (:func:`simulate_feedforward`).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 import math
 from typing import Any, TYPE_CHECKING
 
@@ -66,6 +66,16 @@ class Prepared:
         return {k: int(v['t'].size) for k, v in self.tests.items()}
 
 
+@dataclass(frozen=True)
+class PrepSummary:
+    """How the tests were prepared: SysId's thresholds and the points kept per test."""
+
+    motion_threshold: float
+    step_test_duration: float
+    max_step_time: float
+    rows: dict[str, int]
+
+
 @dataclass
 class SysIdFit:
     """Feedforward constants in the recording's SI units and the OLS statistics."""
@@ -78,7 +88,7 @@ class SysIdFit:
     rmse: float
     samples: int
     dt_mean: float
-    prepared: dict[str, Any] = field(default_factory=dict)
+    prepared: PrepSummary | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
@@ -213,10 +223,9 @@ def fit_discrete(prep: Prepared) -> SysIdFit:
                     prepared=_summary(prep))
 
 
-def _summary(prep: Prepared) -> dict[str, Any]:
-    return {'motion_threshold': prep.motion_threshold,
-            'step_test_duration': prep.step_test_duration,
-            'max_step_time': prep.max_step_time, 'rows': prep.rows()}
+def _summary(prep: Prepared) -> PrepSummary:
+    return PrepSummary(prep.motion_threshold, prep.step_test_duration, prep.max_step_time,
+                       prep.rows())
 
 
 def simulate_feedforward(kS: float, kV: float, kA: float, time: np.ndarray,

@@ -34,12 +34,14 @@ from motor_id.testing.independent_physics import Motor
 from motor_id.testing.sysid_log import (
     DEFAULT_MOTOR,
     feedforward,
+    FeedforwardTruth,
     measure,
     routine_commands,
     Timing,
 )
 
-__all__ = ['ROUTINE', 'RoutineMotor', 'SysIdWpilog', 'UNIT_PAIRS', 'write_sysid_wpilog']
+__all__ = ['ROUTINE', 'RoutineMotor', 'SysIdWpilog', 'UNIT_PAIRS', 'WpilogTruth',
+           'write_sysid_wpilog']
 
 ROUTINE = ('quasistatic-forward', 'quasistatic-reverse', 'dynamic-forward',
            'dynamic-reverse')
@@ -100,14 +102,47 @@ class SysIdWpilog:
     Attributes
     ----------
     path : str
-    truth : dict
-        ``{'log_name', 'units', 'si_per_unit', 'loop_period', ..., 'motors': {name:
-        {'kS', 'kV', 'kA' (SI: per rad or per m), 'kV_log', 'kA_log' (per position unit
-        of the log), 'kG' [V], 'offset' [rad], 'motor'}}}``.
+    truth : WpilogTruth
     """
 
     path: str
-    truth: dict[str, Any]
+    truth: WpilogTruth
+
+
+@dataclass(frozen=True)
+class WpilogTruth:
+    """The truth behind a generated DataLog (never in the data).
+
+    Attributes
+    ----------
+    seed : int
+    log_name, units : str
+        The routine's log name and the entries' position unit.
+    si_per_unit : float
+        SI value of one position unit.
+    linear : bool
+        A linear unit (the constants are per m).
+    loop_period, jitter, latency, start_latency : float
+    hold : int
+    noise, speed_noise_std : float
+        As :class:`motor_id.testing.sysid_log.SysIdTruth`.
+    motors : dict
+        ``{name: FeedforwardTruth}``.
+    """
+
+    seed: int
+    log_name: str
+    units: str
+    si_per_unit: float
+    linear: bool
+    loop_period: float
+    jitter: float
+    latency: float
+    start_latency: float
+    hold: int
+    noise: float
+    speed_noise_std: float
+    motors: dict[str, FeedforwardTruth]
 
 
 def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
@@ -242,21 +277,16 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
 
 def _truth(seed: int, motors: Sequence[RoutineMotor], log_name: str, units: str,
            si_per_unit: float, meters_per_radian: float, timing: Timing, noise: float,
-           w_noise: float) -> dict[str, Any]:
+           w_noise: float) -> WpilogTruth:
     """The constants behind the log: SI (per rad, or per m for linear units) and per unit."""
     per_si = meters_per_radian if units in _LINEAR else 1.0   # metres (or rad) per motor rad
-    out: dict[str, Any] = {
-        'seed': int(seed), 'log_name': log_name, 'units': units, 'si_per_unit': si_per_unit,
-        'linear': units in _LINEAR, 'loop_period': timing.sample_period,
-        'jitter': timing.jitter, 'latency': timing.latency,
-        'start_latency': timing.start_latency, 'hold': timing.hold, 'noise': noise,
-        'speed_noise_std': w_noise, 'motors': {}}
+    out: dict[str, FeedforwardTruth] = {}
     for m in motors:
         ff = feedforward(m.motor, m.kS)
         joint = joint_feedforward(m.motor, m.effects)
         kV, kA = ff['kV'] / per_si, ff['kA'] / per_si
-        out['motors'][m.name] = {'kS': ff['kS'], 'kV': kV, 'kA': kA,
-                                 'kV_log': kV * si_per_unit, 'kA_log': kA * si_per_unit,
-                                 'kG': joint['kG'], 'offset': joint['offset'],
-                                 'motor': m.motor.to_dict()}
-    return out
+        out[m.name] = FeedforwardTruth(ff['kS'], kV, kA, kV * si_per_unit, kA * si_per_unit,
+                                       m.motor, joint['kG'], joint['offset'])
+    return WpilogTruth(int(seed), log_name, units, si_per_unit, units in _LINEAR,
+                       timing.sample_period, timing.jitter, timing.latency,
+                       timing.start_latency, timing.hold, noise, w_noise, out)
