@@ -308,7 +308,9 @@ class DiscrepancyAnalysis:
                                     ambiguity=self.ambiguity,
                                     unexplained=search.structure(chosen))
         self.report_.mechanism = self.mechanism
-        if rec.has_position and self.init_samples:
+        # by simulation error where a position is measured, and on a SysId log with
+        # none (its users need kS, kV and kA, which speed alone determines)
+        if (rec.has_position or 'sysid' in rec.meta) and self.init_samples:
             model = SavedModel.from_report(self.report_.to_dict(), use_simulation=False)
             self.report_.simulation = simulation_stage(
                 rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say,
