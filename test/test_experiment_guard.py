@@ -414,17 +414,28 @@ def test_a_test_cut_short_before_the_model_knew_the_joint_runs_again():
 
 
 def test_a_torque_plants_feedforward_comes_from_its_parameters():
-    from motor_id.experiment.outcome import _with_units, identified, torque_feedforward
-    report = {'simulation': {'chosen': 'coulomb_friction', 'estimates': {'parameters': {
-        'J': {'value': 1e-3, 'std': 1e-6, 'determined': True},
-        'B': {'value': 2e-5, 'std': 2e-6, 'determined': True},
-        'coulomb_friction.T_c': {'value': 0.12, 'std': 5e-4, 'determined': True}}}}}
-    report['controller'] = torque_feedforward(report)
-    _with_units(report, ExperimentSettings('j', '/c/commands', 1.0, 'o', input_kind='torque'))
-    ff = report['controller']['feedforward']
+    from motor_id.analysis.simulation_result import ParameterEstimate, StageEstimates
+    from motor_id.contracts import feedforward_units
+    from motor_id.experiment.outcome import (
+        ExperimentBlock,
+        ExperimentReport,
+        identified,
+        torque_feedforward,
+    )
+
+    def est(value, std):
+        return ParameterEstimate(value=value, std=std, std_model=std, determined=True)
+
+    params = {'J': est(1e-3, 1e-6), 'B': est(2e-5, 2e-6),
+              'coulomb_friction.T_c': est(0.12, 5e-4)}
+    units = feedforward_units('torque', False)
+    block = torque_feedforward(StageEstimates(parameters=params), 'coulomb_friction', units)
+    ff = block.to_dict()['feedforward']
     assert ff['kS'] == {'value': 0.12, 'std': 5e-4, 'unit': 'N m'}
     assert ff['kV'] == {'value': 2e-5, 'std': 2e-6, 'unit': 'N m s/rad'}
     assert ff['kA'] == {'value': 1e-3, 'std': 1e-6, 'unit': 'N m s^2/rad'}
-    assert identified(report)
-    del report['simulation']['estimates']['parameters']['coulomb_friction.T_c']
-    assert torque_feedforward(report)['feedforward']['kS']['std'] is None
+    assert identified(ExperimentReport(experiment=ExperimentBlock(
+        joint='j', mechanism='simple', input_kind='torque'), controller=block))
+    del params['coulomb_friction.T_c']
+    kS = torque_feedforward(StageEstimates(parameters=params), 'linear', units).feedforward['kS']
+    assert kS.std is None and kS.value == 0.0

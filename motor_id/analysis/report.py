@@ -7,8 +7,8 @@ import math
 import os
 from typing import Any, TYPE_CHECKING
 
+from motor_id.analysis.feedforward import ControllerBlock, voltage_controller
 from motor_id.contracts import units_of
-from motor_id.effects import role_params
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
 from motor_id.records import optional, Record, written
@@ -178,43 +178,18 @@ class DiscrepancyReport:
             d['simulation'] = self.simulation.to_dict()
         controller = self.controller()
         if controller is not None:
-            d['controller'] = controller
+            d['controller'] = controller.to_dict()
         if self.runs:
             d['runs'] = [r.to_dict() for r in self.runs]
         if self.resistance:
             d['resistance'] = {'enters': False, 'note': self.resistance}
         return attach_units(d, self.input_kind, self.linear)
 
-    def controller(self) -> dict[str, Any] | None:
-        """The ``controller`` block of the chosen model of a voltage plant: WPILib
-        SysId's feedforward constants of the simulation-error model with their error
-        bars, as the fit's block has them (``{value, std}``; a constant the record does
-        not determine has ``value`` and ``std`` null, its ``particular_value``, the
-        ``interval`` the data allow and why); None without that model."""
-        sim = self.simulation
-        combos = sim.estimates.combinations if sim and sim.estimates else None
-        if not sim or not combos:
-            return None
-        ff: dict[str, Any] = {}
-        u = units_of(self.input_kind, self.linear)
-        units = {'kS': u['kS'], 'kV': u['kV'], 'kA': u['kA'], 'kS-': u['kS'], 'kV-': u['kV'],
-                 'kG': u['kS'], **{p.role: p.unit for _, p in role_params('offset')}}
-        for c in combos:
-            if c.determined:
-                ff[c.name] = {'value': c.value, 'std': c.std}
-            else:
-                ff[c.name] = {'value': None, 'std': None, 'particular_value': c.value,
-                              'interval': None if c.interval is None else list(c.interval),
-                              'note': c.note or None}
-            ff[c.name]['unit'] = units.get(c.name)
-        source = ('the simulation-error model (simulation.model): kS = V_b + T_c R_m / K_T, '
-                  'kV = (R_m B + K_T K_b) / K_T, kA = (R_m J + B L_m) / K_T')
-        if 'kG' in ff:
-            source += (', kG = T_g R_m / K_T: V = kS sgn(w) + kG cos(theta + offset) + kV w '
-                       '+ kA dw/dt' if 'offset' in ff else
-                       ', kG = T_g R_m / K_T: V = kS sgn(w) + kG + kV w + kA dw/dt')
-        return {'feedforward': ff, 'model': sim.chosen, 'mechanism': self.mechanism,
-                'source': source}
+    def controller(self) -> ControllerBlock | None:
+        """The ``controller`` block of the chosen model of a voltage plant
+        (:func:`.feedforward.voltage_controller`); None without that model."""
+        return voltage_controller(self.simulation, self.input_kind, self.linear,
+                                  self.mechanism)
 
     def summary(self) -> str:
         """A readable report for people."""

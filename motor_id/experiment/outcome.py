@@ -9,13 +9,16 @@ the feedforward constants do not depend on, and the report says so.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
 from pathlib import Path
 import signal
 import sys
 from typing import Any
 
-from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.analysis import DiscrepancyAnalysis, DiscrepancyReport
+from motor_id.analysis.feedforward import ControllerBlock, FeedforwardConstant
+from motor_id.analysis.simulation_result import StageEstimates
 from motor_id.analysis.workers import usable_cores
 from motor_id.contracts import feedforward_units
 from motor_id.errors import MotorIdError
@@ -24,6 +27,7 @@ from motor_id.experiment.settings import ExperimentSettings
 from motor_id.lifeline import STOP_SIGNALS, stop_signals_as_interrupt
 from motor_id.output import write_json
 from motor_id.recording import Recording
+from motor_id.records import optional, Record
 
 NOMINAL_R = 1.0
 """Armature resistance [Ohm] the analysis of a speed-only voltage record runs on when
@@ -39,8 +43,64 @@ EXIT_ERROR = 5
 """An unexpected error stopped the experiment (0 was commanded)."""
 
 
+@dataclass(frozen=True, kw_only=True)
+class DataBlock(Record):
+    """The recording the report comes from: its source, samples and runs."""
+
+    source: str | None
+    samples: int
+    runs: int
+    run_names: list[str] | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExperimentBlock(Record):
+    """The joint, its mechanism and plant kind, and how R_m was set (left out of a
+    failure report: ``''``)."""
+
+    joint: str
+    mechanism: str
+    input_kind: str
+    R_m: str | None = optional('', when=lambda value, _record: value == '')
+
+
+@dataclass(frozen=True, kw_only=True)
+class ExperimentReport:
+    """``report.json``: the analysis of the experiment's recording with the data and the
+    experiment blocks, or, without an analysis, why nothing was identified.
+    ``controller``: a torque plant's feedforward constants (the analysis gives a voltage
+    plant's)."""
+
+    experiment: ExperimentBlock
+    analysis: DiscrepancyReport | None = None
+    data: DataBlock | None = None
+    controller: ControllerBlock | None = None
+    identified: bool = False
+    reason: str = ''
+
+    @property
+    def feedforward(self) -> dict[str, FeedforwardConstant]:
+        """The feedforward constants by name (none without a simulation-error model)."""
+        block = self.controller or (self.analysis.controller() if self.analysis else None)
+        return block.feedforward if block is not None else {}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON of ``report.json``: the analyze report, then ``data``, ``experiment``,
+        a torque plant's ``controller`` and ``identified``."""
+        if self.analysis is None:
+            return {'identified': self.identified, 'reason': self.reason,
+                    'experiment': self.experiment.to_dict()}
+        out = self.analysis.to_dict()
+        out['data'] = self.data.to_dict() if self.data is not None else None
+        out['experiment'] = self.experiment.to_dict()
+        if self.controller is not None:
+            out['controller'] = self.controller.to_dict()
+        out['identified'] = self.identified
+        return out
+
+
 def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int = 1,
-                       progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+                       progress: Callable[[str], object] | None = None) -> ExperimentReport:
     """The analysis report of the experiment's recording, as ``report.json`` holds it.
 
     Parameters
@@ -53,7 +113,7 @@ def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int =
 
     Returns
     -------
-    dict
+    ExperimentReport
         The analyze report plus ``data`` (source, samples, runs), ``experiment`` (the
         joint, the mechanism, how R_m was set) and units on the feedforward constants.
     """
@@ -62,21 +122,22 @@ def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int =
     ana = DiscrepancyAnalysis(R_m=R, random_state=settings.seed, jobs=jobs,
                              mechanism=settings.mechanism)
     ana.fit(rec, progress=progress)
-    out = ana.report_.to_dict()
-    out['data'] = {'source': rec.meta.get('source'), 'samples': len(rec),
-                   'runs': len(rec.segment_ranges), 'run_names': rec.meta.get('segment_names')}
-    out['experiment'] = {
-        'joint': settings.joint, 'mechanism': settings.mechanism,
-        'input_kind': settings.input_kind,
-        'R_m': (f'nominal {NOMINAL_R:g} Ohm: speed alone cannot tell the armature '
-                'resistance; kS, kV, kA do not depend on it') if nominal else
-        (f'{R:g} Ohm as given' if R is not None else None)}
-    if settings.input_kind == 'torque' and not out.get('controller'):
-        controller = torque_feedforward(out)
-        if controller is not None:
-            out['controller'] = controller
-    _with_units(out, settings)
-    return out
+    report = ana.report_
+    data = DataBlock(source=rec.meta.get('source'), samples=len(rec),
+                     runs=len(rec.segment_ranges), run_names=rec.meta.get('segment_names'))
+    experiment = ExperimentBlock(
+        joint=settings.joint, mechanism=settings.mechanism, input_kind=settings.input_kind,
+        R_m=(f'nominal {NOMINAL_R:g} Ohm: speed alone cannot tell the armature '
+             'resistance; kS, kV, kA do not depend on it') if nominal else
+        (f'{R:g} Ohm as given' if R is not None else None))
+    controller = None
+    if settings.input_kind == 'torque' and report.controller() is None:
+        sim = report.simulation
+        controller = torque_feedforward(
+            sim.estimates if sim else None, sim.chosen if sim else None,
+            feedforward_units(settings.input_kind, settings.linear))
+    return ExperimentReport(experiment=experiment, analysis=report, data=data,
+                            controller=controller)
 
 
 TORQUE_FEEDFORWARD = {'kS': 'coulomb_friction.T_c', 'kV': 'B', 'kA': 'J',
@@ -86,81 +147,70 @@ TORQUE_FEEDFORWARD = {'kS': 'coulomb_friction.T_c', 'kV': 'B', 'kA': 'J',
 [cos(theta + offset)] + B w + J dw/dt."""
 
 
-def torque_feedforward(report: dict[str, Any]) -> dict[str, Any] | None:
+def torque_feedforward(estimates: StageEstimates | None, model: str | None,
+                       units: Mapping[str, str]) -> ControllerBlock | None:
     """The ``controller`` block of a torque plant from the simulation-error model's
-    parameters (the analysis gives one for voltage plants only); None without that
-    model."""
-    sim = report.get('simulation') or {}
-    params = (sim.get('estimates') or {}).get('parameters') or {}
+    parameters (the analysis gives one for voltage plants only; ``model``: its name,
+    ``units``: by constant); None without that model."""
+    params = (estimates.parameters if estimates else None) or {}
     if not params:
         return None
-    ff: dict[str, Any] = {}
+    ff: dict[str, FeedforwardConstant] = {}
     for name, keys in TORQUE_FEEDFORWARD.items():
+        unit = units.get(name.rstrip('-+'))
         key = next((k for k in ((keys,) if isinstance(keys, str) else keys) if k in params),
                    None)
         if key is None:
             if name == 'kS':
-                ff[name] = {'value': 0.0, 'std': None,
-                            'note': 'the chosen model has no Coulomb friction'}
+                ff[name] = FeedforwardConstant(
+                    value=0.0, std=None, note='the chosen model has no Coulomb friction',
+                    unit=unit)
             continue
         p = params[key]
-        ff[name] = ({'value': p['value'], 'std': p['std']} if p.get('determined') else
-                    {'value': None, 'std': None, 'particular_value': p['value'],
-                     'note': p.get('note')})
-    return {'feedforward': ff, 'model': sim.get('chosen'),
-            'source': 'the simulation-error model of a torque plant: kS = T_c, kV = B, '
-                      'kA = J (kG = T_g)'}
+        ff[name] = (FeedforwardConstant(value=p.value, std=p.std, unit=unit)
+                    if p.determined else
+                    FeedforwardConstant(value=None, std=None, particular_value=p.value,
+                                        note=p.note or None, unit=unit))
+    return ControllerBlock(feedforward=ff, model=model,
+                           source='the simulation-error model of a torque plant: kS = T_c, '
+                                  'kV = B, kA = J (kG = T_g)')
 
 
-def _with_units(report: dict[str, Any], settings: ExperimentSettings) -> None:
-    """Give each feedforward constant its unit (``{value, std, unit}``)."""
-    ff = (report.get('controller') or {}).get('feedforward')
-    if not ff:
-        return
-    units = feedforward_units(settings.input_kind, settings.linear)
-    for name, entry in ff.items():
-        base = name.rstrip('-+')
-        if isinstance(entry, dict) and base in units:
-            entry.setdefault('unit', units[base])
-
-
-def identified(report: dict[str, Any]) -> bool:
+def identified(report: ExperimentReport) -> bool:
     """The report determines kS, kV and kA."""
-    ff = (report.get('controller') or {}).get('feedforward') or {}
-    return all((ff.get(k) or {}).get('value') is not None for k in ('kS', 'kV', 'kA'))
+    ff = report.feedforward
+    return all(k in ff and ff[k].value is not None for k in ('kS', 'kV', 'kA'))
 
 
-def write_report(report: dict[str, Any], out: str | Path) -> Path:
+def write_report(report: ExperimentReport, out: str | Path) -> Path:
     """Write ``report.json`` into ``out``; return its path."""
     path = Path(out) / 'report.json'
-    write_json(report, path)
+    write_json(report.to_dict(), path)
     return path
 
 
-def feedforward_line(report: dict[str, Any]) -> str:
+def feedforward_line(report: ExperimentReport) -> str:
     """``kS 0.21 +- 0.01 V, kV ...``: the constants in one line (or why there are none)."""
-    ff = (report.get('controller') or {}).get('feedforward')
+    ff = report.feedforward
     if not ff:
         return 'no feedforward constants (the analysis found no simulation-error model)'
     parts = []
     for name, e in ff.items():
-        if e.get('value') is None:
+        if e.value is None:
             parts.append(f'{name} not determined')
         else:
-            parts.append(f'{name} {e["value"]:.4g} +- {e["std"]:.2g} {e.get("unit", "")}'
-                         .rstrip())
+            parts.append(f'{name} {e.value:.4g} +- {e.std:.2g} {e.unit or ""}'.rstrip())
     return ', '.join(parts)
 
 
-def failure_report(reason: str, settings: ExperimentSettings) -> dict[str, Any]:
+def failure_report(reason: str, settings: ExperimentSettings) -> ExperimentReport:
     """``report.json`` when nothing could be identified: why."""
-    return {'identified': False, 'reason': reason,
-            'experiment': {'joint': settings.joint, 'mechanism': settings.mechanism,
-                           'input_kind': settings.input_kind}}
+    return ExperimentReport(reason=reason, experiment=ExperimentBlock(
+        joint=settings.joint, mechanism=settings.mechanism, input_kind=settings.input_kind))
 
 
 def try_analyze(rec: Recording | None, settings: ExperimentSettings, jobs: int = 1,
-                progress: Callable[[str], object] | None = None) -> dict[str, Any]:
+                progress: Callable[[str], object] | None = None) -> ExperimentReport:
     """:func:`analyze_experiment`, or a :func:`failure_report` naming why it could not run."""
     if rec is None:
         return failure_report('too few samples were recorded to identify anything',
@@ -169,8 +219,7 @@ def try_analyze(rec: Recording | None, settings: ExperimentSettings, jobs: int =
         report = analyze_experiment(rec, settings, jobs, progress)
     except MotorIdError as exc:
         return failure_report(f'the analysis failed: {exc}', settings)
-    report['identified'] = identified(report)
-    return report
+    return replace(report, identified=identified(report))
 
 
 def finish(session: ExperimentSession, failure: str | None, signum: int | None,
@@ -227,12 +276,12 @@ def _finish(session: ExperimentSession, failure: str | None, signum: int | None,
         return EXIT_ERROR if errored else EXIT_SAFETY if log.safety_stop else EXIT_OK
     report = try_analyze(rec, session.settings, jobs or usable_cores(), say)
     write_report(report, session.out)
-    if report.get('identified'):
+    if report.identified:
         say('feedforward: ' + feedforward_line(report))
     else:
-        say(f'not identified: {report.get("reason") or feedforward_line(report)}')
+        say(f'not identified: {report.reason or feedforward_line(report)}')
     if errored:
         return EXIT_ERROR
     if log.safety_stop:
         return EXIT_SAFETY
-    return EXIT_OK if report.get('identified') else EXIT_NOT_IDENTIFIED
+    return EXIT_OK if report.identified else EXIT_NOT_IDENTIFIED
