@@ -454,3 +454,27 @@ def test_a_position_that_disagrees_with_the_velocity_is_left_out(tmp_path, capsy
     assert right.has_position and 'warnings' not in right.meta
     assert main(['fit', str(path), '--joint', 'left', '--mechanism', 'arm', '-q']) == 2
     assert 'needs the measured position' in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_analyze_without_a_usable_position_gives_the_constants(tmp_path, capsys):
+    """A SysId log whose position is left out (here scaled by 0.25) is analysed by
+    simulation error on the speed alone: kS, kV and kA with their error bars (before, every
+    constant was 'not determined')."""
+    log = make_sysid_log(11, kS=0.2, jitter=0.2)
+    data = copy.deepcopy(log.data)
+    for name in TESTS:
+        for row in data[name]:
+            row[2] *= 0.25
+    path = tmp_path / 'nopos.json'
+    path.write_text(json.dumps(data))
+    out = tmp_path / 'analyze.json'
+    assert main(['analyze', str(path), '-q', '--json', str(out)]) == 0
+    assert 'the position is left out' in capsys.readouterr().err
+    ff = json.loads(out.read_text())['controller']['feedforward']
+    truth = log.truth.feedforward
+    np.testing.assert_allclose(ff['kS']['value'], truth.kS, atol=0.03)
+    np.testing.assert_allclose(ff['kV']['value'], truth.kV, rtol=0.05)
+    if ff['kA']['value'] is not None:
+        np.testing.assert_allclose(ff['kA']['value'], truth.kA, rtol=0.30)
+    assert ff['kS']['std'] > 0 and ff['kV']['std'] > 0
