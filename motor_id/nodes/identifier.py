@@ -144,6 +144,10 @@ class IdentifierNode(Node):
     copied under the buffer's lock. Only one fit runs at a time: a second request
     while one runs is answered at once with ``success=False``.
 
+    The constructor only declares parameters and creates publishers, subscriptions and
+    timers; a one-shot timer, once the node spins, starts the fit thread, which runs the
+    warm-up (``warm_up``) and then creates ``~/identify`` and logs "identifier ready".
+
     Input: ``input: samples`` subscribes the driver's ``samples`` batches; ``input:
     topics`` builds the same rows from the robot's ``joint_states`` and ``input_topic``
     (:class:`motor_id.nodes.topic_input.TopicInput`). Either way a topic of the wrong
@@ -171,7 +175,6 @@ class IdentifierNode(Node):
         self._fits = {'ok': 0, 'failed': 0}
         self._last = 'no fit yet'
         self.in_flight = InFlight()
-        guard = self.in_flight.wrap
         self.hardware_id = (self.settings['hardware_id'] or self.get_namespace().strip('/')
                             or self.get_name())
         self._setting_outputs = threading.local()
@@ -179,8 +182,6 @@ class IdentifierNode(Node):
         self.input_kind = self.settings['input_kind']
         if self.settings['input'] == 'topics' and self.settings['effort_is'] == 'torque':
             self.input_kind = 'torque'
-        if self.settings['warm_up']:
-            self._warm_up()
         self.topic_input: TopicInput | None = None
         if self.settings['input'] == 'topics':
             self.topic_input = TopicInput(self, self.buffer, self.settings)
@@ -206,28 +207,47 @@ class IdentifierNode(Node):
         self.fit_node = Node(f'_{self.get_name()}_fit', namespace=self.get_namespace(),
                              context=self.context, use_global_arguments=False,
                              start_parameter_services=False)
-        fit_group = ReentrantCallbackGroup()
-        self.fit_node.create_service(Trigger, self.resolve_service_name('~/identify'),
-                                     guard(self._on_identify), callback_group=fit_group)
-        if self.settings['period_s'] > 0:
-            self.fit_node.create_timer(self.settings['period_s'], guard(self._on_period),
-                                       callback_group=fit_group)
         self._fit_executor = MultiThreadedExecutor(num_threads=2, context=self.context)
         self._fit_executor.add_node(self.fit_node)
         self._fit_done = StopSignal()
         self._fit_done.attach(self.fit_node)
-        self._fit_thread = threading.Thread(
-            target=self._fit_done.spin, args=(self._fit_executor,), name='fit-executor',
-            daemon=True)
-        self._fit_thread.start()
-        self.get_logger().info(
-            f'identifier ready: method {self.settings["method"]}, window '
-            f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm, input '
-            f'{self.settings["input"]}')
+        self._serving = threading.Lock()   # serving starts, or the node stops: not both
+        self._fit_thread: threading.Thread | None = None
+        self._start_timer = self.create_timer(0.0, self._on_start)   # one shot, once spun
+
+    def _on_start(self) -> None:
+        """Once the node spins (a one-shot timer, not the constructor): start the fit
+        thread, which warms up, then serves ``~/identify`` (and the periodic fits)."""
+        self._start_timer.cancel()
+        if self._fit_thread is None and not self._stopping.is_set():
+            self._fit_thread = threading.Thread(target=self._serve, name='fit-executor',
+                                                daemon=True)
+            self._fit_thread.start()
+
+    def _serve(self) -> None:
+        """The fit thread: the warm-up, the service and the timer, then its executor."""
+        if self.settings['warm_up']:
+            self._warm_up()
+        guard = self.in_flight.wrap
+        with self._serving:
+            if self._stopping.is_set():
+                return
+            fit_group = ReentrantCallbackGroup()
+            self.fit_node.create_service(Trigger, self.resolve_service_name('~/identify'),
+                                         guard(self._on_identify), callback_group=fit_group)
+            if self.settings['period_s'] > 0:
+                self.fit_node.create_timer(self.settings['period_s'], guard(self._on_period),
+                                           callback_group=fit_group)
+            self.get_logger().info(
+                f'identifier ready: method {self.settings["method"]}, window '
+                f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm, input '
+                f'{self.settings["input"]}')
+        self._fit_done.spin(self._fit_executor)
 
     def _warm_up(self) -> None:
         """Load the compiled kernels and run a tiny fit on synthetic data before serving,
-        so that the first ~/identify does not stall reception (logged)."""
+        so that the first ~/identify does not stall reception (logged; a stop cancels
+        the tiny fit's GA)."""
         from motor_id import simulate
         from motor_id.model import Plant
         started = time.perf_counter()
@@ -239,7 +259,7 @@ class IdentifierNode(Node):
         try:
             tiny = fit_settings(self.settings).replace(population=4, generations=2,
                                                        random_state=0, fixed=None, bounds=None)
-            Identifier(tiny).fit(rec)
+            Identifier(tiny).fit(rec, progress=self._progress)
         except MotorIdError as exc:
             self.get_logger().warning(f'warm-up fit: {exc}')
         self.get_logger().info(
@@ -412,11 +432,13 @@ class IdentifierNode(Node):
 
     def stop(self) -> None:
         """Stop a running fit at its next generation, then the fit node's executor."""
-        self._stopping.set()
+        with self._serving:
+            self._stopping.set()
         if not self.in_flight.wait_idle(10.0):
             self.get_logger().warning('a fit is still running at shutdown')
         self._fit_done.set()
-        self._fit_thread.join(5.0)
+        if self._fit_thread is not None:
+            self._fit_thread.join(5.0)
         drain(self._fit_executor, self)
         self._fit_done.detach()
         self._fit_executor.shutdown(timeout_sec=1.0)
