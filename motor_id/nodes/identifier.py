@@ -1,5 +1,6 @@
 """The identifier node: buffers `samples`, fits on request, publishes latched estimates."""
 
+from collections.abc import Callable
 import datetime as dt
 import sys
 import threading
@@ -71,6 +72,29 @@ def fit_settings(p: dict[str, Any]) -> FitSettings:
                        population=p['population'], generations=p['generations'],
                        random_state=p['seed'], fixed=fixed_values(p['fix']) or None,
                        bounds=bound_values(p['bounds']) or None)
+
+
+def warm_up(settings: FitSettings, input_kind: str, logger: Any,
+            progress: Callable[[int, int, float], bool]) -> None:
+    """Load the compiled kernels and run a tiny fit (``settings`` at 4 x 2 generations)
+    on synthetic data before serving, so that the first ~/identify does not stall
+    reception (logged; ``progress`` returning True, at a stop, cancels its GA)."""
+    from motor_id import simulate
+    from motor_id.model import Plant
+    started = time.perf_counter()
+    kernels = simulate.warm_up()   # every kernel: regular, irregular, with effects
+    t = np.arange(200) * 0.01
+    u = np.where((t // 0.25) % 2 > 0, 6.0, -3.0)
+    rec = simulate.simulate_recording(Plant(input_kind=input_kind), t, u, 0.01, 0.01,
+                                      random_state=0)
+    try:
+        tiny = settings.replace(population=4, generations=2, random_state=0, fixed=None,
+                                bounds=None)
+        Identifier(tiny).fit(rec, progress=progress)
+    except MotorIdError as exc:
+        logger.warning(f'warm-up fit: {exc}')
+    logger.info(f'warmed up in {time.perf_counter() - started:.2f} s (kernels '
+                f'{kernels.seconds:.2f} s, {kernels.compiled} compiled; a tiny fit)')
 
 
 PARAMETERS = (
@@ -227,7 +251,8 @@ class IdentifierNode(Node):
     def _serve(self) -> None:
         """The fit thread: the warm-up, the service and the timer, then its executor."""
         if self.settings['warm_up']:
-            self._warm_up()
+            warm_up(fit_settings(self.settings), self.input_kind, self.get_logger(),
+                    self._progress)
         guard = self.in_flight.wrap
         with self._serving:
             if self._stopping.is_set():
@@ -243,28 +268,6 @@ class IdentifierNode(Node):
                 f'{self.settings["window_s"]:g} s, R_m {self.settings["R_m"]:g} Ohm, input '
                 f'{self.settings["input"]}')
         self._fit_done.spin(self._fit_executor)
-
-    def _warm_up(self) -> None:
-        """Load the compiled kernels and run a tiny fit on synthetic data before serving,
-        so that the first ~/identify does not stall reception (logged; a stop cancels
-        the tiny fit's GA)."""
-        from motor_id import simulate
-        from motor_id.model import Plant
-        started = time.perf_counter()
-        kernels = simulate.warm_up()   # every kernel: regular, irregular, with effects
-        t = np.arange(200) * 0.01
-        u = np.where((t // 0.25) % 2 > 0, 6.0, -3.0)
-        rec = simulate.simulate_recording(Plant(input_kind=self.input_kind), t, u, 0.01,
-                                          0.01, random_state=0)
-        try:
-            tiny = fit_settings(self.settings).replace(population=4, generations=2,
-                                                       random_state=0, fixed=None, bounds=None)
-            Identifier(tiny).fit(rec, progress=self._progress)
-        except MotorIdError as exc:
-            self.get_logger().warning(f'warm-up fit: {exc}')
-        self.get_logger().info(
-            f'warmed up in {time.perf_counter() - started:.2f} s (kernels '
-            f'{kernels.seconds:.2f} s, {kernels.compiled} compiled; a tiny fit)')
 
     # ------------------------------------------------------------- callbacks
     def _on_set(self, params: list[Parameter]) -> SetParametersResult:
