@@ -158,8 +158,9 @@ def test_prbs_and_multisine_segments_repeat_with_the_seed(kind):
 
 
 def test_settings_errors_say_what_to_give():
-    with pytest.raises(ConfigError, match='--travel'):
+    with pytest.raises(ConfigError, match='travel LO:HI') as exc:
         ExperimentSettings('j', '/c/commands', 1.0, 'out', mechanism='arm')
+    assert exc.value.params == ('travel',)   # the command line adds its flag, --travel
     with pytest.raises(ConfigError, match='max command'):
         ExperimentSettings('j', '/c/commands', 0.0, 'out')
     with pytest.raises(ConfigError, match='not among the controller joints'):

@@ -45,8 +45,8 @@ class Travel:
                 raise ValueError
             low, high = float(parts[0]), float(parts[1])
         except ValueError:
-            raise ConfigError(f'--travel takes LO:HI (two numbers, e.g. -1.2:1.5), got '
-                              f'{text!r}') from None
+            raise ConfigError(f'travel takes LO:HI (two numbers, e.g. -1.2:1.5), got '
+                              f'{text!r}', params=('travel',)) from None
         return cls(low, high)
 
     @property
@@ -129,7 +129,8 @@ class ExperimentSettings:
         _choice('plan', self.plan, PLANS)
         if self.mechanism in GRAVITY_MECHANISMS and self.travel is None:
             raise ConfigError(f'an {self.mechanism} falls when commanded 0: give its travel '
-                              'window with --travel LO:HI (it is never pushed past it)')
+                              'window, travel LO:HI (it is never pushed past it)',
+                              params=('travel',))
         if self.max_speed is not None and not self.max_speed > 0:
             raise ConfigError(f'max speed must be > 0, got {self.max_speed:g}')
         if self.resistance is not None and not self.resistance > 0:
@@ -180,7 +181,8 @@ class ExperimentSettings:
         node = topic.rsplit('/', 1)[0]
         if not node:
             raise ConfigError(f'command topic {topic} has no controller namespace: give '
-                              '--controller-joints, or --command-type float64')
+                              'controller_joints, or command_type float64',
+                              params=('controller_joints', 'command_type'))
         return node
 
 
