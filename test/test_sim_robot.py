@@ -17,6 +17,7 @@ from motor_id.testing.sim_joint import (
     MECHANISMS,
     read_truth,
     READY,
+    ReceivedCommand,
     sim_robot_args,
     SimConfig,
 )
@@ -63,15 +64,16 @@ def test_commands_are_clipped_and_the_truth_carries_units_and_the_reach():
     sim.advance(1.5)
     truth = sim.truth()
     motor = MECHANISMS['elevator'].motor
-    assert truth['feedforward']['kG'] == {'value': pytest.approx(motor.R * 12 * 9.81 / motor.K),
-                                          'unit': 'V'}
-    assert truth['feedforward']['kV']['unit'] == 'V s/m'
-    assert truth['position']['min'] == 0.0 and truth['position']['max'] == 1.2   # the stops
-    assert truth['last_command'] == {'time': 1000.0, 't': 0.0, 'values': [50.0, 0.0],
-                                     'applied': 12.0}
+    assert truth.feedforward['kG'] == pytest.approx(motor.R * 12 * 9.81 / motor.K)
+    assert (truth.units['kG'], truth.units['kV']) == ('V', 'V s/m')
+    assert truth.position_min == 0.0 and truth.position_max == 1.2   # the stops
+    assert truth.commands[-1] == ReceivedCommand(1000.0, 0.0, [50.0, 0.0], 12.0)
+    assert truth.to_dict()['last_command'] == {'time': 1000.0, 't': 0.0,
+                                               'values': [50.0, 0.0], 'applied': 12.0}
+    assert truth.to_dict()['feedforward']['kG']['unit'] == 'V'
     torque = JointSim(SimConfig(mechanism='arm', input_kind='torque'), 0.0).truth()
-    assert torque['feedforward']['kG'] == {'value': pytest.approx(4.0 * 9.81 * 0.45),
-                                           'unit': 'N m'}
+    assert torque.feedforward['kG'] == pytest.approx(4.0 * 9.81 * 0.45)
+    assert torque.units['kG'] == 'N m'
 
 
 # ------------------------------------------------------------------ the robot over DDS

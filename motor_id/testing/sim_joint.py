@@ -171,6 +171,68 @@ class ReceivedCommand:
     applied: float | None
 
 
+@dataclass(frozen=True)
+class JointTruth:
+    """What the simulated joint was and did (the truth file, never in the data).
+
+    Attributes
+    ----------
+    mechanism, joint, input_kind : str
+    feedforward : dict
+        kS, kV, kA, kG, offset of the physics, each in ``units[name]``.
+    units : dict
+    motor : Motor
+    effects : dict
+        The physics' effects (:meth:`SimConfig.effects`).
+    limit : float
+        The drive's saturation (``units['kG']``).
+    position_start, position_min, position_max : float
+        Where the joint started and how far it went [rad or m].
+    position_unit : str
+    stops : (float or None, float or None)
+        The hard stops (None: none on that side).
+    samples : int
+        Measurements taken.
+    duration : float
+        [s]
+    commands : list of ReceivedCommand
+    """
+
+    mechanism: str
+    joint: str
+    input_kind: str
+    feedforward: dict[str, float]
+    units: dict[str, str]
+    motor: Motor
+    effects: dict[str, dict[str, float]]
+    limit: float
+    position_start: float
+    position_min: float
+    position_max: float
+    position_unit: str
+    stops: tuple[float | None, float | None]
+    samples: int
+    duration: float
+    commands: list[ReceivedCommand]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON of the truth file (every constant with its unit)."""
+        commands = [asdict(c) for c in self.commands]
+        unit = self.position_unit
+        return {
+            'mechanism': self.mechanism, 'joint': self.joint, 'input_kind': self.input_kind,
+            'feedforward': {k: {'value': v, 'unit': self.units[k]}
+                            for k, v in self.feedforward.items()},
+            'physics': {'motor': self.motor.to_dict(), 'effects': self.effects,
+                        'limit': {'value': self.limit, 'unit': self.units['kG']}},
+            'position': {'start': self.position_start, 'min': self.position_min,
+                         'max': self.position_max, 'unit': unit},
+            'stops': {'low': self.stops[0], 'high': self.stops[1], 'unit': unit},
+            'samples': self.samples, 'duration': {'value': self.duration, 'unit': 's'},
+            'commands': commands, 'last_command': commands[-1] if commands else None,
+        }
+
+
 @dataclass
 class _Tally:
     """What the truth file reports besides the constants."""
@@ -269,27 +331,18 @@ class JointSim:
         self.tally.commands.append(ReceivedCommand(wall, now - self.start, list(values),
                                                    applied))
 
-    def truth(self) -> dict[str, Any]:
-        """The JSON of the truth file (every constant with its unit)."""
+    def truth(self) -> JointTruth:
+        """The truth so far (its JSON: :meth:`JointTruth.to_dict`)."""
         cfg = self.config
         mech = self.mechanism
-        ff = feedforward(mech.motor, cfg.effects(), cfg.input_kind)
-        units = truth_units(cfg.input_kind, mech.linear)
-        pos_unit = 'm' if mech.linear else 'rad'
         low, high = cfg.stops()
-        commands = [asdict(c) for c in self.tally.commands]
-        return {
-            'mechanism': mech.name, 'joint': mech.joint, 'input_kind': cfg.input_kind,
-            'feedforward': {k: {'value': v, 'unit': units[k]} for k, v in ff.items()},
-            'physics': {'motor': mech.motor.to_dict(), 'effects': cfg.effects(),
-                        'limit': {'value': self.limit, 'unit': units['kG']}},
-            'position': {'start': mech.theta0(cfg.offset), 'min': self.tally.low,
-                         'max': self.tally.high, 'unit': pos_unit},
-            'stops': {'low': _finite(low), 'high': _finite(high), 'unit': pos_unit},
-            'samples': self.tally.samples, 'duration': {'value': self.now - self.start,
-                                                        'unit': 's'},
-            'commands': commands, 'last_command': commands[-1] if commands else None,
-        }
+        return JointTruth(
+            mech.name, mech.joint, cfg.input_kind,
+            feedforward(mech.motor, cfg.effects(), cfg.input_kind),
+            truth_units(cfg.input_kind, mech.linear), mech.motor, cfg.effects(), self.limit,
+            mech.theta0(cfg.offset), self.tally.low, self.tally.high,
+            'm' if mech.linear else 'rad', (_finite(low), _finite(high)), self.tally.samples,
+            self.now - self.start, list(self.tally.commands))
 
 
 def compile_physics(config: SimConfig) -> None:

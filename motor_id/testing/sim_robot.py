@@ -213,7 +213,7 @@ class SimRobot(Node):
         if self.truth_file:
             with self._lock:
                 self.sim.advance(time.monotonic())
-                write_json(self.truth_file, self.sim.truth())
+                write_json(self.truth_file, self.sim.truth().to_dict())
 
     def destroy_node(self) -> None:
         """Destroy the controller and broadcaster nodes, then this one."""
