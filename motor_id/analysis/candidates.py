@@ -14,7 +14,7 @@ from collections.abc import Mapping, Sequence
 import dataclasses
 import math
 import time
-from typing import Any, TYPE_CHECKING
+from typing import Any, TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -60,7 +60,10 @@ def grid_only(effect: str) -> tuple[str, ...]:
     return tuple(p.name for p in EFFECTS[effect].params if p.spacing == 'integer')
 
 
-def dynamic_effects(effects: Mapping[str, Any]) -> dict[str, Any]:
+V = TypeVar('V')
+
+
+def dynamic_effects(effects: Mapping[str, V]) -> dict[str, V]:
     """``effects`` without the measurement ones (the fixed speed reading of a fit)."""
     return {e: v for e, v in effects.items() if EFFECTS[e].category == 'dynamic'}
 

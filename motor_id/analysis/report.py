@@ -11,7 +11,7 @@ from motor_id.analysis.feedforward import ControllerBlock, voltage_controller
 from motor_id.contracts import units_of
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
-from motor_id.records import optional, Record, written
+from motor_id.records import finite, optional, Record, written
 
 if TYPE_CHECKING:
     from motor_id.analysis.diagnostics import ResidualBlock
@@ -20,6 +20,32 @@ if TYPE_CHECKING:
     from motor_id.analysis.selection import Ambiguity
     from motor_id.analysis.simulation_result import SimulationStage
     from motor_id.identify.result import Estimate, FitQuality, Resistance
+
+
+def _without_components(_value: object, evidence: object) -> bool:
+    return not getattr(evidence, 'components', None)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DynamicEvidence(Record):
+    """How a dynamic candidate did (a :class:`ModelScore`'s JSON ``evidence``): its
+    errors, the held-out blocks it improved, its extra parameters and BIC change; for a
+    combination each effect's gains (``components``) over its ``reference``."""
+
+    kind: str = 'dynamic'
+    heldout_error: float = written(finite)
+    train_error: float = written(finite)
+    heldout_blocks_improved: float
+    extra_parameters: int
+    delta_bic: float = written(finite)
+    at_search_limit: list[str]
+    implausible: str
+    significant: bool
+    seconds: float
+    failed: str = optional('', when='empty')
+    components: dict[str, dict[str, float]] = optional({}, when='empty')
+    reference: str = optional('linear', when=_without_components)
+    gain_over_reference: float = optional(0.0, when=_without_components, json=finite)
 
 
 @dataclass
@@ -55,20 +81,15 @@ class ModelScore:
 
     def to_dict(self) -> dict[str, Any]:
         """The report's ``effects`` entry: name, parameters, gain, evidence."""
-        ev: dict[str, Any] = {'kind': 'dynamic', 'heldout_error': _finite(self.heldout_error),
-              'train_error': _finite(self.train_error),
-              'heldout_blocks_improved': self.block_wins,
-              'extra_parameters': self.n_extra, 'delta_bic': _finite(self.delta_bic),
-              'at_search_limit': self.at_bound, 'implausible': self.implausible,
-              'significant': self.significant, 'seconds': self.seconds}
-        if self.failed:
-            ev['failed'] = self.failed
-        if self.components:
-            ev['components'] = self.components
-            ev['reference'] = self.reference
-            ev['gain_over_reference'] = _finite(self.gain_over_reference)
+        ev = DynamicEvidence(
+            heldout_error=self.heldout_error, train_error=self.train_error,
+            heldout_blocks_improved=self.block_wins, extra_parameters=self.n_extra,
+            delta_bic=self.delta_bic, at_search_limit=self.at_bound,
+            implausible=self.implausible, significant=self.significant,
+            seconds=self.seconds, failed=self.failed, components=self.components,
+            reference=self.reference, gain_over_reference=self.gain_over_reference)
         return {'name': self.name, 'parameters': self.parameters,
-                'gain': _finite(self.gain), 'evidence': ev}
+                'gain': _finite(self.gain), 'evidence': ev.to_dict()}
 
 
 def _finite(v: float | None) -> float | None:

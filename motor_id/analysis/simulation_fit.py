@@ -38,7 +38,12 @@ from motor_id.analysis.simulation_problem import (
     sim_channels,
     SimulationProblem,
 )
-from motor_id.analysis.simulation_result import SimCandidate, SimulationStage, StageEstimates
+from motor_id.analysis.simulation_result import (
+    SimCandidate,
+    SimulationStage,
+    StageEstimates,
+    StageModel,
+)
 from motor_id.analysis.simulation_uncertainty import stage_estimates
 from motor_id.analysis.workers import _worker_start, longest_first
 from motor_id.effects import EFFECTS, role_value
@@ -234,7 +239,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
             estimates = StageEstimates(failed=f'no error bars: {type(exc).__name__}: {exc}')
     return replace(shared, candidates=tuple(cands), chosen=chosen.name,
                    gains=_gains(cands, chosen),
-                   model=SavedModel(model.input_kind, params, effects), estimates=estimates,
+                   model=StageModel(input_kind=model.input_kind, parameters=params,
+                                    effects=effects), estimates=estimates,
                    friction=friction_summary(params, effects, model.input_kind), rmse=rmse)
 
 

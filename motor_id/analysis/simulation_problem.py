@@ -121,10 +121,12 @@ class SimulationProblem:
         return a if a in self._rest else a + self.n_init - 1
 
     # parameter vector <-> model
-    def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
-        """``z`` of shape (P, n) -> batch parameters and effects."""
-        theta: dict[str, Any] = dict(self.model.parameters)
-        effects: dict[str, dict[str, Any]] = {e: dict(v) for e, v in self.model.effects.items()}
+    def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray | float],
+                                             dict[str, dict[str, np.ndarray | float]]]:
+        """``z`` of shape (P, n) -> batch parameters and effects (held ones as floats)."""
+        theta: dict[str, np.ndarray | float] = dict(self.model.parameters)
+        effects: dict[str, dict[str, np.ndarray | float]] = {
+            e: dict(v) for e, v in self.model.effects.items()}
         for j, name in enumerate(self.free):
             e, _, p = name.partition('.')
             if p:

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 from motor_id.records import finite, omit_if_failed, optional, Record, written
 
 if TYPE_CHECKING:
     from motor_id.analysis.frames import FrameEvidence
-    from motor_id.identify.validation import SavedModel
 
 STAGE_METHOD = ('least squares on the simulation error of each block, simulated from the '
                 'input alone from a state set by its first samples')
@@ -88,10 +87,14 @@ class StageEstimates(Record):
     failed: str = optional('', when='empty')
 
 
-def _model_json(model: SavedModel | None) -> dict[str, Any] | None:
-    return None if model is None else {'input_kind': model.input_kind,
-                                       'parameters': model.parameters,
-                                       'effects': model.effects}
+@dataclass(frozen=True, kw_only=True)
+class StageModel(Record):
+    """The chosen model refitted on every block (SI), as ``motor-id validate`` reads it
+    (:meth:`motor_id.identify.validation.SavedModel.from_report`)."""
+
+    input_kind: str
+    parameters: dict[str, float]
+    effects: dict[str, dict[str, float]]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -115,7 +118,7 @@ class SimulationStage(Record):
     candidates: tuple[SimCandidate, ...]
     chosen: str | None = None
     gains: dict[str, float] = optional({}, when=omit_if_failed)
-    model: SavedModel | None = written(_model_json, None)
+    model: StageModel | None = None
     estimates: StageEstimates | None = optional(None, when=omit_if_failed)
     friction: dict[str, float] | None = optional(None, when=omit_if_failed)
     rmse: dict[str, float] = optional({}, when=omit_if_failed)
