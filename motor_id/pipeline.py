@@ -20,7 +20,7 @@ from motor_id.effects import EFFECTS
 from motor_id.errors import MotorIdError
 from motor_id.identify import Identifier
 from motor_id.identify.mechanism import check_mechanism, with_gravity
-from motor_id.identify.result import IdentificationResult
+from motor_id.identify.result import EffectEstimate, EffectValues, IdentificationResult
 from motor_id.identify.scales import data_scales, default_max_delay
 from motor_id.model import PARAM_NAMES
 from motor_id.output import attach_units
@@ -136,7 +136,7 @@ class FitReport:
         return attach_units(d, self.result.input_kind, bool(self.data.linear))
 
     def to_ros_parameters(self, node_name: str = '/**', unknown: str = 'omit'
-                          ) -> dict[str, Any]:
+                          ) -> dict[str, dict[str, dict[str, float]]]:
         """``{node: {'ros__parameters': {...}}}``: ``estimate.NAME``, ``estimate.NAME_std``
         and ``controller.*``.
 
@@ -322,11 +322,11 @@ def alias_guard(rec: Recording, identifier: Identifier, given: Identifier
                       refit_fit_percent=after, L_m_bounds=(lo, hi), kept=kept)
 
 
-def _effect_value(effects: Mapping[str, Any], key: str) -> float:
-    """The fitted value of ``effect.param`` in a result's effects block."""
+def _effect_value(effects: EffectValues, key: str) -> float:
+    """The fitted value of ``effect.param`` in a result's effects."""
     e, _, p = key.partition('.')
     entry = effects[e][p]
-    return float(entry['value'] if isinstance(entry, dict) else entry)
+    return float(entry.value if isinstance(entry, EffectEstimate) else entry)
 
 
 def fit_report(rec: Recording, identifier: Identifier, *,

@@ -243,7 +243,7 @@ class DiscretisedBatch:
     the record (:func:`simulate_runs`) and every block of it shares (made by
     :func:`discretise_batch`)."""
 
-    effects: dict[str, Any]
+    effects: dict[str, Mapping[str, ArrayLike]]
     full: dict[str, np.ndarray]
     input_kind: str
     position: bool

@@ -218,7 +218,7 @@ def _linear2_kernel(A, Bd, idx, u, x0):
 KERNELS = (_kernel, _linear_kernel, _linear2_regular_kernel, _linear2_kernel)
 """The loops numba compiles (plain Python here; see :func:`motor_id.simulate.warm_up`)."""
 
-_COMPILED: dict[str, Any] = {}
+_COMPILED: dict[str, Callable[..., Any]] = {}
 _COMPILE_LOCK = threading.Lock()
 
 

@@ -27,6 +27,7 @@ from motor_id.analysis.diagnostics import (
 from motor_id.analysis.report import Baseline, ChosenBlock, DiscrepancyReport, HeldoutBlock
 from motor_id.effects import EFFECTS
 from motor_id.identify import determinacy
+from motor_id.identify.result import EffectEstimate
 from motor_id.metrics import normalised_fit
 
 if TYPE_CHECKING:
@@ -94,7 +95,8 @@ def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None,
     """The report's ``chosen`` entry: name, estimator, effect values and the fit."""
     effects = dict(chosen.effects)   # the base's: a mechanism's gravity, or none
     if full is not None and (chosen is not base or base.effects):
-        effects = {e: {p: (v['value'] if isinstance(v, dict) else v) for p, v in vals.items()}
+        effects = {e: {p: (v.value if isinstance(v, EffectEstimate) else v)
+                       for p, v in vals.items()}
                    for e, vals in dynamic_effects(full.result_.effects).items()}
     return ChosenBlock(name=dyn, estimator='output error (simulation)', effects=effects,
                        fit=full.result_.fit if (full is not None and chosen is not base)

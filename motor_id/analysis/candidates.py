@@ -25,6 +25,7 @@ from motor_id.errors import FIT_ERRORS
 from motor_id.identify import FitSettings, Identifier
 from motor_id.identify.estimator import staged
 from motor_id.identify.mechanism import with_gravity
+from motor_id.identify.result import EffectEstimate
 from motor_id.identify.settings import STAGE_NAMES
 from motor_id.simulate import simulate_runs
 
@@ -202,10 +203,10 @@ class CandidateFitter:
         for e, vals in dynamic_effects(res.effects).items():
             eff[e] = {}
             for p, v in vals.items():
-                if isinstance(v, dict):
-                    params[f'{e}.{p}'] = {'value': v['value'], 'std': v['std'],
-                                          'determined': v['determined']}
-                    eff[e][p] = v['value']
+                if isinstance(v, EffectEstimate):
+                    params[f'{e}.{p}'] = {'value': v.value, 'std': v.std,
+                                          'determined': v.determined}
+                    eff[e][p] = v.value
                 else:
                     eff[e][p] = float(v)
                     if p in grid_only(e):

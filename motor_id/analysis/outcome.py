@@ -12,6 +12,7 @@ from motor_id.analysis.candidates import dynamic_effects, grid_only
 from motor_id.analysis.inverse_dynamics import inverse_dynamics, InverseDynamicsFit
 from motor_id.effects import EFFECTS, role_value
 from motor_id.errors import FIT_ERRORS
+from motor_id.identify.result import EffectEstimate
 
 if TYPE_CHECKING:
     from motor_id.analysis.candidates import CandidateFitter
@@ -64,7 +65,7 @@ def parameters(chosen: ModelScore, base: ModelScore, full: Identifier | None
         return params
     for e, vals in dynamic_effects(full.result_.effects).items():
         for p, v in vals.items():
-            params[f'{e}.{p}'] = dict(v) if isinstance(v, dict) else {
+            params[f'{e}.{p}'] = v.to_dict() if isinstance(v, EffectEstimate) else {
                 'value': float(v), 'std': None, 'determined': True, 'grid': True}
     return params
 

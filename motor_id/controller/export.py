@@ -13,6 +13,7 @@ from motor_id.effects import role_params
 from motor_id.errors import ConfigError
 from motor_id.identify.result import (
     Combination,
+    EffectEstimate,
     Estimate,
     IdentificationResult,
     ParameterCovariance,
@@ -128,7 +129,9 @@ def from_fit(result: IdentificationResult, *, linear: bool = False,
                          particular_value=_known(e.particular_value))
               for n, e in result.parameters.items()}
     kw.setdefault('linear', linear)
-    return _design(params, result.parameter_covariance, to_jsonable(result.effects),
+    effects = {e: {p: v.to_dict() if isinstance(v, EffectEstimate) else v
+                   for p, v in vals.items()} for e, vals in result.effects.items()}
+    return _design(params, result.parameter_covariance, to_jsonable(effects),
                    result.identifiable_combinations,
                    kw.pop('input_kind', result.input_kind), **kw)
 
@@ -274,7 +277,7 @@ def _feedforward_from_combinations(design: ControllerDesign, combinations: Seque
 
 
 def to_ros_parameters(design: ControllerDesign | Mapping[str, Any],
-                      node_name: str = '/**') -> dict[str, Any]:
+                      node_name: str = '/**') -> dict[str, dict[str, dict[str, float]]]:
     """Return the design as a ``ros__parameters`` dict for ``yaml.safe_dump`` (params file).
 
     Parameters

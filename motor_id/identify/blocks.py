@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any, cast, TYPE_CHECKING
+from typing import cast, TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +14,8 @@ from motor_id.identify import determinacy, uncertainty
 from motor_id.identify.problem import IdentificationProblem
 from motor_id.identify.result import (
     Assumptions,
+    EffectEstimate,
+    EffectValues,
     Estimate,
     FitQuality,
     GaSummary,
@@ -56,15 +58,17 @@ def estimates(problem: IdentificationProblem, names: list[str], x_best: np.ndarr
 
 
 def effects_block(problem: IdentificationProblem, x_best: np.ndarray, std_z: np.ndarray,
-                   determined: np.ndarray, bound: np.ndarray) -> dict[str, dict[str, Any]]:
-    eff_out: dict[str, dict[str, Any]] = {e: dict(v) for e, v in problem.effects.items()}
+                  determined: np.ndarray, bound: np.ndarray) -> EffectValues:
+    """The fit's effects: the held values, and an :class:`EffectEstimate` of each free
+    effect parameter."""
+    eff_out: EffectValues = {e: dict(v) for e, v in problem.effects.items()}
     for j, fe in enumerate(problem.free_effects):
         e, _, p = fe.partition('.')
         k = len(problem.free) + j
-        eff_out[e][p] = {'value': float(x_best[k]),
-                         'std': determinacy.floor_std(x_best[k], std_z[k])
-                         if determined[k] else None,
-                         'determined': bool(determined[k]), 'at_bound': bool(bound[k])}
+        eff_out[e][p] = EffectEstimate(
+            value=float(x_best[k]),
+            std=determinacy.floor_std(x_best[k], std_z[k]) if determined[k] else None,
+            determined=bool(determined[k]), at_bound=bool(bound[k]))
     return eff_out
 
 

@@ -67,6 +67,21 @@ class Estimate:
 
 
 @dataclass(frozen=True)
+class EffectEstimate(Record):
+    """A fitted effect parameter (SI): its value, std (None: not determined), whether the
+    record determines it and whether it sits on its search bound."""
+
+    value: float
+    std: float | None
+    determined: bool
+    at_bound: bool
+
+
+EffectValues = dict[str, dict[str, float | EffectEstimate]]
+"""A fit's effects: ``{effect: {parameter: held value, or the fitted EffectEstimate}}``."""
+
+
+@dataclass(frozen=True)
 class Combination(Record):
     """A combination of the parameters the record determines (a transfer-function
     coefficient, SysId's kV, kA, kS, kG), SI, with its delta-method std."""
@@ -246,7 +261,7 @@ class IdentificationResult:
     ga: GaSummary
     refinement: Refinement
     assumptions: Assumptions
-    effects: dict[str, Any] = field(default_factory=dict)
+    effects: EffectValues = field(default_factory=dict)
     prediction: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     seconds: float = 0.0
     resistance: Resistance | None = None
@@ -270,7 +285,8 @@ class IdentificationResult:
             'input_kind': self.input_kind,
             'channels': list(self.channels),
             'assumptions': self.assumptions.to_dict(),
-            'effects': self.effects,
+            'effects': {e: {p: v.to_dict() if isinstance(v, EffectEstimate) else v
+                            for p, v in vals.items()} for e, vals in self.effects.items()},
             'ga': self.ga.to_dict(),
             'refinement': self.refinement.to_dict(),
             'seconds': self.seconds,

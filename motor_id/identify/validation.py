@@ -25,6 +25,7 @@ from motor_id.identify.mechanism import check_mechanism
 from motor_id.metrics import normalised_fit
 from motor_id.model import MECHANICAL_PARAMS, PARAM_NAMES
 from motor_id.recording import Recording
+from motor_id.records import Record
 from motor_id.simulate import apply_input_maps, simulate_batch, split_input_maps
 
 
@@ -107,16 +108,13 @@ def _effects(report: dict[str, Any]) -> dict[str, dict[str, float]]:
 
 
 @dataclass(frozen=True)
-class RunScore:
+class RunScore(Record):
     """The scores of one run (a SysId test, a joined file): its name and per channel
-    ``{'fit_percent', 'rmse', 'samples'}``, as the whole recording's."""
+    ``{'fit_percent', 'rmse', 'samples'}``, as the whole recording's (``to_dict()``:
+    ``{'name', 'channels'}``)."""
 
     name: str
     channels: dict[str, dict[str, float]]
-
-    def to_dict(self) -> dict[str, Any]:
-        """``{'name', 'channels'}``."""
-        return {'name': self.name, 'channels': self.channels}
 
 
 @dataclass
