@@ -199,7 +199,7 @@ def time_constants(values: Mapping[str, Any],
 
 def controller_constants(values: Mapping[str, Any], input_kind: str,
                          current_bandwidth_hz: float | None,
-                         speed_bandwidth_hz: float) -> dict[str, Any]:
+                         speed_bandwidth_hz: float) -> dict[str, float | np.ndarray]:
     """Feedforward constants, time constants and PI gains (element-wise on arrays).
 
     Parameters
