@@ -440,3 +440,8 @@ def test_a_torque_plants_feedforward_comes_from_its_parameters():
     del params['coulomb_friction.T_c']
     kS = torque_feedforward(StageEstimates(parameters=params), 'linear', units).feedforward['kS']
     assert kS.std is None and kS.value == 0.0
+    from motor_id.experiment.outcome import feedforward_line
+    line = feedforward_line(ExperimentReport(experiment=ExperimentBlock(
+        joint='j', mechanism='simple', input_kind='torque'),
+        controller=torque_feedforward(StageEstimates(parameters=params), 'linear', units)))
+    assert line.startswith('kS 0 N m (the chosen model has no Coulomb friction), kV 2e-05 +- ')

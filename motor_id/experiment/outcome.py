@@ -198,6 +198,9 @@ def feedforward_line(report: ExperimentReport) -> str:
     for name, e in ff.items():
         if e.value is None:
             parts.append(f'{name} not determined')
+        elif e.std is None:   # a constant the model holds (no Coulomb friction: kS 0)
+            parts.append(f'{name} {e.value:.4g} {e.unit or ""} ({e.note or "no error bar"})'
+                         .replace('  (', ' ('))
         else:
             parts.append(f'{name} {e.value:.4g} +- {e.std:.2g} {e.unit or ""}'.rstrip())
     return ', '.join(parts)
