@@ -136,9 +136,10 @@ def test_fit_errors_cover_what_a_fit_raises():
         assert not isinstance(exc, FIT_ERRORS), exc
 
 
-FLAGS_PENDING = {'motor_id/experiment/settings.py'}
-"""Modules whose raises still name command-line flags (issue 29 item 5): the experiment,
-being built; the test fails once one of them names none, so that its entry goes too."""
+FLAGS_PENDING: set[str] = set()
+"""Modules whose raises still name command-line flags (issue 29 item 5): none since the
+experiment's settings name their parameters; the test fails once one of them names none,
+so that its entry goes too."""
 
 
 def _raises_naming_flags():

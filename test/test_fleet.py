@@ -379,7 +379,7 @@ def fleet_run(small_fleet):
     from motor_id.cli import main
     root, truth = small_fleet
     out = root / 'out'
-    code = main(['fleet', str(root / 'logs'), '--profile', str(root / 'logs' / 'fleet.yaml'),
+    code = main(['fleet', str(root / 'logs'), '--config', str(root / 'logs' / 'fleet.yaml'),
                  '--out', str(out), '--workers', '1', '-q'])
     return out, code
 

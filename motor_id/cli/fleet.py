@@ -19,9 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='rosbag2 recordings: bag folders, .mcap / .db3 files, folders '
                              'to search, globs (none: recompute drift and the report from '
                              'DIR)')
-    parser.add_argument('--profile', required=True, metavar='FLEET.yaml',
-                        help='motors: {NAME: {input, speed, current, joint, effort_is, '
-                             'resistance, ...}} (docs/fleet.md)')
+    parser.add_argument('--config', '--profile', dest='config', required=True,
+                        metavar='FLEET.yaml',
+                        help='the fleet configuration: motors: {NAME: {input, speed, '
+                             'current, joint, effort_is, resistance, ...}} (docs/fleet.md; '
+                             '--profile is its former name)')
     parser.add_argument('--out', required=True, metavar='DIR',
                         help='results: estimates.parquet, estimates.csv, failed.json, '
                              'drift.json, siblings.json, report.html')
@@ -69,7 +71,7 @@ def progress_line(quiet: bool, stream: TextIO | None = None) -> Progress:
 def run(args: argparse.Namespace) -> int:
     """Run the fleet, print the drifting motors and where the files are."""
     from motor_id.fleet.run import run_fleet
-    config = load_fleet_config(args.profile)
+    config = load_fleet_config(args.config)
     res = run_fleet(args.recordings, config, args.out, workers=args.workers,
                     scheduler=args.scheduler, analyze=args.analyze,
                     robot_from=args.robot_from, retry_failed=args.retry_failed,
