@@ -96,6 +96,7 @@ def memory(root, n_tasks, quick):
     from dataclasses import replace
 
     from motor_id.fleet.engine import DaskEngine
+    from motor_id.fleet.rows import EstimateRow
     from motor_id.fleet.task import run_task
     base, _ = _tasks(root)
     links = Path(root) / 'links'
@@ -112,8 +113,8 @@ def memory(root, n_tasks, quick):
     t0 = time.perf_counter()
     with DaskEngine(workers=2) as eng:
         for k, (_, r, err) in enumerate(eng.map(run_task, tasks), 1):
-            if err or r.get('status') != 'ok':
-                raise RuntimeError(f'task failed: {err or r.get("reason")}')
+            if err or not isinstance(r, EstimateRow):
+                raise RuntimeError(f'task failed: {err or getattr(r, "reason", None)}')
             if k % every == 0 or k == n_tasks:
                 rss = eng.worker_memory()
                 samples.append({'tasks': k, 'rss_mib': [v / 2 ** 20 for v in
