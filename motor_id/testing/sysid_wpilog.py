@@ -25,7 +25,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 import math
 import os
-from typing import Any
 
 import numpy as np
 
@@ -222,7 +221,7 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
     log = wpiutil.DataLogWriter(str(path))
     t_us = 3_000_000   # the robot has been up 3 s when the first test starts
     state = None
-    entries: dict[str, Any] = {}
+    entries: dict[str, DoubleLogEntry] = {}
     battery = IntegerLogEntry(log, 'systemTime', '', t_us) if others else None
     volts = DoubleLogEntry(log, 'NT:/SmartDashboard/battery', '', t_us) if others else None
     console = StringLogEntry(log, 'messages', '', t_us) if others else None
