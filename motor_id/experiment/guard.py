@@ -43,6 +43,9 @@ BASELINE_SAMPLES = 20
 """Samples at rest before the first test."""
 SPEED_MEAN = 3
 """The coast starts from the mean of the last few speeds (noise averaged)."""
+OTHER_CLOCK = 0.5
+"""States stamped this far [s] from their receive times at the least are stamped on
+another clock (the robot's own): only the lag's changes then tell a latency."""
 SETTLE_FRACTION = 0.02
 """A rest ends when the speed is below this fraction of the last test's peak (and a few
 noise levels)."""
@@ -195,6 +198,10 @@ class Guard:
         if len(self._baseline) < BASELINE_SAMPLES or \
                 self.elapsed(s.t) < self.plan.rest_min:
             return self._set(0.0)
+        if self.elapsed(s.t) < self.plan.rest_max and \
+                drifting([b.position for b in self._baseline]):
+            del self._baseline[:len(self._baseline) // 2]   # still moving: wait on
+            return self._set(0.0)
         pos = [b.position for b in self._baseline]
         vel = [b.velocity for b in self._baseline]
         self.rest_position = statistics.fmean(pos)
@@ -293,10 +300,6 @@ class Guard:
         return self._next_test(s)
 
     # ------------------------------------------------------------------ travel
-    def latency(self) -> float:
-        """Seconds a command may take to act (:meth:`StreamStats.latency`)."""
-        return self.stats.latency()
-
     def window(self) -> tuple[float, float]:
         """Where the coast may go: the travel less the margin, widened to hold the rest
         position (where the joint goes by itself)."""
@@ -330,7 +333,7 @@ class Guard:
         w = self.speed()
         model = self.model.fitted() if self.model is not None else None
         support = self.rest_position if self.settings.mechanism == 'elevator' else None
-        c = predict_coast(model, s.position, w, self.command, self.latency(), support)
+        c = predict_coast(model, s.position, w, self.command, self.stats.latency(), support)
         if model is None and self.settings.mechanism == 'arm':
             mirror = 2.0 * self.rest_position - s.position
             c = Coast(min(c.low, mirror), max(c.high, mirror), False)
@@ -355,7 +358,7 @@ class Guard:
         travel = self.settings.travel
         m = MARGIN * travel.width
         w = self.speed()
-        ahead = s.position + w * self.latency()
+        ahead = s.position + w * self.stats.latency()
         if w > 0 and ahead > travel.high - m:
             return 'travel_high'
         if w < 0 and ahead < travel.low + m:
@@ -369,15 +372,6 @@ class Guard:
             self.log.clamped += 1
         self.command = limited
         return limited
-
-    @property
-    def min_lag(self) -> float:
-        """The smallest receive time - stamp seen [s] (0 before any sample)."""
-        return self.stats.min_lag
-
-    def timing(self) -> dict[str, float]:
-        """Median sample period and state latency, and the latency allowed for [s]."""
-        return self.stats.timing()
 
 
 class StreamStats:
@@ -409,15 +403,21 @@ class StreamStats:
         """The smallest receive time - stamp seen [s] (0 before any sample)."""
         return self._min_lag if math.isfinite(self._min_lag) else 0.0
 
+    @property
+    def other_clock(self) -> bool:
+        """The stamps are on another clock than the receive times."""
+        return abs(self.min_lag) > OTHER_CLOCK
+
     def period(self) -> float:
         """Median sample period [s] (0.01 before two samples)."""
         return statistics.median(self._periods) if self._periods else 0.01
 
     def latency(self) -> float:
-        """Seconds a command may take to act: the state's latency, two sample periods
+        """Seconds a command may take to act: the state's latency (its excess over the
+        smallest for stamps on another clock, :data:`OTHER_CLOCK`), two sample periods
         (and half the speed mean's), and :data:`EXTRA_LATENCY`."""
-        lag = max(0.0, statistics.median(self._lags) - min(self.min_lag, 0.0)) \
-            if self._lags else 0.0
+        floor = self.min_lag if self.other_clock else min(self.min_lag, 0.0)
+        lag = max(0.0, statistics.median(self._lags) - floor) if self._lags else 0.0
         return lag + (2.0 + SPEED_MEAN / 2.0) * self.period() + EXTRA_LATENCY
 
     def speed(self, noise: float) -> float:
@@ -429,9 +429,19 @@ class StreamStats:
 
     def timing(self) -> dict[str, float]:
         """Median sample period and state latency, and the latency allowed for [s]."""
+        lag = statistics.median(self._lags) if self._lags else 0.0
         return {'sample_period': statistics.median(self._periods) if self._periods else 0.0,
-                'state_latency': statistics.median(self._lags) if self._lags else 0.0,
+                'state_latency': lag - self.min_lag if self.other_clock else lag,
                 'allowed_latency': self.latency()}
+
+
+def drifting(positions: list[float]) -> bool:
+    """The positions move: their halves' means differ by more than three times the
+    spread within the later half (a joint still falling, or coasting, when the
+    experiment started)."""
+    half = len(positions) // 2
+    drift = abs(statistics.fmean(positions[half:]) - statistics.fmean(positions[:half]))
+    return drift > 3.0 * statistics.pstdev(positions[half:]) + 1e-12
 
 
 def _deadband(w: float, level: float) -> float:

@@ -11,7 +11,8 @@ at most a second of them) and, at :meth:`ExperimentSession.close`, adds the proj
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+import math
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +25,16 @@ from motor_id.errors import BagError, ConfigError
 from motor_id.experiment.guard import Guard, StateSample
 from motor_id.experiment.plan import build_plan, Plan
 from motor_id.experiment.settings import ExperimentSettings
+from motor_id.experiment.speed import central_speed, SPEED_ESTIMATE, SpeedFromPosition
 from motor_id.output import write_json
 from motor_id.recording import MIN_SAMPLES, Recording
 
 RECORDING = 'recording.mcap'
+PINNED_WIDTH = 1e-3
+"""An elevator within this fraction of its travel of where it rested sits on its
+support (and within this much per sample period of rest)."""
+MIN_PIECE = 20
+"""Fewest samples of a run's free piece (fewer: left out)."""
 REPORT = 'report.json'
 EXPERIMENT = 'experiment.json'
 
@@ -63,6 +70,10 @@ class ExperimentSession:
         self.bag: BagWriter | None = None
         self.out = Path(settings.out)
         self._first_ns: int | None = None
+        self._speed = SpeedFromPosition()
+        self._t0 = 0.0
+        self.speed_derived = False
+        """The state gave no velocity: the speed is derived from the position."""
 
     def open(self) -> None:
         """Create the output folder and start ``recording.mcap``."""
@@ -93,7 +104,12 @@ class ExperimentSession:
         return self.guard.start(now)
 
     def on_state(self, s: StateSample) -> float | None:
-        """The command for this sample (None: nothing to send); the sample is recorded."""
+        """The command for this sample (None: nothing to send); the sample is recorded.
+        A sample without a velocity (NaN) gets the speed derived from the positions."""
+        derived = self._speed.update(s.t, s.position)
+        if not math.isfinite(s.velocity):
+            self.speed_derived = True
+            s = replace(s, velocity=derived)
         cmd = self.guard.on_state(s)
         if cmd is not None and self.guard.phase != 'idle':
             self.rows.append(Row(s.t, cmd, s.position, s.velocity, s.effort,
@@ -102,7 +118,8 @@ class ExperimentSession:
 
     def recording(self) -> Recording | None:
         """The samples as a :class:`~motor_id.recording.Recording` (one run per test and
-        the rest after it), or None with fewer than the fit needs."""
+        the rest after it, less the samples pinned on a support: :meth:`pinned`), or None
+        with fewer than the fit needs."""
         if len(self.rows) < MIN_SAMPLES:
             return None
         s = self.settings
@@ -112,19 +129,44 @@ class ExperimentSession:
         if s.input_kind == 'voltage' and s.resistance is not None and \
                 np.all(np.isfinite(effort)) and np.any(effort != 0):
             current = effort
+        position = np.array([r.position for r in self.rows])
+        speed = central_speed(t, position) if self.speed_derived else \
+            np.array([r.velocity for r in self.rows])
         runs = np.array([r.run for r in self.rows])
-        starts = [0] + [int(k) for k in np.flatnonzero(np.diff(runs)) + 1]
-        ends = starts[1:] + [len(runs)]
-        segments = [(a, b) for a, b in zip(starts, ends, strict=True)] \
-            if len(starts) > 1 else None
+        keep, pieces = free_pieces(runs, self.pinned(position, speed))
+        if int(np.sum(keep)) < MIN_SAMPLES:
+            return None
+        names = self._run_names(int(runs.max()) + 1)
         meta: dict[str, Any] = {
             'source': str(self.out / RECORDING), 'joint': s.joint,
             'mechanism': s.mechanism, 'experiment': self.guard.plan.name,
             'units': channel_units(s.input_kind, s.linear, position=True),
-            'segment_names': self._run_names(len(starts))}
-        return Recording(t - t[0], self._inputs(t),
-                         np.array([r.velocity for r in self.rows]), current, s.input_kind,
-                         meta, segments, np.array([r.position for r in self.rows]))
+            'segment_names': [names[runs[a]] for a, _ in pieces]}
+        if self.speed_derived:
+            meta['speed_estimate'] = SPEED_ESTIMATE
+        if not np.all(keep):
+            meta['pinned_samples'] = int(np.sum(~keep))
+        index = np.cumsum(keep) - 1   # row -> kept sample
+        segments = [(int(index[a]), int(index[b - 1]) + 1) for a, b in pieces]
+        t_kept = t[keep]
+        self._t0 = float(t_kept[0])
+        return Recording(t_kept - t_kept[0], self._inputs(t)[keep], speed[keep],
+                         None if current is None else current[keep], s.input_kind, meta,
+                         segments if len(segments) > 1 else None, position[keep])
+
+    def pinned(self, position: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """The samples where an elevator sits on the support it rested on at the start
+        (gravity holds it there: the free model would fall through it), at rest within
+        the noise of the baseline. Nothing is pinned for other mechanisms."""
+        g = self.guard
+        travel = self.settings.travel
+        if self.settings.mechanism != 'elevator' or travel is None or \
+                not np.isfinite(g.rest_position):
+            return np.zeros(len(position), dtype=bool)
+        tol_x = max(3.0 * g.noise_position, PINNED_WIDTH * travel.width)
+        tol_w = max(4.0 * g.noise_speed, PINNED_WIDTH * travel.width / g.stats.period())
+        return np.asarray((np.abs(position - g.rest_position) <= tol_x) &
+                          (np.abs(speed) <= tol_w), bool)
 
     def _inputs(self, t: np.ndarray) -> np.ndarray:
         """The input over each sample's interval: the last command sent before the next
@@ -133,8 +175,9 @@ class ExperimentSession:
         decided = np.array([r.command for r in self.rows])
         if not self.sent:
             return decided
-        lag = self.guard.min_lag   # a robot on another clock: stamps offset by about it
-        t_sent = np.array([ts for ts, _ in self.sent]) - (lag if abs(lag) > 0.5 else 0.0)
+        # a robot on another clock: its stamps are offset by about the smallest lag
+        lag = self.guard.stats.min_lag if self.guard.stats.other_clock else 0.0
+        t_sent = np.array([ts for ts, _ in self.sent]) - lag
         values = np.array([v for _, v in self.sent])
         idx = held_command_index(t, t_sent, 'next')
         idx[-1] = np.searchsorted(t_sent, t[-1] + (t[-1] - t[-2]), side='left') - 1
@@ -151,7 +194,7 @@ class ExperimentSession:
         if self.bag is not None:
             try:
                 if rec is not None:
-                    start_ns = int(round(self.rows[0].t * 1e9)) if self.rows[0].t > 0 \
+                    start_ns = int(round(self._t0 * 1e9)) if self._t0 > 0 \
                         else (self._first_ns or 0)
                     write_recording_into(self.bag, rec, start_ns=max(start_ns, 0))
             finally:
@@ -163,7 +206,7 @@ class ExperimentSession:
         """``experiment.json``: the settings, the plan and the run log."""
         s = self.settings
         log = self.guard.log.to_dict()
-        log['timing'] = self.guard.timing()
+        log['timing'] = self.guard.stats.timing()
         plan = self.guard.plan
         return {
             'joint': s.joint, 'command_topic': s.command_topic,
@@ -180,3 +223,33 @@ class ExperimentSession:
             'recording': str(self.out / RECORDING),
             **log}
 
+
+
+def free_pieces(runs: np.ndarray, pinned: np.ndarray
+                ) -> tuple[np.ndarray, list[tuple[int, int]]]:
+    """The samples kept and the runs' pieces ``(start, stop)`` (row indices) between the
+    pinned samples, each at least :data:`MIN_PIECE` long.
+
+    Parameters
+    ----------
+    runs : ndarray of int
+        Each row's run (non-decreasing).
+    pinned : ndarray of bool
+    """
+    keep = ~pinned
+    pieces = []
+    n = len(runs)
+    a = 0
+    while a < n:
+        if not keep[a]:
+            a += 1
+            continue
+        b = a
+        while b < n and keep[b] and runs[b] == runs[a]:
+            b += 1
+        if b - a >= MIN_PIECE:
+            pieces.append((a, b))
+        else:
+            keep[a:b] = False
+        a = b
+    return keep, pieces

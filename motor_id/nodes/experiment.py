@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 import traceback
-from typing import Any
+from typing import Any, cast
 
 from rcl_interfaces.srv import GetParameters
 import rclpy
@@ -145,14 +145,16 @@ class ExperimentNode(Node):
     # ------------------------------------------------------------------ inputs
     def _subscribe(self, endpoints: list[Any]) -> None:
         reliable = messages.all_reliable(endpoints)
-        self.create_subscription(JointState, self.settings.state_topic, self._on_state,
+        # two arguments: rclpy passes the message info (its source_timestamp) as well
+        on_state: Callable[[Any], None] = cast(Any, self._on_state)
+        self.create_subscription(JointState, self.settings.state_topic, on_state,
                                  messages.robot_qos(reliable))
 
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, msg: JointState, info: Any) -> None:
         with self._lock:
-            self._take_state(msg)
+            self._take_state(msg, info)
 
-    def _take_state(self, msg: JointState) -> None:
+    def _take_state(self, msg: JointState, info: Any = None) -> None:
         now_ns = self.get_clock().now().nanoseconds
         self.session.record_message(self.settings.state_topic, JOINT_STATE,
                                     serialize_message(msg), now_ns)
@@ -161,14 +163,17 @@ class ExperimentNode(Node):
             return
         stamp = messages.stamp_seconds(msg.header.stamp)
         received = now_ns * 1e-9
+        if not stamp:   # unset: when the robot sent it (DDS's source time), or now
+            sent = int(info.get('source_timestamp') or 0) if info else 0
+            stamp = sent * 1e-9 if 0 < sent <= now_ns else 0.0
         s = StateSample(stamp or received, time.monotonic(),
                         messages.joint_value(msg, k, 'position'),
                         messages.joint_value(msg, k, 'velocity'),
                         messages.joint_value(msg, k, 'effort'),
                         received - stamp if stamp else 0.0)
-        if not (math.isfinite(s.position) and math.isfinite(s.velocity)):
-            self._unusable(f'{self.settings.state_topic} gives no position or velocity '
-                           f'of joint {self.settings.joint}')
+        if not math.isfinite(s.position):
+            self._unusable(f'{self.settings.state_topic} gives no position of joint '
+                           f'{self.settings.joint}')
             return
         self._state = s
         cmd = self.session.on_state(s)
