@@ -342,7 +342,6 @@ def test_elevator_on_its_bottom_identifies_gravity_and_the_feedforward(launch, t
     t = truth(tmp_path)
     true = t['feedforward']
     report = json.loads((tmp_path / 'out' / 'report.json').read_text())
-    print({k: (ff(report, k)['value'], true[k]['value']) for k in true})
     assert ff(report, 'kG')['value'] == pytest.approx(true['kG']['value'], rel=0.10)
     assert ff(report, 'kV')['value'] == pytest.approx(true['kV']['value'], rel=0.10)
     assert ff(report, 'kS')['value'] == pytest.approx(true['kS']['value'], abs=0.1)

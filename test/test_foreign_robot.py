@@ -57,7 +57,6 @@ def test_wheel_on_a_foreign_robot_meets_the_targets(launch, tmp_path):
     robot.stop(signal.SIGINT)
     truth, found = results(tmp_path)
     true = truth['feedforward']
-    print(true, found)
     assert found['kV'] == pytest.approx(true['kV'], rel=0.05)
     assert found['kA'] == pytest.approx(true['kA'], rel=0.20)
     assert found['kS'] == pytest.approx(true['kS'], abs=0.03)
@@ -82,7 +81,6 @@ def test_arm_on_a_foreign_robot_meets_the_targets(launch, tmp_path, quirks):
     robot.stop(signal.SIGINT)
     truth, found = results(tmp_path)
     true = truth['feedforward']
-    print(true, found)
     assert -2.1 <= truth['position']['min'] and truth['position']['max'] <= 1.9
     assert found['kG'] == pytest.approx(true['kG'], rel=0.10)
     assert found['offset'] == pytest.approx(true['offset'], abs=0.1)

@@ -25,6 +25,9 @@ MIN_ROWS = 40
 """Rows before the model may be used."""
 MAX_RELATIVE_STD = 0.3
 """The damping (and an arm's gravity) must be known to this relative error."""
+HOLD_MAX = 0.5
+"""An elevator's tests are centred on the command that holds it (:func:`test_centre`),
+at most this fraction of the command limit."""
 FALLBACK_COAST = 1.0
 """Without a usable model the joint is taken to coast at its speed this long [s]."""
 
@@ -51,6 +54,12 @@ class CoastModel:
         if self.mechanism == 'arm':
             return th[3] * math.cos(x) + th[4] * math.sin(x)
         return 0.0
+
+    def hold(self) -> float:
+        """The command that balances an elevator's gravity (0 for other mechanisms)."""
+        if self.mechanism != 'elevator' or self.theta[0] == 0:
+            return 0.0
+        return -self.theta[3] / self.theta[0]
 
     def friction(self) -> float:
         """The Coulomb friction's deceleration |a_s| (0 if it came out driving)."""
@@ -148,6 +157,16 @@ class OnlineModel:
             if g == 0 or math.hypot(std[3], std[4]) > MAX_RELATIVE_STD * g:
                 return None
         return CoastModel(self.mechanism, tuple(float(v) for v in theta), self.w_eps)
+
+
+def test_centre(model: CoastModel | None, max_command: float) -> float:
+    """The command an elevator's test is centred on: the one that holds it against
+    gravity, from the on-line model (0 before the model is known, and for other
+    mechanisms). Centred so, a test down is a slow descent as a test up is a slow climb,
+    and their speeds alike tell friction from gravity (a test down from 0 is a fall)."""
+    if model is None:
+        return 0.0
+    return max(-HOLD_MAX * max_command, min(HOLD_MAX * max_command, model.hold()))
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import math
 import statistics
 
-from motor_id.experiment.coast import Coast, OnlineModel, predict_coast
+from motor_id.experiment.coast import Coast, OnlineModel, predict_coast, test_centre
 from motor_id.experiment.log import RunLog, TestLog, TRAVEL_REASONS
 from motor_id.experiment.plan import arrange, Plan, repeat_later, TestSpec
 from motor_id.experiment.settings import ExperimentSettings
@@ -261,8 +261,10 @@ class Guard:
         spec = self.plan.tests[self.test_index]
         if self.test_index > 0:
             self.run_index += 1
+        centre = test_centre(self.model.fitted() if self.model is not None else None,
+                             self.settings.max_command)
         self.log.tests.append(TestLog(spec.name, spec.kind, spec.direction,
-                                      self.elapsed(s.t)))
+                                      self.elapsed(s.t), centre=centre))
         self.phase = 'test'
         self._phase_start = s.t
         self._peak_speed = 0.0
@@ -281,7 +283,8 @@ class Guard:
         reason = self._travel_reason(s)
         if reason is not None:
             return self._end_test(reason, s)
-        return self._set(spec.command(t))
+        c = self.log.tests[-1].centre   # the command limit is kept around the centre
+        return self._set(c + spec.command(t) * (1.0 - abs(c) / self.settings.max_command))
 
     def _end_test(self, reason: str, s: StateSample | None = None) -> float:
         test = self.log.tests[-1]

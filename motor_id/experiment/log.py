@@ -39,6 +39,8 @@ class TestLog:
     position_low: float = math.inf
     position_high: float = -math.inf
     samples: int = 0
+    centre: float = 0.0
+    """The command the test is centred on (an elevator's: the one that holds it)."""
 
     def update(self, command: float, position: float, speed: float) -> None:
         """Account one sample of the test."""
