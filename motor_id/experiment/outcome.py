@@ -258,6 +258,9 @@ def finish(session: ExperimentSession, failure: str | None, signum: int | None,
     try:
         with stop_signals_as_interrupt(STOP_SIGNALS):
             return _finish(session, failure, signum, errored, jobs, say)
+    except OSError as exc:   # the outputs cannot be written (a full disk)
+        say(f'experiment: cannot write the outputs in {session.out}: {exc}')
+        return EXIT_ERROR
     except KeyboardInterrupt as exc:
         name = exc.args[0] if exc.args and isinstance(exc.args[0], str) else 'SIGINT'
         say('experiment: interrupted')

@@ -71,6 +71,8 @@ class ExperimentSession:
         self.out = Path(settings.out)
         self._first_ns: int | None = None
         self._speed = SpeedFromPosition()
+        self.write_error: str | None = None
+        """Why the recording could not be written (the experiment then stops)."""
         self._t0 = 0.0
         self.speed_derived = False
         """The state gave no velocity: the speed is derived from the position."""
@@ -94,6 +96,14 @@ class ExperimentSession:
             self.bag.write_serialized(topic, msgtype, data, int(log_time_ns))
         except BagError:
             pass   # closed at the end while a late message came in
+        except OSError as exc:   # a full disk, a file size limit: the caller stops
+            self.write_error = (f'cannot write {self.out / RECORDING}: '
+                                f'{exc.strerror or exc}')
+            bag, self.bag = self.bag, None
+            try:
+                bag.close()
+            except (OSError, BagError):
+                pass
 
     def note_sent(self, t: float, value: float) -> None:
         """A command left at time ``t`` [s, the clock of the receive times]."""

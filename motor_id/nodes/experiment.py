@@ -116,6 +116,8 @@ class ExperimentNode(Node):
         self.session.open()
         self.on_finish: Callable[[], None] | None = None
         self.failure: str | None = None
+        self.error: str | None = None
+        """An error that stopped the experiment (the exit code says so)."""
         self.started = False
         self.sent = 0
         s = self.settings
@@ -179,6 +181,7 @@ class ExperimentNode(Node):
         cmd = self.session.on_state(s)
         if cmd is not None:
             self.publish(cmd)
+        self._check_writing()
         self._check_finished()
 
     def _joint_index(self, msg: JointState) -> int | None:
@@ -293,7 +296,16 @@ class ExperimentNode(Node):
         cmd = self.session.guard.tick(now)
         if cmd is not None:
             self.publish(cmd)
+        self._check_writing()
         self._check_finished()
+
+    def _check_writing(self) -> None:
+        """A recording that cannot be written (a full disk) stops the experiment as an
+        error."""
+        if self.session.write_error is not None and self.error is None:
+            self.error = self.session.write_error
+            self.get_logger().error(self.error)
+            self.stop(f'error: {self.error}')
 
     def _check_finished(self) -> None:
         self._log_progress()
@@ -453,7 +465,8 @@ def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return finish(node.session, node.failure, signals.received, error is not None, jobs)
+    return finish(node.session, node.failure, signals.received,
+                  error is not None or node.error is not None, jobs)
 
 
 def main(args: list[str] | None = None) -> int:
