@@ -27,8 +27,9 @@ ZERO_WITHIN = 0.5
 
 
 def demo_args(out, domain, robot='wheel'):
+    # the tests share the machine: the watchdog the demo had for it
     return ['-m', 'motor_id.cli', 'demo', '--robot', robot, '--fast', '--out', str(out),
-            '--domain', str(domain)]
+            '--domain', str(domain), '--watchdog', '0.5']
 
 
 def feedforward(out):

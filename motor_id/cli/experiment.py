@@ -15,6 +15,7 @@ from motor_id.experiment.settings import (
     ExperimentSettings,
     PLANS,
     Travel,
+    WATCHDOG,
 )
 
 
@@ -46,8 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'cannot tell it, the feedforward constants do not need it)')
     parser.add_argument('--time-scale', type=float, default=1.0, metavar='S',
                         help="multiply the plan's durations (default 1)")
-    parser.add_argument('--watchdog', type=float, default=0.25, metavar='SEC',
-                        help='state silent or late this long stops it (default 0.25 s)')
+    parser.add_argument('--watchdog', type=float, default=WATCHDOG, metavar='SEC',
+                        help='state silent or late this long stops it (default '
+                             f'{WATCHDOG:g} s)')
     parser.add_argument('--start-timeout', type=float, default=30.0, metavar='SEC',
                         help='give up if the state or the controller joints are not '
                              'known within this time (default 30 s)')

@@ -18,6 +18,9 @@ from motor_id.errors import ConfigError
 GRAVITY_MECHANISMS = tuple(m for m in MECHANISMS if m != 'simple')
 """Mechanisms that fall when commanded 0 (they need ``--travel``)."""
 PLANS = ('sysid', 'prbs', 'multisine')
+WATCHDOG = 0.25
+"""The state watchdog's default [s]: the state silent, or stamped late, this long stops
+the experiment."""
 COMMAND_TYPES = ('multi_array', 'float64')
 """``std_msgs/Float64MultiArray`` (one value per joint of the controller) or
 ``std_msgs/Float64`` (the one joint)."""
@@ -110,7 +113,7 @@ class ExperimentSettings:
     max_speed: float | None = None
     plan: str = 'sysid'
     resistance: float | None = None
-    watchdog: float = 0.25
+    watchdog: float = WATCHDOG
     time_scale: float = 1.0
     seed: int = 0
     identify: bool = True
@@ -163,7 +166,7 @@ class ExperimentSettings:
             max_speed=float(p['max_speed']) if p.get('max_speed') else None,
             plan=str(p.get('plan', 'sysid')),
             resistance=float(p['resistance']) if p.get('resistance') else None,
-            watchdog=float(p.get('watchdog', 0.25)),
+            watchdog=float(p.get('watchdog', WATCHDOG)),
             time_scale=float(p.get('time_scale', 1.0)), seed=int(p.get('seed', 0)),
             identify=bool(p.get('identify', True)))
 

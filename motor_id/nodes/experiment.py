@@ -41,7 +41,7 @@ from motor_id.errors import ConfigError
 from motor_id.experiment.guard import limit_command, StateSample
 from motor_id.experiment.outcome import EXIT_CONFIG, finish
 from motor_id.experiment.session import ExperimentSession
-from motor_id.experiment.settings import COMMAND_TYPES, ExperimentSettings, PLANS
+from motor_id.experiment.settings import COMMAND_TYPES, ExperimentSettings, PLANS, WATCHDOG
 from motor_id.nodes import messages
 from motor_id.nodes.common import (
     declare_parameters,
@@ -73,7 +73,7 @@ PARAMETERS = (
     ParamSpec('plan', 'sysid', 'the test plan', choices=PLANS),
     ParamSpec('resistance', 0.0, 'armature resistance [Ohm] as measured (0: not known)',
               low=0.0, high=1e6),
-    ParamSpec('watchdog', 0.25, 'state silent or late this long stops the experiment [s]',
+    ParamSpec('watchdog', WATCHDOG, 'state silent or late this long stops the experiment [s]',
               low=0.02, high=5.0),
     ParamSpec('time_scale', 1.0, "multiplies the plan's durations", low=0.05, high=10.0),
     ParamSpec('seed', 0, 'seed of the PRBS / multisine plans and the analysis', low=0,
