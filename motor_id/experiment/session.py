@@ -116,10 +116,9 @@ class ExperimentSession:
     def on_state(self, s: StateSample) -> float | None:
         """The command for this sample (None: nothing to send); the sample is recorded.
         A sample without a velocity (NaN) gets the speed derived from the positions."""
-        derived = self._speed.update(s.t, s.position)
         if not math.isfinite(s.velocity):
             self.speed_derived = True
-            s = replace(s, velocity=derived)
+            s = replace(s, velocity=self._speed.update(s.t, s.position))
         cmd = self.guard.on_state(s)
         if cmd is not None and self.guard.phase != 'idle':
             self.rows.append(Row(s.t, cmd, s.position, s.velocity, s.effort,
