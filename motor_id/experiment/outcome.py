@@ -3,8 +3,9 @@
 The recording is analysed as ``motor-id analyze`` does (:class:`DiscrepancyAnalysis`);
 ``report.json`` is its report with the data block and ``controller.feedforward`` constants
 carrying their units. A voltage plant measured without current cannot tell the armature
-resistance: without ``-R`` the analysis runs on a nominal one (:data:`NOMINAL_R`), which
-the feedforward constants do not depend on, and the report says so.
+resistance: without ``-R`` the analysis runs on the internal one of speed-only records
+(:data:`~motor_id.identify.space.SPEED_ONLY_R_M`), which the feedforward constants do not
+depend on, and the report says so.
 """
 
 from __future__ import annotations
@@ -24,14 +25,11 @@ from motor_id.contracts import feedforward_units
 from motor_id.errors import MotorIdError
 from motor_id.experiment.session import ExperimentSession
 from motor_id.experiment.settings import ExperimentSettings
+from motor_id.identify.space import SPEED_ONLY_R_M
 from motor_id.lifeline import STOP_SIGNALS, stop_signals_as_interrupt
 from motor_id.output import write_json
 from motor_id.recording import Recording
 from motor_id.records import optional, Record
-
-NOMINAL_R = 1.0
-"""Armature resistance [Ohm] the analysis of a speed-only voltage record runs on when
-none is given: kS, kV, kA and kG do not depend on it."""
 
 EXIT_OK = 0
 EXIT_CONFIG = 2
@@ -118,7 +116,7 @@ def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int =
         joint, the mechanism, how R_m was set) and units on the feedforward constants.
     """
     nominal = settings.input_kind == 'voltage' and settings.resistance is None
-    R = NOMINAL_R if nominal else settings.resistance
+    R = SPEED_ONLY_R_M if nominal else settings.resistance
     ana = DiscrepancyAnalysis(R_m=R, random_state=settings.seed, jobs=jobs,
                              mechanism=settings.mechanism)
     ana.fit(rec, progress=progress)
@@ -127,7 +125,7 @@ def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int =
                      runs=len(rec.segment_ranges), run_names=rec.meta.get('segment_names'))
     experiment = ExperimentBlock(
         joint=settings.joint, mechanism=settings.mechanism, input_kind=settings.input_kind,
-        R_m=(f'nominal {NOMINAL_R:g} Ohm: speed alone cannot tell the armature '
+        R_m=(f'nominal {SPEED_ONLY_R_M:g} Ohm: speed alone cannot tell the armature '
              'resistance; kS, kV, kA do not depend on it') if nominal else
         (f'{R:g} Ohm as given' if R is not None else None))
     controller = None
