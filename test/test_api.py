@@ -117,8 +117,9 @@ def test_readme_python_example_runs(tmp_path, monkeypatch, capsys):
     exec(compile(blocks[0], 'README.md', 'exec'), scope)
     out = capsys.readouterr().out
     assert scope['analysis'].verdict == 'coulomb_friction', out
-    kv = scope['ff']['kV']
-    assert kv['std'] < 0.05 * kv['value'], out
+    kv = scope['ff'].kV
+    assert kv.std < 0.05 * kv.value, out
+    assert scope['ff'].units['kV'] == 'V s/rad', out
     assert scope['score'].channels['speed']['fit_percent'] > 95, out
 
 
