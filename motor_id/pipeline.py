@@ -110,11 +110,6 @@ class FitReport:
     alias_guard: AliasGuard | None = None
 
     @property
-    def controller(self) -> dict[str, Any] | None:
-        """The controller design's JSON (``ControllerDesign.to_dict()``), None without one."""
-        return None if self.design is None else self.design.to_dict()
-
-    @property
     def adequate(self) -> bool:
         """The model explains enough of the record (see :mod:`.identify.determinacy`)."""
         return bool(self.result.adequate)
