@@ -168,9 +168,10 @@ class IdentifierNode(Node):
     copied under the buffer's lock. Only one fit runs at a time: a second request
     while one runs is answered at once with ``success=False``.
 
-    The constructor only declares parameters and creates publishers, subscriptions and
-    timers; a one-shot timer, once the node spins, starts the fit thread, which runs the
-    warm-up (``warm_up``) and then creates ``~/identify`` and logs "identifier ready".
+    The constructor only declares parameters and creates publishers and timers; a
+    one-shot timer, once the node spins, runs the warm-up (``warm_up``), subscribes the
+    inputs and starts the fit thread, which creates ``~/identify`` and logs "identifier
+    ready" (the order of the constructor before: nothing is received while warming up).
 
     Input: ``input: samples`` subscribes the driver's ``samples`` batches; ``input:
     topics`` builds the same rows from the robot's ``joint_states`` and ``input_topic``
@@ -206,14 +207,7 @@ class IdentifierNode(Node):
         self.input_kind = self.settings['input_kind']
         if self.settings['input'] == 'topics' and self.settings['effort_is'] == 'torque':
             self.input_kind = 'torque'
-        self.topic_input: TopicInput | None = None
-        if self.settings['input'] == 'topics':
-            self.topic_input = TopicInput(self, self.buffer, self.settings)
-        else:
-            self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC,
-                                     self._on_samples, messages.SAMPLES_QOS)
-            self.samples_watch = TopicWatch(self, messages.SAMPLES_TOPIC,
-                                            messages.TYPE_NAMES[Float64MultiArray])
+        self.topic_input: TopicInput | None = None   # the inputs: subscribed at the start
         self.estimate_pub = self.create_publisher(DiagnosticArray,
                                                   '~/' + messages.ESTIMATE_TOPIC,
                                                   messages.LATCHED_QOS)
@@ -240,19 +234,28 @@ class IdentifierNode(Node):
         self._start_timer = self.create_timer(0.0, self._on_start)   # one shot, once spun
 
     def _on_start(self) -> None:
-        """Once the node spins (a one-shot timer, not the constructor): start the fit
-        thread, which warms up, then serves ``~/identify`` (and the periodic fits)."""
+        """Once the node spins (a one-shot timer, not the constructor): the warm-up, then
+        the inputs' subscriptions (nothing queues while the kernels load, as before), then
+        the fit thread, which serves ``~/identify`` (and the periodic fits)."""
         self._start_timer.cancel()
-        if self._fit_thread is None and not self._stopping.is_set():
-            self._fit_thread = threading.Thread(target=self._serve, name='fit-executor',
-                                                daemon=True)
-            self._fit_thread.start()
-
-    def _serve(self) -> None:
-        """The fit thread: the warm-up, the service and the timer, then its executor."""
+        if self._fit_thread is not None or self._stopping.is_set():
+            return
         if self.settings['warm_up']:
             warm_up(fit_settings(self.settings), self.input_kind, self.get_logger(),
                     self._progress)
+        if self.settings['input'] == 'topics':
+            self.topic_input = TopicInput(self, self.buffer, self.settings)
+        else:
+            self.create_subscription(Float64MultiArray, messages.SAMPLES_TOPIC,
+                                     self._on_samples, messages.SAMPLES_QOS)
+            self.samples_watch = TopicWatch(self, messages.SAMPLES_TOPIC,
+                                            messages.TYPE_NAMES[Float64MultiArray])
+        self._fit_thread = threading.Thread(target=self._serve, name='fit-executor',
+                                            daemon=True)
+        self._fit_thread.start()
+
+    def _serve(self) -> None:
+        """The fit thread: the service and the timer, then its executor."""
         guard = self.in_flight.wrap
         with self._serving:
             if self._stopping.is_set():
