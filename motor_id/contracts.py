@@ -111,14 +111,6 @@ def units_of(input_kind: str = 'voltage', linear: bool = False) -> dict[str, str
     return units
 
 
-def feedforward_units(input_kind: str = 'voltage', linear: bool = False) -> dict[str, str]:
-    """Units of the feedforward constants ``kS, kV, kA, kG`` and an arm's ``offset``, for a
-    rotary or (``linear``) a linear axis."""
-    units = units_of(input_kind, linear)
-    return {'kS': units['kS'], 'kV': units['kV'], 'kA': units['kA'], 'kG': units['kS'],
-            'offset': 'rad'}
-
-
 def channel_units(input_kind: str = 'voltage', linear: bool = False,
                   position: bool = False) -> dict[str, str]:
     """Units of a recording's channels by sample column name (a bag's ``meta['units']``).

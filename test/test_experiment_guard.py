@@ -5,6 +5,7 @@ from dataclasses import dataclass
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -415,33 +416,29 @@ def test_a_test_cut_short_before_the_model_knew_the_joint_runs_again():
 
 
 def test_a_torque_plants_feedforward_comes_from_its_parameters():
+    # the analysis' own controller block (one assembly for analyze and the experiment)
+    from motor_id.analysis.feedforward import controller_block
     from motor_id.analysis.simulation_result import ParameterEstimate, StageEstimates
-    from motor_id.contracts import feedforward_units
-    from motor_id.experiment.outcome import (
-        ExperimentBlock,
-        ExperimentReport,
-        identified,
-        torque_feedforward,
-    )
 
     def est(value, std):
         return ParameterEstimate(value=value, std=std, std_model=std, determined=True)
 
     params = {'J': est(1e-3, 1e-6), 'B': est(2e-5, 2e-6),
               'coulomb_friction.T_c': est(0.12, 5e-4)}
-    units = feedforward_units('torque', False)
-    block = torque_feedforward(StageEstimates(parameters=params), 'coulomb_friction', units)
-    ff = block.to_dict()['feedforward']
+
+    def block(p):
+        # the stage's chosen model and its estimates, all the block reads of it
+        sim = SimpleNamespace(chosen='coulomb_friction', estimates=StageEstimates(parameters=p))
+        return controller_block(sim, 'torque', False, 'simple')
+    ff = block(params).to_dict()['feedforward']
     assert ff['kS'] == {'value': 0.12, 'std': 5e-4, 'unit': 'N m'}
     assert ff['kV'] == {'value': 2e-5, 'std': 2e-6, 'unit': 'N m s/rad'}
     assert ff['kA'] == {'value': 1e-3, 'std': 1e-6, 'unit': 'N m s^2/rad'}
-    assert identified(ExperimentReport(experiment=ExperimentBlock(
-        joint='j', mechanism='simple', input_kind='torque'), controller=block))
     del params['coulomb_friction.T_c']
-    kS = torque_feedforward(StageEstimates(parameters=params), 'linear', units).feedforward['kS']
-    assert kS.std is None and kS.value == 0.0
-    from motor_id.experiment.outcome import feedforward_line
+    kS = block(params).feedforward['kS']
+    assert kS.value == 0.0 and kS.std is None
+    from motor_id.experiment.outcome import ExperimentBlock, ExperimentReport, feedforward_line
     line = feedforward_line(ExperimentReport(experiment=ExperimentBlock(
         joint='j', mechanism='simple', input_kind='torque'),
-        controller=torque_feedforward(StageEstimates(parameters=params), 'linear', units)))
+        analysis=SimpleNamespace(controller=lambda: block(params))))
     assert line.startswith('kS 0 N m (the chosen model has no Coulomb friction), kV 2e-05 +- ')

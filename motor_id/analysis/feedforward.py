@@ -39,6 +39,22 @@ class ControllerBlock(Record):
     source: str
 
 
+def controller_block(sim: SimulationStage | None, input_kind: str, linear: bool,
+                     mechanism: str) -> ControllerBlock | None:
+    """The feedforward constants of the simulation-error model: a voltage plant's
+    (:func:`voltage_controller`) or a torque plant's (:func:`torque_controller`); None
+    without that model."""
+    if input_kind == 'torque':
+        return torque_controller(sim, linear, mechanism)
+    return voltage_controller(sim, input_kind, linear, mechanism)
+
+
+def _units(input_kind: str, linear: bool) -> dict[str, str]:
+    u = units_of(input_kind, linear)
+    return {'kS': u['kS'], 'kV': u['kV'], 'kA': u['kA'], 'kS-': u['kS'], 'kV-': u['kV'],
+            'kG': u['kS'], **{p.role: p.unit for _, p in role_params('offset')}}
+
+
 def voltage_controller(sim: SimulationStage | None, input_kind: str, linear: bool,
                        mechanism: str) -> ControllerBlock | None:
     """WPILib SysId's feedforward constants of the simulation-error model of a voltage
@@ -47,9 +63,7 @@ def voltage_controller(sim: SimulationStage | None, input_kind: str, linear: boo
     combos = sim.estimates.combinations if sim and sim.estimates else None
     if not sim or not combos:
         return None
-    u = units_of(input_kind, linear)
-    units = {'kS': u['kS'], 'kV': u['kV'], 'kA': u['kA'], 'kS-': u['kS'], 'kV-': u['kV'],
-             'kG': u['kS'], **{p.role: p.unit for _, p in role_params('offset')}}
+    units = _units(input_kind, linear)
     ff: dict[str, FeedforwardConstant] = {}
     for c in combos:
         ff[c.name] = (FeedforwardConstant(value=c.value, std=c.std, unit=units.get(c.name))
@@ -65,3 +79,38 @@ def voltage_controller(sim: SimulationStage | None, input_kind: str, linear: boo
                    ', kG = T_g R_m / K_T: V = kS sgn(w) + kG + kV w + kA dw/dt')
     return ControllerBlock(feedforward=ff, model=sim.chosen, mechanism=mechanism,
                            source=source)
+
+
+TORQUE_FEEDFORWARD = {'kS': ('coulomb_friction.T_c',), 'kV': ('B',), 'kA': ('J',),
+                      'kG': ('elevator_gravity.T_g', 'arm_gravity.T_g'),
+                      'offset': ('arm_gravity.offset',)}
+"""For a torque plant the feedforward constants are parameters: u = T_c sgn(w) + T_g
+[cos(theta + offset)] + B w + J dw/dt."""
+
+
+def torque_controller(sim: SimulationStage | None, linear: bool,
+                      mechanism: str) -> ControllerBlock | None:
+    """The feedforward constants of a torque plant: its simulation-error model's
+    parameters (:data:`TORQUE_FEEDFORWARD`; kS 0 for a model without Coulomb
+    friction); None without that model."""
+    params = (sim.estimates.parameters if sim and sim.estimates else None) or {}
+    if not sim or not params:
+        return None
+    units = _units('torque', linear)
+    ff: dict[str, FeedforwardConstant] = {}
+    for name, keys in TORQUE_FEEDFORWARD.items():
+        key = next((k for k in keys if k in params), None)
+        if key is None:
+            if name == 'kS':
+                ff[name] = FeedforwardConstant(
+                    value=0.0, std=None, note='the chosen model has no Coulomb friction',
+                    unit=units[name])
+            continue
+        p = params[key]
+        ff[name] = (FeedforwardConstant(value=p.value, std=p.std, unit=units[name])
+                    if p.determined else
+                    FeedforwardConstant(value=None, std=None, particular_value=p.value,
+                                        note=p.note or None, unit=units[name]))
+    return ControllerBlock(feedforward=ff, model=sim.chosen, mechanism=mechanism,
+                           source='the simulation-error model of a torque plant: kS = T_c, '
+                                  'kV = B, kA = J (kG = T_g)')

@@ -7,7 +7,7 @@ import math
 import os
 from typing import Any, TYPE_CHECKING
 
-from motor_id.analysis.feedforward import ControllerBlock, voltage_controller
+from motor_id.analysis.feedforward import controller_block, ControllerBlock
 from motor_id.contracts import units_of
 from motor_id.identify.validation import run_lines, RunScore
 from motor_id.output import attach_units
@@ -207,10 +207,10 @@ class DiscrepancyReport:
         return attach_units(d, self.input_kind, self.linear)
 
     def controller(self) -> ControllerBlock | None:
-        """The ``controller`` block of the chosen model of a voltage plant
-        (:func:`.feedforward.voltage_controller`); None without that model."""
-        return voltage_controller(self.simulation, self.input_kind, self.linear,
-                                  self.mechanism)
+        """The ``controller`` block of the chosen model, of a voltage or a torque plant
+        (:func:`.feedforward.controller_block`); None without that model."""
+        return controller_block(self.simulation, self.input_kind, self.linear,
+                                self.mechanism)
 
     def summary(self) -> str:
         """A readable report for people."""

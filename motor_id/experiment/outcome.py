@@ -10,7 +10,7 @@ depend on, and the report says so.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 import signal
@@ -18,10 +18,8 @@ import sys
 from typing import Any
 
 from motor_id.analysis import DiscrepancyAnalysis, DiscrepancyReport
-from motor_id.analysis.feedforward import ControllerBlock, FeedforwardConstant
-from motor_id.analysis.simulation_result import StageEstimates
+from motor_id.analysis.feedforward import FeedforwardConstant
 from motor_id.analysis.workers import usable_cores
-from motor_id.contracts import feedforward_units
 from motor_id.errors import MotorIdError
 from motor_id.experiment.session import ExperimentSession
 from motor_id.experiment.settings import ExperimentSettings
@@ -66,33 +64,29 @@ class ExperimentBlock(Record):
 class ExperimentReport:
     """``report.json``: the analysis of the experiment's recording with the data and the
     experiment blocks, or, without an analysis, why nothing was identified.
-    ``controller``: a torque plant's feedforward constants (the analysis gives a voltage
-    plant's)."""
+    The feedforward constants are the analysis' (``controller``)."""
 
     experiment: ExperimentBlock
     analysis: DiscrepancyReport | None = None
     data: DataBlock | None = None
-    controller: ControllerBlock | None = None
     identified: bool = False
     reason: str = ''
 
     @property
     def feedforward(self) -> dict[str, FeedforwardConstant]:
         """The feedforward constants by name (none without a simulation-error model)."""
-        block = self.controller or (self.analysis.controller() if self.analysis else None)
+        block = self.analysis.controller() if self.analysis else None
         return block.feedforward if block is not None else {}
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON of ``report.json``: the analyze report, then ``data``, ``experiment``,
-        a torque plant's ``controller`` and ``identified``."""
+        """The JSON of ``report.json``: the analyze report, then ``data``, ``experiment``
+        and ``identified``."""
         if self.analysis is None:
             return {'identified': self.identified, 'reason': self.reason,
                     'experiment': self.experiment.to_dict()}
         out = self.analysis.to_dict()
         out['data'] = self.data.to_dict() if self.data is not None else None
         out['experiment'] = self.experiment.to_dict()
-        if self.controller is not None:
-            out['controller'] = self.controller.to_dict()
         out['identified'] = self.identified
         return out
 
@@ -128,50 +122,7 @@ def analyze_experiment(rec: Recording, settings: ExperimentSettings, jobs: int =
         R_m=(f'nominal {SPEED_ONLY_R_M:g} Ohm: speed alone cannot tell the armature '
              'resistance; kS, kV, kA do not depend on it') if nominal else
         (f'{R:g} Ohm as given' if R is not None else None))
-    controller = None
-    if settings.input_kind == 'torque' and report.controller() is None:
-        sim = report.simulation
-        controller = torque_feedforward(
-            sim.estimates if sim else None, sim.chosen if sim else None,
-            feedforward_units(settings.input_kind, settings.linear))
-    return ExperimentReport(experiment=experiment, analysis=report, data=data,
-                            controller=controller)
-
-
-TORQUE_FEEDFORWARD = {'kS': 'coulomb_friction.T_c', 'kV': 'B', 'kA': 'J',
-                      'kG': ('elevator_gravity.T_g', 'arm_gravity.T_g'),
-                      'offset': 'arm_gravity.offset'}
-"""For a torque plant the feedforward constants are parameters: u = T_c sgn(w) + T_g
-[cos(theta + offset)] + B w + J dw/dt."""
-
-
-def torque_feedforward(estimates: StageEstimates | None, model: str | None,
-                       units: Mapping[str, str]) -> ControllerBlock | None:
-    """The ``controller`` block of a torque plant from the simulation-error model's
-    parameters (the analysis gives one for voltage plants only; ``model``: its name,
-    ``units``: by constant); None without that model."""
-    params = (estimates.parameters if estimates else None) or {}
-    if not params:
-        return None
-    ff: dict[str, FeedforwardConstant] = {}
-    for name, keys in TORQUE_FEEDFORWARD.items():
-        unit = units.get(name.rstrip('-+'))
-        key = next((k for k in ((keys,) if isinstance(keys, str) else keys) if k in params),
-                   None)
-        if key is None:
-            if name == 'kS':
-                ff[name] = FeedforwardConstant(
-                    value=0.0, std=None, note='the chosen model has no Coulomb friction',
-                    unit=unit)
-            continue
-        p = params[key]
-        ff[name] = (FeedforwardConstant(value=p.value, std=p.std, unit=unit)
-                    if p.determined else
-                    FeedforwardConstant(value=None, std=None, particular_value=p.value,
-                                        note=p.note or None, unit=unit))
-    return ControllerBlock(feedforward=ff, model=model,
-                           source='the simulation-error model of a torque plant: kS = T_c, '
-                                  'kV = B, kA = J (kG = T_g)')
+    return ExperimentReport(experiment=experiment, analysis=report, data=data)
 
 
 def identified(report: ExperimentReport) -> bool:
