@@ -221,13 +221,12 @@ def scale_effect_search(rec: Recording, identifier: Identifier) -> EffectSearch 
         ranges[fe] = next(q for q in EFFECTS[e].params if q.name == p).search_range(scales)
     held = linear.result_.parameters['K_T'].value is None and 'K_T' not in (s.fixed or {})
     start = {k: v for k, v in physical.items() if k != 'R_m'}
-    changes: dict[str, Any] = {}
-    if held:   # at the R_m the linear fit used (an internal one where R_m does not enter)
-        changes = {'fixed': {**(s.fixed or {}), 'K_T': physical['K_T']},
-                   'R_m': physical['R_m']}
+    if held:
         start.pop('K_T')
-    scaled = identifier.with_settings(bounds={**(s.bounds or {}), **ranges}, start=start,
-                                      **changes)
+    scaled = identifier.with_settings(bounds={**(s.bounds or {}), **ranges}, start=start)
+    if held:   # at the R_m the linear fit used (an internal one where R_m does not enter)
+        scaled = scaled.with_settings(fixed={**(s.fixed or {}), 'K_T': physical['K_T']},
+                                      R_m=physical['R_m'])
     with np.errstate(all='ignore'):
         scaled.fit(rec)
     values = {k: v for k, v in scaled.result_.values().items() if v is not None}

@@ -27,13 +27,13 @@ constants, the positions reached, the commands received.
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 import json
 import math
 import random
 import sys
 import threading
 import time
-from typing import Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
@@ -46,15 +46,32 @@ G = 9.81
 STEP = 2e-4
 """The physics' Euler step [s]."""
 
-# kind -> (K [N m/A], R [Ohm], J, B, T_c, stiction / T_c, gravity torque, offset [rad],
-#          hard stops, joint name, counts per unit of the encoder)
-KINDS: dict[str, dict[str, Any]] = {
-    'wheel': dict(K=0.03, R=0.08, J=2.25e-3, B=1.875e-3, Tc=0.09375, stick=1.1, Tg=0.0,
+@dataclass(frozen=True)
+class Kind:
+    """One mechanism seen at the joint, gearbox included: K [N m/A], R [Ohm], J, B, T_c,
+    stiction / T_c, gravity torque T_g, offset [rad], hard stops, joint name and encoder
+    counts per unit."""
+
+    K: float
+    R: float
+    J: float
+    B: float
+    Tc: float
+    stick: float
+    Tg: float
+    offset: float
+    stops: tuple[float, float]
+    joint: str
+    counts: float
+
+
+KINDS: dict[str, Kind] = {
+    'wheel': Kind(K=0.03, R=0.08, J=2.25e-3, B=1.875e-3, Tc=0.09375, stick=1.1, Tg=0.0,
                   offset=0.0, stops=(-math.inf, math.inf), joint='shooter_wheel',
                   counts=4096 / (2 * math.pi)),
-    'arm': dict(K=0.8, R=0.1, J=0.4, B=0.8, Tc=1.6, stick=1.1, Tg=8.0, offset=-0.3,
+    'arm': Kind(K=0.8, R=0.1, J=0.4, B=0.8, Tc=1.6, stick=1.1, Tg=8.0, offset=-0.3,
                 stops=(-2.2, 2.0), joint='shoulder', counts=8192 / (2 * math.pi)),
-    'elevator': dict(K=4.0, R=0.1, J=12.0, B=80.0, Tc=8.0, stick=1.1, Tg=40.0, offset=0.0,
+    'elevator': Kind(K=4.0, R=0.1, J=12.0, B=80.0, Tc=8.0, stick=1.1, Tg=40.0, offset=0.0,
                      stops=(0.0, 1.0), joint='lift', counts=20000.0),
 }
 """The mechanisms (seen at the joint, gearbox included)."""
@@ -63,14 +80,14 @@ READY_LINE = 'foreign robot up'
 """Logged once the robot publishes."""
 
 
-def true_feedforward(p: dict[str, Any]) -> dict[str, float]:
+def true_feedforward(p: Kind) -> dict[str, float]:
     """V = kS sgn(w) + kV w + kA dw/dt [+ kG (cos(theta + offset))] of the physics."""
-    r_k = p['R'] / p['K']
-    out = {'kS': r_k * p['Tc'], 'kV': p['K'] + r_k * p['B'], 'kA': r_k * p['J']}
-    if p['Tg']:
-        out['kG'] = r_k * p['Tg']
-    if p['Tg'] and p['offset']:
-        out['offset'] = p['offset']
+    r_k = p.R / p.K
+    out = {'kS': r_k * p.Tc, 'kV': p.K + r_k * p.B, 'kA': r_k * p.J}
+    if p.Tg:
+        out['kG'] = r_k * p.Tg
+    if p.Tg and p.offset:
+        out['offset'] = p.offset
     return out
 
 
@@ -80,7 +97,7 @@ class Physics:
     def __init__(self, kind: str, start: float) -> None:
         self.p = KINDS[kind]
         self.kind = kind
-        lo, hi = self.p['stops']
+        lo, hi = self.p.stops
         self.theta = min(max(start, lo), hi)
         self.omega = 0.0
         self.volts = 0.0
@@ -89,32 +106,32 @@ class Physics:
 
     def gravity(self) -> float:
         if self.kind == 'arm':
-            return self.p['Tg'] * math.cos(self.theta + self.p['offset'])
-        return float(self.p['Tg'])
+            return self.p.Tg * math.cos(self.theta + self.p.offset)
+        return float(self.p.Tg)
 
     def run_until(self, now: float) -> None:
         p = self.p
         while self.t + STEP <= now:
             self.t += STEP
-            drive = p['K'] * (self.volts - p['K'] * self.omega) / p['R'] - self.gravity()
-            if self.omega == 0.0 and abs(drive) <= p['stick'] * p['Tc']:
+            drive = p.K * (self.volts - p.K * self.omega) / p.R - self.gravity()
+            if self.omega == 0.0 and abs(drive) <= p.stick * p.Tc:
                 acc = 0.0
             else:
                 sgn = math.copysign(1.0, self.omega if self.omega else drive)
-                acc = (drive - p['B'] * self.omega - p['Tc'] * sgn) / p['J']
+                acc = (drive - p.B * self.omega - p.Tc * sgn) / p.J
             new = self.omega + acc * STEP
             if self.omega != 0.0 and new * self.omega < 0.0:
                 new = 0.0   # friction stops it; it sticks unless the drive beats it
             self.omega = new
             self.theta += self.omega * STEP
-            lo, hi = p['stops']
+            lo, hi = p.stops
             if self.theta < lo or self.theta > hi:
                 self.theta = min(max(self.theta, lo), hi)
                 self.omega = 0.0
             self.low, self.high = min(self.low, self.theta), max(self.high, self.theta)
 
     def encoder(self) -> float:
-        c = self.p['counts']
+        c = self.p.counts
         return math.floor(self.theta * c) / c
 
 
@@ -125,7 +142,7 @@ class ForeignRobot(Node):
         super().__init__('forward_command_controller')
         dp = self.declare_parameter
         self.kind = dp('kind', 'wheel').value
-        default_joints = [KINDS[self.kind]['joint'], 'elbow', 'wrist']
+        default_joints = [KINDS[self.kind].joint, 'elbow', 'wrist']
         self.joints = list(dp('joints', default_joints).value)
         self.extra = list(dp('extra_joints', ['caster_left', 'caster_right']).value)
         self.shuffle = dp('shuffle', True).value
@@ -138,7 +155,7 @@ class ForeignRobot(Node):
         self.truth_file = dp('truth_file', '').value
         self.rng = random.Random(int(dp('seed', 1).value))
         self.physics = Physics(self.kind, float(dp('start', 0.0).value))
-        self.me = KINDS[self.kind]['joint']
+        self.me = KINDS[self.kind].joint
         self.booted = time.monotonic()
         self.received: list = []
         self.lock = threading.Lock()
