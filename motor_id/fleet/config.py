@@ -59,7 +59,7 @@ class MotorSpec:
     shift: int | None = None
     resistance: float | None = None
     resistance_tolerance: float = 10.0
-    fix: dict[str, Any] = field(default_factory=dict)
+    fix: dict[str, float] = field(default_factory=dict)
     bounds: dict[str, Any] = field(default_factory=dict)
     type: str | None = None
 
