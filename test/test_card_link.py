@@ -327,7 +327,7 @@ def test_card_sim_no_profiles_option():
     parser = argparse.ArgumentParser()
     card_sim.add_arguments(parser)
     sim = card_sim.simulator_from_args(parser.parse_args(['--no-profiles']))
-    assert sim.truth()['profiles'] is False
+    assert sim.truth().profiles is False
     assert sim.card.handle(pr.StartProfile('prbs')).status == 'unsupported'
     sim = card_sim.simulator_from_args(parser.parse_args(['--fault', 'current_spike=1']))
     assert sim.faults.spike_every == 1.0 and sim.faults.spike_current == 50.0

@@ -133,7 +133,7 @@ def test_watchdog_stops_a_held_voltage_and_rearms_on_the_next_command():
     card.samples(100)                                          # idle: nothing to stop
     card.handle(pr.StartProfile('bipolar_steps', 3.0, 0, 0.1))
     card.samples(100)                                          # ended before 0.2 s
-    assert card.watchdog_trips == 2 and card.truth()['watchdog'] == 0.2
+    assert card.watchdog_trips == 2 and card.truth().watchdog == 0.2
 
 
 def test_noise_is_seeded_and_sized():
@@ -152,7 +152,7 @@ def test_torque_plant_has_no_current():
     card.handle(pr.SetVoltage(1.0))
     s = card.samples(10)
     assert all(not x.has_current for x in s) and s[-1].speed > 0
-    assert card.truth()['input_kind'] == 'torque'
+    assert card.truth().input_kind == 'torque'
 
 
 def test_history_cut_continues_from_the_exact_state():
@@ -166,9 +166,9 @@ def test_history_cut_continues_from_the_exact_state():
 def test_truth_reports_plant_and_settings():
     plant = Plant(PAPER_MOTOR, 'voltage', {'coulomb_friction': {'T_c': 0.1}})
     truth = VirtualCard(plant, period=0.005, speed_noise=0.1).truth()
-    assert truth['params'] == PAPER_MOTOR.to_dict()
-    assert truth['effects'] == {'coulomb_friction': {'T_c': 0.1}}
-    assert truth['period'] == 0.005 and truth['speed_noise'] == 0.1
+    assert truth.params == PAPER_MOTOR.to_dict()
+    assert truth.effects == {'coulomb_friction': {'T_c': 0.1}}
+    assert truth.period == 0.005 and truth.speed_noise == 0.1
 
 
 # ---------------------------------------------------------------------------------------

@@ -8,25 +8,46 @@ disconnects with the device coming back at the same ``link`` path.
 """
 
 from collections import Counter
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
+from dataclasses import fields as dataclass_fields
 import math
 import os
 import select
 import threading
 import time
 import tty
-from typing import Any
 
 import numpy as np
 
 from motor_id.card.faults import FaultConfig, FaultInjector
 from motor_id.card.protocol import encode_reply, encode_sample
 from motor_id.card.stream import CommandParser
-from motor_id.card.virtual_card import VirtualCard
+from motor_id.card.virtual_card import CardTruth, VirtualCard
 from motor_id.errors import ConfigError, ProtocolError
 from motor_id.model import Plant
+from motor_id.records import written
 
-__all__ = ['CardSimulator', 'FaultConfig', 'FaultInjector', 'VirtualCard']
+__all__ = ['CardSimulator', 'CardTruth', 'FaultConfig', 'FaultInjector', 'SimulatorTruth',
+           'VirtualCard']
+
+
+@dataclass(frozen=True)
+class SimulatorTruth(CardTruth):
+    """What a :class:`CardSimulator` simulates: its card's truth, pacing and faults.
+
+    Attributes
+    ----------
+    watchdog : float
+        As in :class:`CardTruth` but in wall seconds (0: off).
+    speedup : float
+    faults : FaultConfig
+    device : str or None
+        The pty's path while it exists.
+    """
+
+    speedup: float = 1.0
+    faults: FaultConfig = written(asdict, FaultConfig())
+    device: str | None = None
 
 
 class CardSimulator:
@@ -145,10 +166,13 @@ class CardSimulator:
             return None
         return self._wall0 + (t_card - self._t0) / self.speedup
 
-    def truth(self) -> dict[str, Any]:
-        """The card's true plant and settings plus the fault configuration (JSON-ready)."""
-        return {**self.card.truth(), 'speedup': self.speedup, 'watchdog': self.watchdog,
-                'faults': asdict(self.faults), 'device': self.path}
+    def truth(self) -> SimulatorTruth:
+        """The card's true plant and settings plus the fault configuration
+        (``to_dict()``: JSON)."""
+        card = self.card.truth()
+        fields = {f.name: getattr(card, f.name) for f in dataclass_fields(card)}
+        return SimulatorTruth(**{**fields, 'watchdog': self.watchdog}, speedup=self.speedup,
+                              faults=self.faults, device=self.path)
 
     def _open_pty(self) -> None:
         master, slave = os.openpty()

@@ -34,7 +34,7 @@ nothing.
 """
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import math
 from typing import Any
 
@@ -55,6 +55,7 @@ from motor_id.contracts import FLAG_PROFILE, FLAG_PROFILE_END, FLAG_STARTUP
 from motor_id.errors import ConfigError
 from motor_id.excitation import PROFILES
 from motor_id.model import DISCRETISATIONS, Plant
+from motor_id.records import Record
 from motor_id.simulate import simulate_batch
 
 MIN_PERIOD = 1e-4
@@ -84,6 +85,42 @@ def _check_period(period: float) -> int:
         raise ConfigError(f'sample period must be in [{MIN_PERIOD}, {MAX_PERIOD}] s, '
                           f'got {period!r}')
     return round(period * 1e6)
+
+
+_CARD_UNITS = {'speed_noise': 'rad/s', 'current_noise': 'A', 'period': 's', 'watchdog': 's'}
+
+
+@dataclass(frozen=True)
+class CardTruth(Record):
+    """What a :class:`VirtualCard` simulates: its true plant, noise and settings.
+
+    Attributes
+    ----------
+    params : dict of str to float
+    input_kind : str
+    effects : dict of str to dict
+        The true plant (:class:`~motor_id.model.Plant`), its keys in its JSON's order.
+    method : str
+        Discretisation of the plant.
+    period, watchdog : float
+        Sample period and watchdog time [s] (watchdog 0: off).
+    with_current, profiles : bool
+    speed_noise, current_noise : float
+        Standard deviations [rad/s], [A].
+    units : dict of str to str
+    """
+
+    params: dict[str, float]
+    input_kind: str
+    effects: dict[str, dict[str, float]]
+    method: str
+    period: float
+    with_current: bool
+    profiles: bool
+    watchdog: float
+    speed_noise: float
+    current_noise: float
+    units: dict[str, str] = field(default_factory=lambda: dict(_CARD_UNITS))
 
 
 class VirtualCard:
@@ -200,14 +237,12 @@ class VirtualCard:
         """True while the next sample belongs to an excitation profile."""
         return self._profile is not None and self.seq < self._profile[1] + self._profile[0].size
 
-    def truth(self) -> dict[str, Any]:
-        """JSON-ready description of the simulated card: plant, noise, settings."""
-        return {**self.plant.to_dict(), 'method': self.method,
-                'period': self.period, 'with_current': self.with_current,
-                'profiles': self.profiles, 'watchdog': self.watchdog_us / 1e6,
-                'speed_noise': self.speed_noise, 'current_noise': self.current_noise,
-                'units': {'speed_noise': 'rad/s', 'current_noise': 'A', 'period': 's',
-                          'watchdog': 's'}}
+    def truth(self) -> CardTruth:
+        """The simulated card's true plant, noise and settings (``to_dict()``: JSON)."""
+        plant = self.plant
+        return CardTruth(plant.params.to_dict(), plant.input_kind, plant.effects, self.method,
+                         self.period, self.with_current, self.profiles,
+                         self.watchdog_us / 1e6, self.speed_noise, self.current_noise)
 
     # -- planning -----------------------------------------------------------------------
 

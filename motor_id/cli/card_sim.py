@@ -80,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
         sim.start()
         if args.truth_out:
             with open(args.truth_out, 'w') as fh:
-                json.dump(sim.truth(), fh, indent=2)
+                json.dump(sim.truth().to_dict(), fh, indent=2)
         print(sim.path, flush=True)
         trips = 0
         while not done.wait(0.1):
