@@ -163,11 +163,12 @@ def test_a_constant_command_spins_the_wheel_to_its_steady_speed_and_is_held(
                                                                                   rel=0.01)
     stop_cleanly(robot, signal.SIGTERM)
     truth = read_truth(truth_path)
-    assert truth['feedforward']['kV'] == {'value': pytest.approx(ff['kV']), 'unit': 'V s/rad'}
-    assert [c['applied'] for c in truth['commands']] == [6.0, None]
-    assert truth['last_command']['values'] == [0.0]
-    assert truth['commands'][0]['time'] == pytest.approx(t0, abs=5.0)
-    assert truth['position']['max'] > 100.0
+    assert truth.feedforward['kV'] == pytest.approx(ff['kV'])
+    assert truth.units['kV'] == 'V s/rad'
+    assert [c.applied for c in truth.commands] == [6.0, None]
+    assert truth.commands[-1].values == [0.0]
+    assert truth.commands[0].time == pytest.approx(t0, abs=5.0)
+    assert truth.position_max > 100.0
 
 
 def test_the_arm_hangs_at_rest_and_rests_where_gravity_meets_the_command(
@@ -203,7 +204,7 @@ def test_the_arm_hangs_at_rest_and_rests_where_gravity_meets_the_command(
     assert abs(np.mean([_joint(m, 'arm_joint')[1] for _, m in box[-20:]])) < 0.02
     stop_cleanly(robot, signal.SIGINT)
     truth = read_truth(truth_path)
-    assert truth['position']['min'] >= -2.4 and truth['position']['max'] < 1.4
+    assert truth.position_min >= -2.4 and truth.position_max < 1.4
 
 
 def test_elevator_rests_on_its_bottom_stop_and_a_force_pins_it_to_the_top(
@@ -228,8 +229,9 @@ def test_elevator_rests_on_its_bottom_stop_and_a_force_pins_it_to_the_top(
     assert np.mean([e for _, _, e in top]) == pytest.approx(200.0, rel=0.01)   # the force
     stop_cleanly(robot, signal.SIGHUP)
     truth = read_truth(truth_path)
-    assert truth['position'] == {'start': 0.0, 'min': 0.0, 'max': 1.2, 'unit': 'm'}
-    assert truth['feedforward']['kG']['unit'] == 'N'
+    assert (truth.position_start, truth.position_min, truth.position_max,
+            truth.position_unit) == (0.0, 0.0, 1.2, 'm')
+    assert truth.units['kG'] == 'N'
 
 
 def test_a_joint_missing_from_the_controller_is_one_line_and_exit_2(launch, tmp_path):

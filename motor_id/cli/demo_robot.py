@@ -31,6 +31,7 @@ from motor_id.lifeline import STOP_SIGNALS
 
 if TYPE_CHECKING:
     from motor_id.testing.procs import Process, Processes
+    from motor_id.testing.sim_joint import JointTruth
 
 TOPIC = '/forward_command_controller/commands'
 """The simulated robot's command topic (its default controller)."""
@@ -180,7 +181,7 @@ def _entry(block: dict[str, Any], name: str) -> dict[str, Any] | None:
     return value if isinstance(value, dict) and value.get('value') is not None else None
 
 
-def _print_results(out: str, truth: dict[str, Any], mechanism: str, code: int) -> None:
+def _print_results(out: str, truth: 'JointTruth', mechanism: str, code: int) -> None:
     """The identified constants beside the true ones; the files written."""
     path = os.path.join(out, 'report.json')
     if not os.path.exists(path):
@@ -189,29 +190,27 @@ def _print_results(out: str, truth: dict[str, Any], mechanism: str, code: int) -
     with open(path, encoding='utf-8') as fh:
         report = json.load(fh)
     found = report.get('controller', {}).get('feedforward', {})
-    true = truth['feedforward']
     _say('')
     _say(f'{"constant":<9}{"identified":>12}{"+/- std":>10}{"true":>11}{"error":>9}'
          f'{"/std":>7}  unit')
     names = ('kS', 'kV', 'kA') + (('kG',) if mechanism != 'simple' else ()) + (
         ('offset',) if mechanism == 'arm' else ())
     for name in names:
-        t = true[name]
+        t, unit = truth.feedforward[name], truth.units[name]
         f = _entry(found, name)
         if f is None:
-            _say(f'{name:<9}{"not determined":>22}{t["value"]:>11.4g}{"":>16}  {t["unit"]}')
+            _say(f'{name:<9}{"not determined":>22}{t:>11.4g}{"":>16}  {unit}')
             continue
-        err = f['value'] - t['value']
-        rel = f'{100 * err / t["value"]:+.1f}%' if t['value'] and name != 'offset' \
+        err = f['value'] - t
+        rel = f'{100 * err / t:+.1f}%' if t and name != 'offset' \
             else f'{err:+.3f}'
         std = f.get('std')
         _say(f'{name:<9}{f["value"]:>12.4g}{"" if std is None else f"{std:.2g}":>10}'
-             f'{t["value"]:>11.4g}{rel:>9}{"" if not std else f"{err / std:+.1f}":>7}'
-             f'  {f.get("unit", t["unit"])}')
-    last = truth['commands'][-1]['values'] if truth.get('commands') else None
-    _say(f'\nthe robot received {len(truth.get("commands", []))} commands, the last '
-         f'{last}; position {truth["position"]["min"]:.3g} .. '
-         f'{truth["position"]["max"]:.3g}')
+             f'{t:>11.4g}{rel:>9}{"" if not std else f"{err / std:+.1f}":>7}'
+             f'  {f.get("unit", unit)}')
+    last = truth.commands[-1].values if truth.commands else None
+    _say(f'\nthe robot received {len(truth.commands)} commands, the last '
+         f'{last}; position {truth.position_min:.3g} .. {truth.position_max:.3g}')
     written = [n for n in OUTPUTS if os.path.exists(os.path.join(out, n))]
     _say(f'wrote {", ".join(os.path.join(out, n) for n in written)}')
     if code != 0:

@@ -232,6 +232,21 @@ class JointTruth:
             'commands': commands, 'last_command': commands[-1] if commands else None,
         }
 
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> 'JointTruth':
+        """Inverse of :meth:`to_dict` (``last_command`` is the last of ``commands``)."""
+        ff = d['feedforward']
+        physics, position, stops = d['physics'], d['position'], d['stops']
+        units = {k: v['unit'] for k, v in ff.items()}
+        units.setdefault('kG', physics['limit']['unit'])
+        return cls(
+            d['mechanism'], d['joint'], d['input_kind'],
+            {k: v['value'] for k, v in ff.items()}, units, Motor.from_dict(physics['motor']),
+            physics['effects'], physics['limit']['value'], position['start'],
+            position['min'], position['max'], position['unit'], (stops['low'], stops['high']),
+            d['samples'], d['duration']['value'],
+            [ReceivedCommand(**c) for c in d['commands']])
+
 
 @dataclass
 class _Tally:
@@ -406,10 +421,9 @@ READY = r'sim_robot: \w+ ready'
 """Pattern of the log line printed once the robot publishes (for ``Process.wait_for``)."""
 
 
-def read_truth(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """The truth file's JSON (see :meth:`JointSim.truth`)."""
+def read_truth(path: str | os.PathLike[str]) -> JointTruth:
+    """The truth file's record (see :meth:`JointSim.truth`)."""
     with open(path, encoding='utf-8') as fh:
-        data: dict[str, Any] = json.load(fh)
-    return data
+        return JointTruth.from_dict(json.load(fh))
 
 
