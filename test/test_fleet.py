@@ -14,7 +14,7 @@ from motor_id.fleet.config import parse_fleet_config
 from motor_id.fleet.discover import find_recordings, robot_rule
 from motor_id.fleet.drift import ChangePoint, DriftRule, series
 from motor_id.fleet.live import drift_message, EstimateHistory
-from motor_id.fleet.rows import EstimateRow
+from motor_id.fleet.rows import EstimateRow, ParameterValue
 from motor_id.fleet.siblings import compare_siblings
 from motor_id.testing.fleet_gen import Drift, FleetSpec, generate_fleet, MotorTruth, simulate_motor
 
@@ -346,8 +346,8 @@ def test_estimate_history_appends_and_finds_a_drift(tmp_path):
     hist = EstimateHistory(str(tmp_path / 'h' / 'history.jsonl'), robot='r', motor='m')
     rng = np.random.default_rng(4)
     for d, v in enumerate(np.r_[0.3 * (1 + rng.uniform(-0.005, 0.005, 9)), [0.27] * 3]):
-        hist.append({'parameters': {'K_T': {'value': v, 'std': 1e-5, 'determined': True},
-                                    'J': {'value': None, 'std': None, 'determined': False}}},
+        hist.append({'K_T': ParameterValue(value=v, std=1e-5, determined=True),
+                     'J': ParameterValue(value=None, std=None, determined=False)},
                     _days(12)[d])
     with open(hist.path, 'a') as fh:
         fh.write('not json\n')

@@ -8,10 +8,9 @@ parameters drift: the same histories and rule as ``motor-id fleet``
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 import json
 import os
-from typing import Any
 
 from motor_id.errors import ConfigError
 from motor_id.fleet.drift import DriftRule
@@ -41,23 +40,26 @@ class EstimateHistory:
         self.motor = motor
         self.skipped_ = 0
 
-    def append(self, report: dict[str, Any], time_iso: str) -> None:
-        """Add a fit report's parameters as one line.
+    def append(self, parameters: Mapping[str, ParameterValue], time_iso: str,
+               adequate: bool = True) -> None:
+        """Add a fit's parameters as one line.
 
         Parameters
         ----------
-        report : dict
-            A fit report (``IdentificationResult.to_dict()`` shape).
+        parameters : mapping of str to ParameterValue
+            The fit's estimates by name (value, std, determined); a name missing is
+            written as not determined.
         time_iso : str
             When the data were taken (ISO 8601, UTC).
+        adequate : bool
+            The fit's model explains the record (:attr:`IdentificationResult.adequate`).
         """
         params = {}
         for name in PARAM_NAMES:
-            p = (report.get('parameters') or {}).get(name) or {}
-            params[name] = {'value': p.get('value'), 'std': p.get('std'),
-                            'determined': bool(p.get('determined', False))}
+            p = parameters.get(name) or ParameterValue()
+            params[name] = {'value': p.value, 'std': p.std, 'determined': bool(p.determined)}
         line = {'time': time_iso, 'parameters': params,
-                'adequate': bool(report.get('adequate', True))}
+                'adequate': bool(adequate)}
         try:
             folder = os.path.dirname(self.path)
             if folder:

@@ -25,7 +25,9 @@ from motor_id.data.buffer import SampleBuffer
 from motor_id.errors import ConfigError, DataError, MotorIdError
 from motor_id.fleet.history import DriftRow
 from motor_id.fleet.live import drift_message, EstimateHistory
+from motor_id.fleet.rows import ParameterValue
 from motor_id.identify import FitSettings, Identifier, METHODS, parse_bounds, parse_fixed
+from motor_id.identify.result import IdentificationResult
 from motor_id.model import PARAM_NAMES
 from motor_id.nodes import messages
 from motor_id.nodes.common import (
@@ -381,7 +383,7 @@ class IdentifierNode(Node):
         head = (f'identified from {len(rec)} samples in '
                 f'{time.perf_counter() - started:.2f} s')
         self._last = head
-        self._track_drift(report)
+        self._track_drift(res)
         self.get_logger().info(head + '\n' + summary)
         return True, head + '\n' + summary
 
@@ -410,13 +412,15 @@ class IdentifierNode(Node):
         finally:
             self._setting_outputs.active = False
 
-    def _track_drift(self, report: dict[str, Any]) -> None:
+    def _track_drift(self, result: IdentificationResult) -> None:
         """Append the estimate to ``history_file`` and test the history for drift."""
         if self._history is None:
             return
         now = dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds')
+        params = {name: ParameterValue(value=e.value, std=e.std, determined=e.determined)
+                  for name, e in result.parameters.items()}
         try:
-            self._history.append(report, now.replace('+00:00', 'Z'))
+            self._history.append(params, now.replace('+00:00', 'Z'), result.adequate)
             rows = self._history.check()
         except MotorIdError as exc:
             self.get_logger().warning(f'drift check: {exc}')
