@@ -24,7 +24,7 @@ import random
 import re
 import signal
 import subprocess
-from typing import Any, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 from motor_id.errors import ConfigError, MotorIdError
 from motor_id.lifeline import STOP_SIGNALS
@@ -176,20 +176,17 @@ def _stop(kids: 'Processes') -> None:
         kids.close(timeout=15.0)
 
 
-def _entry(block: dict[str, Any], name: str) -> dict[str, Any] | None:
-    value = block.get(name)
-    return value if isinstance(value, dict) and value.get('value') is not None else None
-
-
 def _print_results(out: str, truth: 'JointTruth', mechanism: str, code: int) -> None:
     """The identified constants beside the true ones; the files written."""
+    from motor_id.analysis.feedforward import FeedforwardConstant
     path = os.path.join(out, 'report.json')
     if not os.path.exists(path):
         raise MotorIdError(f'the experiment exited {code} without a report; see '
                            f'{os.path.join(out, "experiment.err")}')
     with open(path, encoding='utf-8') as fh:
         report = json.load(fh)
-    found = report.get('controller', {}).get('feedforward', {})
+    found = {name: FeedforwardConstant.from_dict(entry) for name, entry in
+             ((report.get('controller') or {}).get('feedforward') or {}).items()}
     _say('')
     _say(f'{"constant":<9}{"identified":>12}{"+/- std":>10}{"true":>11}{"error":>9}'
          f'{"/std":>7}  unit')
@@ -197,17 +194,17 @@ def _print_results(out: str, truth: 'JointTruth', mechanism: str, code: int) -> 
         ('offset',) if mechanism == 'arm' else ())
     for name in names:
         t, unit = truth.feedforward[name], truth.units[name]
-        f = _entry(found, name)
-        if f is None:
+        f = found.get(name)
+        if f is None or f.value is None:
             _say(f'{name:<9}{"not determined":>22}{t:>11.4g}{"":>16}  {unit}')
             continue
-        err = f['value'] - t
+        err = f.value - t
         rel = f'{100 * err / t:+.1f}%' if t and name != 'offset' \
             else f'{err:+.3f}'
-        std = f.get('std')
-        _say(f'{name:<9}{f["value"]:>12.4g}{"" if std is None else f"{std:.2g}":>10}'
+        std = f.std
+        _say(f'{name:<9}{f.value:>12.4g}{"" if std is None else f"{std:.2g}":>10}'
              f'{t:>11.4g}{rel:>9}{"" if not std else f"{err / std:+.1f}":>7}'
-             f'  {f.get("unit", unit)}')
+             f'  {unit if f.unit is None else f.unit}')
     last = truth.commands[-1].values if truth.commands else None
     _say(f'\nthe robot received {len(truth.commands)} commands, the last '
          f'{last}; position {truth.position_min:.3g} .. {truth.position_max:.3g}')
