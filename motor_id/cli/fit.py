@@ -22,6 +22,7 @@ from motor_id.output import plot_fit, write_json
 from motor_id.simulate import warm_up
 
 if TYPE_CHECKING:
+    from motor_id.elman import FreeElmanOrderSelection
     from motor_id.identify import IdentificationResult
     from motor_id.recording import Recording
 
@@ -168,14 +169,15 @@ def write_yaml(data: Any, path: str) -> None:
         raise ConfigError(f'{path}: cannot write ({exc.strerror})') from None
 
 
-def _order_selection(rec: Recording, args: argparse.Namespace, report: dict[str, Any]) -> None:
+def _order_selection(rec: Recording, args: argparse.Namespace) -> FreeElmanOrderSelection:
+    """The free Elman net's order selection on the speed, printed."""
     from motor_id.elman import FreeElmanOrderSelection
     sel = FreeElmanOrderSelection(random_state=args.seed).fit(rec.input, rec.speed)
-    report['order_selection'] = sel.to_dict()
     print('minimum linear Elman order (speed): ' + str(sel.order_))
     for e in sel.evidence_:
         print(f'  order {e.order}: train RMS {e.train_rmse:.4g}  held-out RMS '
               f'{e.validation_rmse:.4g}  AIC {e.aic:.1f}  BIC {e.bic:.1f}')
+    return sel
 
 
 def identify_and_report(rec: Recording, args: argparse.Namespace,
@@ -202,7 +204,7 @@ def identify_and_report(rec: Recording, args: argparse.Namespace,
     print(fit.summary())
     report = fit.to_dict()
     if getattr(args, 'order_selection', False):
-        _order_selection(rec, args, report)
+        report['order_selection'] = _order_selection(rec, args).to_dict()
     if args.json:
         write_json(report, args.json)
         print(f'wrote {args.json}')
