@@ -301,7 +301,9 @@ def test_float64_commands_and_unstamped_states(launch, tmp_path):
     robot.wait_for(READY, timeout=180)
     exp = launch('experiment', experiment_args(
         tmp_path, 'wheel_joint', '--command-type', 'float64', '--plan', 'prbs',
-        '--no-identify', time_scale=0.15))
+        '--no-identify', '--watchdog', '1.0', time_scale=0.15))
+    # (1.0 s: the robot's Python process stalled 0.26 s with both cores busy in CI; the
+    # watchdog's own 0.25 s is tested above)
     code = exp.wait(timeout=600)
     assert code == EXIT_OK, exp.output()
     robot.stop(signal.SIGINT)

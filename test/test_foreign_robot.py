@@ -20,6 +20,11 @@ from motor_id.testing.foreign_robot import READY_LINE
 TOPIC = '/forward_command_controller/commands'
 MAX = 6.0
 
+WATCHDOG = '1.0'
+"""The experiment's state watchdog [s] here: these tests are about the targets on a robot
+written apart, whose Python process stalled 0.35-0.51 s when both cores were busy with the
+suite (CI, 2026-11-28); the 0.25 s default is tested in test_experiment_node."""
+
 
 def robot_args(tmp_path, kind, **params):
     args = ['-m', 'motor_id.testing.foreign_robot', '--ros-args', '-p', f'kind:={kind}',
@@ -37,7 +42,7 @@ def experiment_args(tmp_path, joint, *extra, time_scale=1.0):
             '--max-command', str(MAX), '--out', str(tmp_path / 'out'),
             '--time-scale', str(time_scale), '--start-timeout', '240',
             # the robot is Python sharing the machine: it stalls past 0.25 s under load
-            '--watchdog', '0.5', *extra]
+            '--watchdog', WATCHDOG, *extra]
 
 
 def results(tmp_path):
