@@ -391,6 +391,30 @@ def test_messages_as_sent_and_received_are_in_the_bag_for_rosbags(tmp_path):
     assert list(got['/ctrl/commands'].data) == [2.0]
 
 
+def test_topics_given_to_open_are_declared_before_their_first_message(tmp_path):
+    # the node declares its state and command topics at the start, so the first state's
+    # arrival does no schema work (it took 0.4-0.63 s, the experiment then saw a stale
+    # burst of states and stopped); a message of another type on them is refused
+    from rosbags.highlevel import AnyReader
+
+    from motor_id.bag.schemas import serialize
+    from motor_id.errors import BagError
+    st = settings(tmp_path)
+    sess = ExperimentSession(st)
+    sess.open({'/joint_states': 'sensor_msgs/msg/JointState',
+               '/ctrl/commands': 'std_msgs/msg/Float64'})
+    assert sess.bag is not None
+    with pytest.raises((ConfigError, BagError), match='Float64'):
+        sess.bag.write_serialized('/ctrl/commands', 'std_msgs/msg/Float64MultiArray',
+                                  serialize('std_msgs/msg/Float64MultiArray',
+                                            {'data': [1.0]}), 1)
+    sess.close()
+    with AnyReader([Path(st.out) / RECORDING]) as reader:
+        declared = {c.topic: c.msgtype for c in reader.connections}
+    assert declared == {'/joint_states': 'sensor_msgs/msg/JointState',
+                        '/ctrl/commands': 'std_msgs/msg/Float64'}
+
+
 def test_the_input_is_the_command_sent_before_the_next_sample(tmp_path):
     from motor_id.experiment.session import Row
     sess = ExperimentSession(settings(tmp_path))

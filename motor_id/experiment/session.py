@@ -11,6 +11,7 @@ at most a second of them) and, at :meth:`ExperimentSession.close`, adds the proj
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 import math
 from pathlib import Path
@@ -77,14 +78,25 @@ class ExperimentSession:
         self.speed_derived = False
         """The state gave no velocity: the speed is derived from the position."""
 
-    def open(self) -> None:
-        """Create the output folder and start ``recording.mcap``."""
+    def open(self, topics: Mapping[str, str] | None = None) -> None:
+        """Create the output folder and start ``recording.mcap``.
+
+        Parameters
+        ----------
+        topics : mapping of str to str, optional
+            Topic -> message type (``'sensor_msgs/msg/JointState'``) of the messages
+            that will be recorded: declared now, so that the first message of each
+            costs no schema work where it arrives (the first JointState's took 0.4 s
+            alone, 0.63 s with every core busy: the message type store loads).
+        """
         try:
             self.out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ConfigError(f'{self.out}: cannot create the output folder '
                               f'({exc.strerror})') from exc
         self.bag = BagWriter(self.out / RECORDING)
+        for topic, msgtype in (topics or {}).items():
+            self.bag.add_topic(topic, msgtype)
 
     def record_message(self, topic: str, msgtype: str, data: bytes, log_time_ns: int) -> None:
         """Write one serialised (CDR) message as sent or received."""

@@ -112,15 +112,17 @@ class ExperimentNode(Node):
         values = declare_parameters(self, PARAMETERS)
         self.settings = ExperimentSettings.from_parameters(values)
         self.start_timeout = float(values['start_timeout'])
+        s = self.settings
+        self._msg_type = Float64MultiArray if s.command_type == 'multi_array' else Float64
         self.session = ExperimentSession(self.settings)
-        self.session.open()
+        self.session.open({s.state_topic: JOINT_STATE,
+                           s.command_topic: messages.TYPE_NAMES[self._msg_type]})
         self.on_finish: Callable[[], None] | None = None
         self.failure: str | None = None
         self.error: str | None = None
         """An error that stopped the experiment (the exit code says so)."""
         self.started = False
         self.sent = 0
-        s = self.settings
         self.joints: tuple[str, ...] | None = (
             s.controller_joints if s.command_type == 'multi_array' else (s.joint,))
         self._start_asked: float | None = time.monotonic() if values['autostart'] else None
@@ -131,7 +133,6 @@ class ExperimentNode(Node):
         self._logged = [0, 0, 0]   # tests started, tests ended, stop logged
         self._lock = threading.RLock()   # one decision and its command at a time
         self._alive = True
-        self._msg_type = Float64MultiArray if s.command_type == 'multi_array' else Float64
         self.publisher = self.create_publisher(self._msg_type, s.command_topic, COMMAND_QOS)
         self.watch = TopicWatch(self, s.state_topic, JOINT_STATE, self._subscribe, 0.2)
         self.create_service(Trigger, '~/start', self._on_start)
