@@ -51,15 +51,19 @@ REST_SIGMAS = 3.0
 
 
 def _at_rest(rec: Recording, k: int, noise: Mapping[str, float] | None = None) -> bool:
-    """The axis is at rest at sample ``k``: no input, a speed reading of zero and, where
-    measured, no current. Zero is to a millionth of the channel's spread, or within
-    :data:`REST_SIGMAS` of its noise level ``noise[channel]`` where given (a tachometer
-    or an estimated speed is noisy at rest; an encoder at rest reads exactly zero)."""
+    """The axis is at rest at sample ``k``: no input from ``k`` or over the interval
+    before it, a speed reading of zero and, where measured, no current. The state at
+    ``k`` is what the inputs before ``k`` left: a run that opens with a step from rest
+    (a SysId test, the dynamic steps of ``motor-id experiment``) opens at rest. Zero is
+    to a millionth of the channel's spread, or within :data:`REST_SIGMAS` of its noise
+    level ``noise[channel]`` where given (a tachometer or an estimated speed is noisy at
+    rest; an encoder at rest reads exactly zero)."""
     def still(x: np.ndarray, ch: str) -> bool:
         tol = max(1e-6 * (float(np.std(x)) or 1.0), REST_SIGMAS * (noise or {}).get(ch, 0.0))
         return bool(abs(x[k]) <= tol)
 
-    return bool(rec.input[k] == 0) and still(rec.speed, 'speed') and \
+    idle = rec.input[k] == 0 or (k > 0 and rec.input[k - 1] == 0)
+    return bool(idle) and still(rec.speed, 'speed') and \
         (rec.current is None or still(rec.current, 'current'))
 
 
