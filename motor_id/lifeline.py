@@ -20,6 +20,10 @@ harness's nodes, the launch file's nodes, the forked fit workers) is tied to its
 * :func:`stop_signals_as_interrupt` makes SIGTERM and SIGHUP raise
   :class:`KeyboardInterrupt` as SIGINT does, so that a command's ``finally`` blocks (its
   children stopped, its files closed) run whichever of the three ends it.
+* :class:`SignalThread` hears the stop signals on a thread of its own instead (the
+  nodes, the card simulator): no Python code runs in the main thread for them, and a
+  process that has not ended :data:`STOP_DEADLINE` seconds after its first stop signal
+  is ended (its last-resort hook first: 0 at the output).
 
 The kernel sends the parent-death signal each time the child is handed from a dying
 thread of its parent to another (a parent with many threads killed at once: once per
@@ -37,20 +41,31 @@ This module imports nothing but the standard library: it runs as a script before
 child's own interpreter exists.
 """
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 import contextlib
 import ctypes
 import os
 import signal
+import socket
 import sys
 import threading
+import time
 from types import FrameType
+from typing import Any
 
 DEATH_SIGNAL = signal.SIGTERM
 """What a tied child receives when its parent dies: SIGTERM, a clean stop."""
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 """The signals that stop every motor_id process as Ctrl-C does."""
+
+STOP_DEADLINE = 20.0
+"""Seconds a process watched by a :class:`SignalThread` may take to end after its first
+stop signal (a clean stop takes a few seconds on a loaded machine); then its last-resort
+hook runs and ``os._exit`` ends it."""
+
+HOOK_TIME = 0.5
+"""Seconds a :class:`SignalThread` gives each of its hooks (it goes on without them)."""
 
 # ---------------------------------------------------------------------------- shim --
 # Why: Python has no API for the Linux parent-death signal. prctl(2) is called through
@@ -59,13 +74,21 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _PR_SET_PDEATHSIG = 1
 
 
-def set_parent_death_signal(sig: int = DEATH_SIGNAL) -> bool:
+def set_parent_death_signal(sig: int = DEATH_SIGNAL, parent: int | None = None) -> bool:
     """Ask the kernel to send ``sig`` to this process when its parent dies (Linux).
+
+    The parent may have died before this call (a child forked just before its parent was
+    killed): the kernel then has nothing to send. So, once the signal is set, the
+    parent is checked: when it is no longer ``parent``, this process sends itself
+    ``sig``.
 
     Parameters
     ----------
     sig : int
         The signal number; 0 clears it.
+    parent : int, optional
+        The pid of the parent that started this process, as the parent knew it (passed
+        down: a forked worker's initializer argument); None: no check.
 
     Returns
     -------
@@ -84,7 +107,11 @@ def set_parent_death_signal(sig: int = DEATH_SIGNAL) -> bool:
                   ctypes.c_ulong(0), ctypes.c_ulong(0)) != 0:
         err = ctypes.get_errno()
         raise OSError(err, f'prctl(PR_SET_PDEATHSIG, {sig}): {os.strerror(err)}')
+    if sig and parent is not None and os.getppid() != parent:   # it died before prctl
+        os.kill(os.getpid(), sig)
     return True
+
+
 # ------------------------------------------------------------------------ end shim --
 
 
@@ -128,7 +155,7 @@ def _launch(argv: Sequence[str]) -> int:
         return 2
     parent, sig, args = int(argv[0]), int(argv[1]), list(argv[2:])
     set_parent_death_signal(sig)
-    if os.getppid() != parent:      # the parent died before the signal was set
+    if os.getppid() != parent:      # the parent died before the signal was set: no exec
         return 128 + sig
     try:
         os.execvp(args[0], args)
@@ -175,6 +202,154 @@ def stop_signals_as_interrupt(signals: Sequence[int] = (signal.SIGTERM, signal.S
         for sig, before in previous.items():
             signal.signal(sig, before)
 
+
+def _no_op(signum: int, frame: FrameType | None) -> None:
+    """Python-level handler of a :class:`SignalThread`: nothing; the number reaches the
+    wakeup socket from the interpreter's C-level handler."""
+
+
+class SignalThread:
+    """SIGINT, SIGTERM and SIGHUP heard by a thread of their own, with a deadline.
+
+    Python runs a signal's handler in the main thread between two bytecodes, wherever
+    that thread is. A handler that takes a lock deadlocks when the main thread holds that
+    lock at that moment: ``threading.Event.set`` in a handler, with the main thread inside
+    ``Event.wait`` of the same event (it holds the event's lock for a few bytecodes on
+    each wake-up), hangs the process for good, and each later signal's handler blocks on
+    the same lock (a killed demo's card simulator was left so). Here the handlers do
+    nothing: the interpreter's C-level handler writes the signal number to a socket
+    (:func:`signal.set_wakeup_fd`), whichever thread the kernel interrupts, and this
+    thread reads it.
+
+    On the first stop signal the thread records it in :attr:`received`, calls
+    ``on_stop(signum)`` (there: send 0 at once) and sets :attr:`stopped`, which the main
+    thread waits on or polls. Repeats of SIGTERM and SIGHUP are ignored (the parent-death
+    signal comes once per thread of a dying parent); a second SIGINT (Ctrl-C twice) ends
+    the process at once. A process still running ``deadline`` seconds after the first
+    signal, its main thread stuck wherever, is ended too: ``last_resort()`` (there: 0 at
+    the output once more), then ``os._exit(128 + signal)``. Each hook runs on a thread of
+    its own and is given :data:`HOOK_TIME` seconds: the main thread may hold what it
+    needs.
+
+    Parameters
+    ----------
+    on_stop : callable, optional
+        ``on_stop(signum)``, called once on this thread at the first stop signal.
+    last_resort : callable, optional
+        Called before ``os._exit``.
+    deadline : float or None
+        Seconds from the first signal to the forced end; None: no deadline.
+    signals : sequence of int
+        The stop signals. SIGHUP ignored on entry (``nohup``) stays ignored.
+    stopped : object with ``set()``, optional
+        What is set after ``on_stop`` (default: a new :class:`threading.Event`).
+
+    The hooks are attributes, and may be set after :meth:`install`.
+    """
+
+    def __init__(self, on_stop: Callable[[int], object] | None = None,
+                 last_resort: Callable[[], object] | None = None,
+                 deadline: float | None = STOP_DEADLINE,
+                 signals: Sequence[int] = STOP_SIGNALS,
+                 stopped: Any = None) -> None:
+        self.on_stop = on_stop
+        self.last_resort = last_resort
+        self.deadline = deadline
+        self.signals = tuple(int(s) for s in signals)
+        self.received: int | None = None
+        self.stopped = threading.Event() if stopped is None else stopped
+        self._read: socket.socket | None = None
+        self._write: socket.socket | None = None
+        self._previous: dict[int, object] = {}
+        self._old_fd = -1
+
+    def install(self) -> 'SignalThread':
+        """Route the signals to the thread and start it (main thread only); returns self.
+
+        Call it first thing: before it the signals keep their dispositions (SIGTERM's
+        default ends the process at once, which is safe while nothing has started).
+        """
+        self._read, self._write = socket.socketpair()
+        self._write.setblocking(False)
+        self._old_fd = signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
+        for sig in self.signals:
+            if sig == signal.SIGHUP and signal.getsignal(sig) is signal.SIG_IGN:
+                continue
+            self._previous[sig] = signal.signal(sig, _no_op)
+        threading.Thread(target=self._watch, name='signals', daemon=True).start()
+        return self
+
+    def uninstall(self) -> None:
+        """Give the signals their previous handlers back (main thread only). A deadline
+        already running keeps running: a stopping process still ends in time."""
+        for sig, before in self._previous.items():
+            signal.signal(sig, before)   # type: ignore[arg-type]
+        self._previous = {}
+        signal.set_wakeup_fd(self._old_fd)
+
+    def _next(self, until: float | None) -> int | None:
+        """The next stop signal; None at ``until`` (monotonic) or when closed."""
+        sock = self._read
+        if sock is None:
+            return None
+        while True:
+            if until is not None:
+                left = until - time.monotonic()
+                if left <= 0:
+                    return None
+                sock.settimeout(left)
+            try:
+                data = sock.recv(1)
+            except TimeoutError:
+                return None
+            if not data:
+                return None
+            if data[0] in self.signals:
+                return data[0]
+
+    def _watch(self) -> None:
+        first = self._next(None)
+        if first is None:
+            return
+        self.received = first
+        until = None if self.deadline is None else time.monotonic() + self.deadline
+        hook = self.on_stop
+        if hook is not None:
+            _bounded(hook, first)
+        self.stopped.set()
+        while True:
+            again = self._next(until)
+            if again == signal.SIGINT:
+                self.end(again, 'a second SIGINT')
+            elif again is None:
+                if until is None or time.monotonic() < until:
+                    return   # the socket closed
+                self.end(first, f'still running {self.deadline:g} s after '
+                                f'{signal.Signals(first).name}')
+
+    def end(self, sig: int, why: str) -> None:
+        """The last resort, then ``os._exit(128 + sig)``, saying ``why`` on stderr."""
+        name = os.path.basename(sys.argv[0] or 'python')
+        _bounded(lambda: print(f'{name}: {why}: ended', file=sys.stderr, flush=True))
+        if self.last_resort is not None:
+            _bounded(self.last_resort)
+        os._exit(128 + sig)
+
+
+def _bounded(fn: Callable[..., object], *args: object) -> None:
+    """Run ``fn(*args)`` on a thread of its own for at most :data:`HOOK_TIME` s
+    (the main thread may hold what it needs, or stderr may be a full pipe)."""
+    def call() -> None:
+        try:
+            fn(*args)
+        except Exception as exc:   # noqa: BLE001 - a hook's failure must not stop the stop
+            with contextlib.suppress(Exception):
+                print(f'stop hook failed: {type(exc).__name__}: {exc}', file=sys.stderr,
+                      flush=True)
+
+    worker = threading.Thread(target=call, name='stop-hook', daemon=True)
+    worker.start()
+    worker.join(HOOK_TIME)
 
 if __name__ == '__main__':
     sys.exit(_launch(sys.argv[1:]))

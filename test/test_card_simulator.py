@@ -391,6 +391,62 @@ def test_cli_prints_the_path_and_stops_cleanly(tmp_path, sig):
     assert 'Traceback' not in err and not os.path.lexists(link)
 
 
+# the signal lands while the main thread holds the lock of the event it waits on (in
+# Condition._acquire_restore on a wake-up): a handler that sets that event deadlocks.
+# That left a killed demo's card simulator running (its handler did so)
+_SIGNAL_IN_A_LOCK = """
+import os, signal, sys
+from motor_id.card.simulator import CardSimulator
+from motor_id.cli import main
+fired = False
+def hook(frame, event, arg):
+    global fired
+    if not fired and event == 'return' and frame.f_code.co_name == '_acquire_restore':
+        fired = True
+        os.kill(os.getpid(), signal.SIGTERM)
+start = CardSimulator.start
+def start_then_hook(self):
+    out = start(self)
+    sys.setprofile(hook)    # the main thread's calls from now on
+    return out
+CardSimulator.start = start_then_hook
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_cli_stops_at_0_v_on_a_signal_that_lands_while_its_main_thread_holds_a_lock():
+    proc = subprocess.Popen([sys.executable, '-c', _SIGNAL_IN_A_LOCK, 'card-sim',
+                             '--speedup', '10'], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=REPO))
+    try:
+        out, err = proc.communicate(timeout=120)   # a failure bound: it hung for good
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith('/dev/pts/') and lines[-1].startswith('stopped: 0 V from seq')
+
+
+def test_stop_puts_the_card_at_0_v_first():
+    """A profile runs at 9 V; stop(): the card holds 0 V from the next sample, as a
+    host's Stop would, and nothing drives it."""
+    sim = CardSimulator(period=0.01, speedup=50.0, random_state=0).start()
+    try:
+        port = open_transport(sim.path, timeout=0.05)
+        port.write(pr.encode_command(pr.StartProfile('paper_steps', 9.0, 0, 40.0)))
+        parser = FrameParser()
+        _read_until(port, parser, lambda it: any(
+            isinstance(x, pr.Sample) and x.voltage == np.float32(9.0) for x in it),
+            timeout=60.0)
+        port.close()
+    finally:
+        sim.stop()
+    assert sim.halted_at is not None and sim.halted_at <= sim.card.seq
+    assert not sim.card.profile_running and not sim.running and not sim.connected
+    assert [x.voltage for x in sim.card.samples(50)] == [0.0] * 50
+
+
 def test_cli_user_errors_are_one_line():
     proc = _cli('--fault', 'disconnect=1')
     out, err = proc.communicate(timeout=30)

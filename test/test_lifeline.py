@@ -80,6 +80,23 @@ def test_a_tied_command_does_not_start_when_its_parent_is_already_gone(tmp_path)
     assert missing.returncode == 127 and 'cannot run' in missing.stderr
 
 
+@linux_only
+def test_a_worker_whose_parent_died_before_prctl_gets_the_signal_at_once():
+    """set_parent_death_signal(parent=...): a parent other than the one named (it died
+    before the signal was set, the worker went to init) ends the worker at once."""
+    child = textwrap.dedent("""
+        import os, signal, time
+        from motor_id.lifeline import set_parent_death_signal
+        assert set_parent_death_signal(signal.SIGTERM, parent=os.getppid())   # alive
+        print('kept', flush=True)
+        set_parent_death_signal(signal.SIGTERM, parent=os.getppid() + 1)   # "died"
+        time.sleep(600)
+    """)
+    proc = subprocess.run([sys.executable, '-c', child], capture_output=True, text=True,
+                          env=dict(os.environ, PYTHONPATH=REPO), timeout=60)
+    assert proc.returncode == -signal.SIGTERM and proc.stdout == 'kept\n', proc.stderr
+
+
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGHUP])
 def test_stop_signals_raise_keyboard_interrupt_then_the_handlers_come_back(sig):
     before = signal.getsignal(sig)
@@ -119,6 +136,66 @@ def test_an_ignored_sighup_stays_ignored():
             os.kill(os.getpid(), signal.SIGHUP)
     finally:
         signal.signal(signal.SIGHUP, previous)
+
+
+# ---------------------------------------------------------------------------------------
+# SignalThread: the signals heard off the main thread, and a deadline
+
+
+def _watched(body, deadline):
+    """A real process whose SignalThread logs its hooks, then runs ``body``."""
+    script = textwrap.dedent(f"""
+        import sys, threading
+        from motor_id.lifeline import SignalThread
+        log = lambda text: print(text, flush=True)
+        SignalThread(on_stop=lambda sig: log(f'stop {{sig}}'),
+                     last_resort=lambda: log('last resort: 0'),
+                     deadline={deadline!r}).install()
+        log('ready')
+    """) + textwrap.dedent(body)
+    return subprocess.Popen([sys.executable, '-c', script], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, PYTHONPATH=REPO))
+
+
+def test_a_stuck_main_thread_is_ended_after_the_deadline_by_its_last_resort():
+    """The main thread blocks for good (here on a lock it holds itself); SIGTERM: the
+    stop hook runs at once, and at the deadline the last resort, then os._exit."""
+    proc = _watched("""
+        lock = threading.Lock()
+        lock.acquire()
+        lock.acquire()      # stuck for good
+    """, deadline=1.0)
+    try:
+        assert proc.stdout.readline() == 'ready\n'
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)     # a failure bound
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert out.splitlines() == [f'stop {int(signal.SIGTERM)}', 'last resort: 0']
+    assert 'still running 1 s after SIGTERM: ended' in err
+
+
+def test_repeated_sigterms_are_ignored_and_a_second_sigint_ends_at_once():
+    """The parent-death signal comes once per thread of a dying parent: repeats do not
+    end the process (no deadline here), a second Ctrl-C does."""
+    proc = _watched("""
+        threading.Event().wait()
+    """, deadline=None)
+    try:
+        assert proc.stdout.readline() == 'ready\n'
+        proc.send_signal(signal.SIGTERM)
+        assert proc.stdout.readline() == f'stop {int(signal.SIGTERM)}\n'
+        for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGTERM):
+            proc.send_signal(sig)
+        assert proc.poll() is None
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGINT, err
+    assert out.splitlines() == ['last resort: 0'] and 'a second SIGINT: ended' in err
 
 
 def test_processes_close_ends_every_child_and_whatever_they_left(tmp_path):

@@ -20,7 +20,7 @@ import tty
 import numpy as np
 
 from motor_id.card.faults import FaultConfig, FaultInjector
-from motor_id.card.protocol import encode_reply, encode_sample
+from motor_id.card.protocol import encode_reply, encode_sample, Stop
 from motor_id.card.stream import CommandParser
 from motor_id.card.virtual_card import CardTruth, VirtualCard
 from motor_id.errors import ConfigError, ProtocolError
@@ -90,7 +90,9 @@ class CardSimulator:
 
     Notes
     -----
-    Use as a context manager, or call :meth:`start` and :meth:`stop`. The simulator
+    Use as a context manager, or call :meth:`start` and :meth:`stop`; :meth:`stop` (and
+    :meth:`halt`, from any thread) puts the card at 0 V first, as a host's ``Stop``
+    would, and every wait in it is bounded. The simulator
     keeps its own handle on the pty's slave side, so the host may open and close the
     device at will; a real-time card that nobody reads drops frames (``tx_overflow``)
     as a UART would.
@@ -128,6 +130,10 @@ class CardSimulator:
         self._device: str | None = None
         self._pending = bytearray()
         self._stop = threading.Event()
+        self._halt = threading.Event()
+        self._halted = threading.Event()
+        self.halted_at: int | None = None
+        """Sequence number of the first 0 V sample after :meth:`halt` (None before)."""
         self._thread: threading.Thread | None = None
         self._lock = threading.Lock()
         self._wall0 = self._t0 = 0.0   # set when serving starts: wall and card time then
@@ -217,13 +223,36 @@ class CardSimulator:
         self._thread.start()
         return self
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Stop serving, close the pty and remove the link."""
+    def halt(self) -> None:
+        """0 V at the card from its next sample on, as a host's ``Stop`` (from any
+        thread: the serving thread applies it; :attr:`halted_at` tells when)."""
+        self._halt.set()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """0 V at the card, stop serving, close the pty and remove the link.
+
+        Waits at most ``timeout`` [s] for the serving thread to apply the 0 V and as long
+        again for it to end; one that does not (stuck) is left behind, a daemon, and the
+        card is put at 0 V from here.
+        """
+        self.halt()
+        thread = self._thread
+        if thread is not None and thread.is_alive():
+            self._halted.wait(timeout)
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        if thread is not None:
+            thread.join(timeout)
+        if self.halted_at is None:   # never served, ended, or stuck: 0 V from here
+            self._apply_halt()
         if self._master is not None:
             self._close_pty()
+
+    def _apply_halt(self) -> None:
+        """The card holds 0 V from its next sample (idempotent)."""
+        if self.halted_at is None:
+            self.card.handle(Stop())
+            self.halted_at = self.card.seq
+            self._halted.set()
 
     def __enter__(self) -> 'CardSimulator':
         return self.start()
@@ -238,6 +267,12 @@ class CardSimulator:
             self._loop()
         except Exception as exc:  # noqa: BLE001 - reported via .error; the thread lives on
             self.error = exc
+        finally:   # whatever ended the serving: 0 V
+            try:
+                self._apply_halt()
+            except Exception as exc:  # noqa: BLE001 - reported via .error
+                self.error = self.error or exc
+            self._halted.set()
 
     def _emit(self, n: int) -> None:
         for _ in range(n):
@@ -269,6 +304,8 @@ class CardSimulator:
         self._t0 = self.card.t_us / 1e6
         faults = self.faults
         while not self._stop.is_set():
+            if self._halt.is_set():
+                self._apply_halt()
             now = time.monotonic()
             if faults.disconnect_every:
                 if self._master is not None and \

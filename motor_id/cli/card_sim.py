@@ -2,15 +2,12 @@
 
 import argparse
 import json
-import signal
-import threading
-from typing import Any
 
 from motor_id.card.faults import FaultConfig
 from motor_id.card.simulator import CardSimulator
 from motor_id.cli.common import parse_noise, plant_from_args
 from motor_id.errors import ConfigError
-from motor_id.lifeline import STOP_SIGNALS
+from motor_id.lifeline import SignalThread, STOP_DEADLINE
 from motor_id.model import DISCRETISATIONS
 
 WATCHDOG = 0.5
@@ -68,14 +65,16 @@ def simulator_from_args(args: argparse.Namespace) -> CardSimulator:
 
 def run(args: argparse.Namespace) -> int:
     """Serve the simulated card until SIGINT, SIGTERM or SIGHUP; print the device path
-    first."""
+    first, and the card's 0 V last.
+
+    The signals are heard by a :class:`~motor_id.lifeline.SignalThread` (a handler that
+    set an event here could deadlock the main thread waiting on it): the card is put at
+    0 V at once, then stopped; a process still running :data:`STOP_DEADLINE` seconds
+    after the signal is ended.
+    """
     sim = simulator_from_args(args)
-    done = threading.Event()
-
-    def _handler(signum: int, frame: Any) -> None:
-        done.set()
-
-    previous = {s: signal.signal(s, _handler) for s in STOP_SIGNALS}
+    signals = SignalThread(on_stop=lambda signum: sim.halt(), last_resort=sim.halt,
+                           deadline=STOP_DEADLINE).install()
     try:
         sim.start()
         if args.truth_out:
@@ -83,14 +82,14 @@ def run(args: argparse.Namespace) -> int:
                 json.dump(sim.truth().to_dict(), fh, indent=2)
         print(sim.path, flush=True)
         trips = 0
-        while not done.wait(0.1):
+        while not signals.stopped.wait(0.1):
             trips = _report_trip(sim, trips)
             if not sim.running:
                 break
     finally:
         sim.stop()
-        for s, h in previous.items():
-            signal.signal(s, h)
+        signals.uninstall()
+    print(f'stopped: 0 V from seq {sim.halted_at}', flush=True)
     if sim.error is not None:
         raise sim.error
     return 0

@@ -3,10 +3,7 @@
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 import functools
-import os
 import re
-import signal
-import socket
 import sys
 import threading
 from typing import Any
@@ -29,7 +26,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from motor_id.errors import ConfigError
-from motor_id.lifeline import STOP_SIGNALS
+from motor_id.lifeline import SignalThread
 from motor_id.nodes.rclshim import RCLError, wait_for_handed_out_callbacks
 
 
@@ -297,69 +294,26 @@ class TopicWatch:
         return True
 
 
-def _ignore_handler(signum: int, frame: Any) -> None:
-    """Python-level handler: a no-op; the signal number reaches the wakeup fd."""
-
-
-class SignalWatcher:
+class SignalWatcher(SignalThread):
     """Turn SIGINT, SIGTERM and SIGHUP into a clean end of spinning, the context valid.
 
     rclpy's own handlers shut the context down inside the signal handler, so the node
     is then destroyed on a dead context, and ``Executor.shutdown`` from another thread
-    destroys the guard condition that a running ``spin`` waits on (Jazzy). Instead
-    :meth:`install` sets no-op Python handlers and :func:`signal.set_wakeup_fd`: the
-    interpreter's C-level handler writes the signal number to a socket whichever thread
-    the kernel delivers it to, and a thread reading that socket sets :attr:`stop`, the
-    :class:`StopSignal` the main thread spins on. The spin then returns, the node stops
-    and is destroyed, and only then the context. A second SIGINT (Ctrl-C twice) while
-    shutting down ends the process at once (exit code 130); a repeated SIGTERM or SIGHUP
-    does not: the parent-death signal of :mod:`motor_id.lifeline` arrives once per
-    thread of a dying parent, and a supervisor escalates with SIGKILL, not SIGTERM.
+    destroys the guard condition that a running ``spin`` waits on (Jazzy). Instead a
+    :class:`~motor_id.lifeline.SignalThread` hears the signals and sets :attr:`stop`,
+    the :class:`StopSignal` the main thread spins on (after ``on_stop(signum)``: a node
+    sends 0 there at once). The spin then returns, the node stops and is destroyed, and
+    only then the context. A second SIGINT (Ctrl-C twice) ends the process at once; a
+    repeated SIGTERM or SIGHUP does not (the parent-death signal of
+    :mod:`motor_id.lifeline` arrives once per thread of a dying parent). A node still
+    running :data:`~motor_id.lifeline.STOP_DEADLINE` seconds after the signal is ended
+    (``last_resort()`` first).
     """
 
-    SIGNALS = STOP_SIGNALS
-
     def __init__(self) -> None:
-        self.received: int | None = None
         self.stop = StopSignal()
-        self._read: socket.socket | None = None
-        self._write: socket.socket | None = None
-
-    def install(self) -> None:
-        """Route the signals to the watcher (call in the main thread before ``rclpy.init``).
-
-        A handler is installed even where the disposition was "ignore" (as a
-        non-interactive shell sets SIGINT for background jobs), so SIGINT always stops;
-        SIGHUP ignored on entry (``nohup``) stays ignored.
-        """
-        self._read, self._write = socket.socketpair()
-        self._write.setblocking(False)
-        signal.set_wakeup_fd(self._write.fileno(), warn_on_full_buffer=False)
-        for sig in self.SIGNALS:
-            if sig == signal.SIGHUP and signal.getsignal(sig) is signal.SIG_IGN:
-                continue
-            signal.signal(sig, _ignore_handler)
-        threading.Thread(target=self._wait, name='signals', daemon=True).start()
-
-    def _next_signal(self) -> int | None:
-        sock = self._read
-        if sock is None:
-            return None
-        while True:
-            data = sock.recv(1)
-            if not data:
-                return None
-            if data[0] in self.SIGNALS:
-                return data[0]
-
-    def _wait(self) -> None:
-        self.received = self._next_signal()
-        if self.received is None:
-            return
-        self.stop.set()
-        while (again := self._next_signal()) is not None:
-            if again == signal.SIGINT:
-                os._exit(128 + again)
+        """The stop request the main thread spins on (also :attr:`stopped`)."""
+        super().__init__(stopped=self.stop)
 
 
 def drain(executor: Executor, node: Node, timeout: float = 10.0) -> bool:
@@ -438,6 +392,7 @@ def run_node(factory: Callable[[], Node], name: str, num_threads: int = 4,
                     MultiThreadedExecutor(num_threads=num_threads))
         executor.add_node(node)
         signals.stop.attach(node)
+        signals.last_resort = getattr(node, 'last_resort', None)
         try:
             signals.stop.spin(executor)
         except (KeyboardInterrupt, ExternalShutdownException):

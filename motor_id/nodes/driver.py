@@ -333,6 +333,11 @@ class DriverNode(Node):
         return messages.OK, 'streaming'
 
     # ------------------------------------------------------------ shutdown
+    def last_resort(self) -> None:
+        """0 V to the card now, from any thread: the process is ended next (its stop took
+        too long, see :class:`motor_id.nodes.common.SignalWatcher`)."""
+        self.session.close()
+
     def stop(self) -> None:
         """Command 0 V first, then stop the reader thread, close the port and the bag.
 

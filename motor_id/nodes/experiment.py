@@ -15,7 +15,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import math
-import os
 import signal
 import sys
 import threading
@@ -386,30 +385,6 @@ class ExperimentNode(Node):
             self._alive = False
 
 
-class ExperimentSignals(SignalWatcher):
-    """SIGINT, SIGTERM and SIGHUP end the experiment alike: ``on_signal`` sends 0 from
-    the signal thread at once, then spinning stops and the outputs are written."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.on_signal: Callable[[int], None] | None = None
-
-    def _wait(self) -> None:
-        self.received = self._next_signal()
-        if self.received is None:
-            return
-        hook = self.on_signal
-        if hook is not None:
-            try:
-                hook(self.received)
-            except Exception:   # noqa: BLE001 - the main thread's halt sends 0 as well
-                traceback.print_exc()
-        self.stop.set()
-        again = self._next_signal()
-        if again is not None:
-            os._exit(128 + again)
-
-
 def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
         jobs: int | None = None) -> int:
     """Run the experiment node to its end, then finish the outputs and identify.
@@ -429,7 +404,7 @@ def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
         The exit code (:mod:`motor_id.experiment.outcome`): 0 identified, 2 a bad setting
         or no start, 3 a safety stop, 4 not identified, 5 an error, 128 + N signal N.
     """
-    signals = ExperimentSignals()
+    signals = SignalWatcher()   # SIGINT, SIGTERM, SIGHUP alike: 0 from its thread at once
     signals.install()
     if not init_ros('experiment', args):
         return EXIT_CONFIG
@@ -445,8 +420,9 @@ def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
         executor.add_node(node)
         signals.stop.attach(node)
         node.on_finish = signals.stop.set
-        signals.on_signal = lambda sig: node.emergency_stop(
-            f'signal {signal.Signals(sig).name}') if node is not None else None
+        stopping = node.emergency_stop
+        signals.on_stop = lambda sig: stopping(f'signal {signal.Signals(sig).name}')
+        signals.last_resort = lambda: stopping('the stop took too long')
         try:
             signals.stop.spin(executor)
         except (KeyboardInterrupt, ExternalShutdownException):
@@ -461,7 +437,7 @@ def run(args: list[str] | None = None, overrides: list[Parameter] | None = None,
             node.halt(reason)
             executor.shutdown(timeout_sec=1.0)
     finally:
-        signals.on_signal = None
+        signals.on_stop = None
         signals.stop.detach()
         if node is not None:
             node.destroy_node()
