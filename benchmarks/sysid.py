@@ -25,6 +25,8 @@ Usage::
 
     python benchmarks/sysid.py [--log PATH] [--json OUT] [--fit-only] [--resistance R]
                                [--joint left|right] [--motor NAME] [--timeout S]
+                               [--voltage E --velocity E [--position E] [--state E]
+                                [--units UNIT]]
 
 The log defaults to ``../shared/data/sysid/sysid_data.json`` beside the repository; the
 script says so and exits with status 2 when it is absent. Progress lines go to stderr, the
@@ -57,6 +59,8 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_LOG = REPO.parent / 'shared' / 'data' / 'sysid' / 'sysid_data.json'
 UNIT_SYMBOLS = {'Meters': 'm', 'Feet': 'ft', 'Inches': 'in', 'Radians': 'rad',
                 'Rotations': 'rot', 'Degrees': 'deg'}
+ENTRY_FLAGS = ('motor', 'voltage', 'position', 'velocity', 'state', 'units')
+"""The .wpilog options passed on to :class:`LogEntries` and to motor-id as they are."""
 INIT_SAMPLES = 2
 """Samples at the start of each test left out of every score (motor_id's model sets its
 unmeasured current from them)."""
@@ -101,8 +105,9 @@ def run_motor_id(log, out_json, args):
         cmd += ['--effect', 'coulomb_friction', '-q']
     if args.joint:
         cmd += ['--joint', args.joint]
-    if args.motor:
-        cmd += ['--motor', args.motor]
+    for flag in ENTRY_FLAGS:
+        if getattr(args, flag):
+            cmd += [f'--{flag}', getattr(args, flag)]
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get('PYTHONPATH',
                                                                                  ''))
     shown = ' '.join(['motor-id'] + [a if a != str(out_json) else 'OUT.json'
@@ -196,6 +201,11 @@ def parse(argv):
                          'cannot see it, and no output depends on it)')
     ap.add_argument('--joint', choices=('left', 'right'), help='side of a Drivetrain log')
     ap.add_argument('--motor', metavar='NAME', help='.wpilog: the motor, where it has several')
+    for flag in ENTRY_FLAGS[1:-1]:
+        ap.add_argument(f'--{flag}', metavar='ENTRY',
+                        help=f'.wpilog of another logger: the {flag} entry')
+    ap.add_argument('--units', metavar='UNIT',
+                    help='.wpilog: the position unit where the metadata lacks it')
     ap.add_argument('--timeout', type=float, default=3600.0, metavar='S',
                     help='give up on motor-id after S seconds (default 3600)')
     return ap.parse_args(argv)
@@ -210,8 +220,9 @@ def main(argv=None):
         return 2
     t0 = time.perf_counter()
     try:
+        entries = {k: getattr(args, k) for k in ENTRY_FLAGS if getattr(args, k)}
         rec = load_recording(log, mapping=TopicMapping(joint=args.joint),
-                             log_entries=LogEntries(motor=args.motor) if args.motor else None)
+                             log_entries=LogEntries(**entries) if entries else None)
     except MotorIdError as exc:
         print(f'sysid benchmark: {exc}', file=sys.stderr)
         return 2

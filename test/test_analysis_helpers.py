@@ -198,3 +198,39 @@ def test_a_small_held_out_gain_counts_only_when_every_sub_block_agrees(gain, win
                    prediction={'preds': preds, 'sub': sub})
     judge(s, ref, split, 0.05, {})
     assert s.significant is significant
+
+
+@pytest.mark.parametrize('name, steady, significant', [
+    ('coulomb_friction', (0.4, -0.39), True),   # the steady states show the offset
+    ('coulomb_friction', None, False),          # they do not: the sub-block rule stands
+    ('dead_zone', (0.4, -0.39), True),
+    ('input_delay', (0.4, -0.39), False),       # not a friction-like effect
+])
+def test_a_static_offset_in_the_steady_states_lets_friction_count_on_few_sub_blocks(
+        name, steady, significant):
+    from types import SimpleNamespace
+
+    from motor_id.analysis.report import ModelScore
+    from motor_id.analysis.search import CandidateSearch
+    from motor_id.analysis.selection import judge
+    from motor_id.recording import Recording
+    rng = np.random.default_rng(1)
+    n = 1000
+    rec = Recording(np.arange(n) * 0.01, rng.standard_normal(n), rng.standard_normal(n),
+                    None, 'voltage', {})
+    split = HeldOutSplit(rec)
+    m = len(split.subblocks)
+    # a real drivetrain's log: 61 % off the held-out error, 5 of 12 sub-blocks better
+    sub = np.where(np.arange(m) < round(5 * m / 12), 0.2, 1.02)
+    ref = ModelScore(name='linear', effects={}, heldout_error=1.0, train_error=1.0,
+                     prediction={'preds': [rec.speed], 'sub': np.ones(m)})
+    s = ModelScore(name=name, effects={name: {}}, heldout_error=0.39, train_error=0.9,
+                   n_extra=1, prediction={'preds': [rec.speed], 'sub': sub})
+    judge(s, ref, split, 0.05, {})
+    assert s.gain == pytest.approx(0.61) and s.block_wins < 0.5 and s.delta_bic < 0
+    assert not s.significant
+    search = CandidateSearch(SimpleNamespace(steady=steady), None, (), (), print,
+                             min_gain=0.05, ambiguity=0.05, max_effects=2,
+                             structure_ratio=2.0, pool_size=3)
+    search._offset_evidence(s)
+    assert s.significant is significant

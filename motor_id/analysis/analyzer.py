@@ -215,12 +215,13 @@ class DiscrepancyAnalysis:
             default_max_delay(len(rec))
         fitter = CandidateFitter(rec, split, self._resistance(rec), self.random_state,
                                  self.starts, max_delay, self.R_m_tolerance, self.mechanism)
+        steady = selection.steady_offset(map_summary(steady_state_map(rec)))
         return RecordContext(
             rec=rec, split=split, fitter=fitter, measurement=meas,
             measurement_evidence=meas_evidence, electrical=electrical,
             at_once=selection.responds_at_once(rec, noise_floor(rec.speed)),
-            one_way=selection.one_direction(rec),
-            steady=selection.steady_offset(map_summary(steady_state_map(rec))))
+            one_way=selection.one_direction(rec), steady=steady,
+            offsets_alike=selection.offsets_alike(rec, noise_floor(rec.speed), steady))
 
     def _linear(self, ctx: RecordContext, search: CandidateSearch) -> ModelScore:
         rec = ctx.rec

@@ -44,6 +44,9 @@ class RecordContext:
         The speed kept one sign.
     steady : (float, float) or None
         Zero-speed inputs of the steady-state map that point to a static offset.
+    offsets_alike : bool
+        The record cannot tell apart the effects that show a static offset
+        (:func:`.selection.offsets_alike`).
     resistance : Resistance or None
         The linear fit's resistance block (with the current measured).
     """
@@ -57,4 +60,5 @@ class RecordContext:
     at_once: bool
     one_way: bool
     steady: tuple[float, float] | None
+    offsets_alike: bool = False
     resistance: Resistance | None = None

@@ -165,6 +165,20 @@ def steady_offset(summary: SteadyStateMap) -> tuple[float, float] | None:
     return up, un
 
 
+def offsets_alike(rec: Recording, floor: float, offset: tuple[float, float] | None) -> bool:
+    """True when the record cannot tell apart the effects that show a static offset
+    (Coulomb friction, a dead zone): its input never drives against the motion, nor
+    stays below the offset while the speed is up (where friction brakes and a dead
+    zone coasts). Samples within three noise floors of zero speed do not count."""
+    if offset is None or rec.input_kind != 'voltage' or rec.has_current:
+        return False
+    u, w = rec.input, rec.speed
+    moving = np.abs(w) > 3.0 * floor
+    against = moving & (u * np.sign(w) < 0.0)
+    below = moving & (np.abs(u) < 0.5 * min(abs(offset[0]), abs(offset[1])))
+    return bool(np.mean(against | below) <= 0.005)
+
+
 def _blind_heldout(score: ModelScore, ref: ModelScore, split: HeldOutSplit, min_gain: float
                    ) -> bool:
     """True when the held-out blocks cannot see a misfit the training blocks show.
