@@ -132,6 +132,20 @@ def _unit_literals(path):
                 break
 
 
+def test_the_internal_resistance_of_speed_only_records_has_one_home():
+    # speed-only voltage data cannot tell R_m: every fit of them (fit, analyze, the
+    # experiment's report) runs at identify.space.SPEED_ONLY_R_M, and no module keeps a
+    # nominal resistance of its own (the experiment's NOMINAL_R was one)
+    assert _assigned('SPEED_ONLY_R_M') == ['motor_id/identify/space.py']
+    nominal = re.compile(r'(?i)^_?(nominal_r(_m)?|r(_m)?_nominal|nominal_resistance)$')
+    copies = sorted(_rel(p) for p in PRODUCT for node in ast.walk(_tree(p))
+                    if isinstance(node, (ast.Assign, ast.AnnAssign))
+                    for target in (node.targets if isinstance(node, ast.Assign)
+                                   else [node.target])
+                    if isinstance(target, ast.Name) and nominal.match(target.id))
+    assert not copies, f'a nominal resistance besides SPEED_ONLY_R_M: {copies}'
+
+
 def test_units_have_one_home():
     # {'speed': 'rad/s'} or {'K_T': 'N m/A'} anywhere but contracts is a second unit table;
     # contracts.UNITS, TORQUE_UNITS, units_of and channel_units are the one
