@@ -273,6 +273,32 @@ def test_a_signal_mid_test_commands_0_and_leaves_nothing_running(client, launch,
     assert (tmp_path / 'out' / 'recording.mcap').stat().st_size > 0
 
 
+def test_repeated_sigterms_do_not_cut_the_outputs_short(client, launch, tmp_path):
+    """A dying parent's death signal comes once per thread of it: SIGTERM after SIGTERM
+    until the experiment exits. It stops as on the first (0 sent), and the repeats,
+    landing while it writes its outputs too, cut nothing short (before: a repeat raised
+    KeyboardInterrupt while they were written)."""
+    watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify')
+    t_sig = time.monotonic()
+    sent_signals = 0
+    while exp.proc.poll() is None:
+        assert time.monotonic() - t_sig < 120.0, exp.output()   # a failure bound
+        exp.proc.send_signal(signal.SIGTERM)
+        sent_signals += 1
+        time.sleep(0.005)    # the pace of the storm
+    assert sent_signals > 1
+    # 128 + 15; or -15: a SIGTERM after the command's end, its outputs written (the
+    # interpreter's exit takes the default disposition back)
+    assert exp.proc.returncode in (128 + signal.SIGTERM, -signal.SIGTERM), exp.output()
+    assert 'experiment: signal SIGTERM; tests:' in exp.output()
+    assert 'interrupted' not in exp.output() and 'Traceback' not in exp.output()
+    assert wait_until(lambda: zero_after(watch, t_sig)[0] is not None, 30.0), exp.output()
+    assert all(v == 0.0 for v in zero_after(watch, t_sig)[1])
+    log = json.loads((tmp_path / 'out' / 'experiment.json').read_text())
+    assert log['stop_reason'] == 'signal SIGTERM'
+    assert len(load_recording(tmp_path / 'out' / 'recording.mcap')) > 0
+
+
 def test_nothing_is_sent_before_start(client, launch, tmp_path):
     watch = Watch(client, 'wheel_joint')
     robot = launch('robot', robot_args(tmp_path))

@@ -11,6 +11,7 @@ depend on, and the report says so.
 from __future__ import annotations
 
 from collections.abc import Callable
+import contextlib
 from dataclasses import dataclass, replace
 from pathlib import Path
 import signal
@@ -201,11 +202,19 @@ def finish(session: ExperimentSession, failure: str | None, signum: int | None,
         :data:`EXIT_NOT_IDENTIFIED`, :data:`EXIT_ERROR`, or 128 + the signal number.
     """
     say = say or (lambda text: print(text, file=sys.stderr, flush=True))
-    # from here on a stop signal interrupts the analysis (its workers are stopped)
-    signal.set_wakeup_fd(-1)
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+    stopping: contextlib.AbstractContextManager[None]
+    if signum is None:
+        # from here on a stop signal interrupts the analysis (its workers are stopped)
+        signal.set_wakeup_fd(-1)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        stopping = stop_signals_as_interrupt(STOP_SIGNALS)
+    else:
+        # a signal ended it (no analysis): its repeats, the parent-death signal once per
+        # thread of a dying parent, must not cut the outputs short; the signal thread
+        # still ends the process on a second Ctrl-C or at its deadline
+        stopping = contextlib.nullcontext()
     try:
-        with stop_signals_as_interrupt(STOP_SIGNALS):
+        with stopping:
             return _finish(session, failure, signum, errored, jobs, say)
     except OSError as exc:   # the outputs cannot be written (a full disk)
         say(f'experiment: cannot write the outputs in {session.out}: {exc}')
