@@ -541,3 +541,33 @@ def test_two_routines_in_one_log(tmp_path, capsys):
     assert main(['fit', path, '--motor', 'arm-a', '-q', '--json',
                  str(tmp_path / 'a.json')]) == 0
     capsys.readouterr()
+
+
+def test_the_sysid_benchmark_reads_another_loggers_entries(tmp_path):
+    # benchmarks/sysid.py passes --voltage ... --units to the reader and to motor-id, as
+    # for the real URCL export (docs/sysid.md); --fit-only keeps it to seconds
+    names = {'voltage': 'URCL/SparkMax-11/AppliedOutputVoltage',
+             'position': 'URCL/SparkMax-11/MotorPositionRotations',
+             'velocity': 'URCL/SparkMax-11/MotorVelocityRPM',
+             'state': 'sysid-test-state-DriveSubsystem'}
+    log = write_sysid_wpilog(tmp_path / 'urcl.wpilog', 4, entry_names=names, metadata=False,
+                             units='Meter', **SHORT)
+    out = tmp_path / 'bench.json'
+    repo = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=str(repo) + os.pathsep + os.environ.get('PYTHONPATH',
+                                                                                ''))
+    proc = subprocess.run(
+        [sys.executable, str(repo / 'benchmarks' / 'sysid.py'), '--log', log.path,
+         '--json', str(out), '--fit-only', '--units', 'Meter', '--voltage',
+         names['voltage'], '--position', names['position'], '--velocity',
+         names['velocity'], '--state', names['state']],
+        cwd=str(tmp_path), env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    result = json.loads(out.read_text())
+    ours = result['models']['motor_id fit']
+    assert '--voltage URCL/SparkMax-11/AppliedOutputVoltage' in ours['command']
+    assert '--units Meter' in ours['command']
+    assert set(ours['fit_percent']) == set(ROUTINE)
+    assert all(f > 90.0 for f in ours['fit_percent'].values()), ours['fit_percent']
+    truth = log.truth.motors['shooter']
+    np.testing.assert_allclose(ours['gains']['kV'], truth.kV, rtol=0.05)   # V s/m
