@@ -222,7 +222,9 @@ def test_fault_config_parsing():
 # the card on a real pseudo-terminal
 
 
-def _read_until(port, parser, done, timeout=10.0):
+def _read_until(port, parser, done, timeout=60.0):
+    """Parse what the card sends until ``done(items)``; ``timeout`` [s] is a failure
+    bound (10 s was passed twice at a load average of ~24 on 2 cores)."""
     items = []
     end = time.monotonic() + timeout
     while not done(items):
