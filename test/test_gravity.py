@@ -97,6 +97,11 @@ def test_fit_with_the_arm_mechanism_gives_kg_and_offset(arm):
     assert ff['offset']['value'] == pytest.approx(arm.truth['offset'], abs=0.1)
     assert ff['kG']['unit'] == 'V' and ff['offset']['unit'] == 'rad'
     assert ff['kV']['unit'] == 'V s/rad' and ff['kG']['std'] > 0
+    # the printed table has them too, with their units
+    rows = {line.split()[0]: line.split() for line in report.controller_summary.splitlines()
+            if line.split()}
+    assert float(rows['kG'][1]) == pytest.approx(ff['kG']['value'], rel=1e-3)
+    assert rows['kG'][-1] == 'V' and rows['offset'][-1] == 'rad'
 
 
 def _analyse(rec, mechanism):
@@ -115,6 +120,8 @@ def test_analysis_of_an_arm_recovers_kg_offset_kv_ks_and_beats_no_mechanism(arm)
     assert ff['offset']['value'] == pytest.approx(truth['offset'], abs=0.1)
     assert ff['kV']['value'] == pytest.approx(truth['kV'], rel=0.10)
     assert ff['kS']['value'] == pytest.approx(truth['kS'], abs=0.1)
+    if ff['kA']['value'] is not None:
+        assert ff['kA']['value'] == pytest.approx(truth['kA'], rel=0.30)
     assert (ff['kG']['unit'], ff['offset']['unit']) == ('V', 'rad')
     assert 'arm_gravity.T_g' in rep.parameters and rep.chosen.effects['arm_gravity']
     # without the mechanism the same record is explained far worse (measured: held-out
@@ -132,6 +139,8 @@ def test_analysis_of_an_elevator_recovers_kg_kv_ks_and_beats_no_mechanism():
     assert ff['kG']['value'] == pytest.approx(case.truth['kG'], rel=0.10)
     assert ff['kV']['value'] == pytest.approx(case.truth['kV'], rel=0.10)
     assert ff['kS']['value'] == pytest.approx(case.truth['kS'], abs=0.1)
+    if ff['kA']['value'] is not None:
+        assert ff['kA']['value'] == pytest.approx(case.truth['kA'], rel=0.30)
     assert (ff['kG']['unit'], ff['kV']['unit']) == ('V', 'V s/m')   # a linear axis
     assert 'offset' not in ff
     plain = _analyse(case.recording, 'simple')

@@ -107,6 +107,9 @@ class ControllerDesign:
                  f'{"quantity":<14}{"value":>13}{"std":>12}  units']
         for k, q in (('kS', ff.kS), ('kV', ff.kV), ('kA', ff.kA)):
             lines.append(_row(k, q, ff.units[k]))
+        for k, g in (('kG', ff.kG), ('offset', ff.offset)):   # a joint's gravity
+            if g is not None:   # kG in input units, as kS
+                lines.append(_row(k, g, g.unit or ff.units.get(k, ff.units['kS'])))
         lines.append(_row('tau_e', tc.electrical, 's'))
         lines.append(_row('tau_m', tc.mechanical, 's'))
         for loop, d in (('current', self.pi.current), ('speed', self.pi.speed)):
