@@ -95,6 +95,13 @@ def test_fit_of_an_arm_routine(arm, tmp_path, capsys):
     capsys.readouterr()
     report = json.loads(out.read_text())
     check_arm(feedforward(report), arm.truth.motors['arm'])
+    # validate simulates it with the arm's gravity at the log's measured position
+    val = tmp_path / 'validate.json'
+    assert main(['validate', str(out), arm.path, '--mechanism', 'arm', '--json',
+                 str(val)]) == 0
+    capsys.readouterr()
+    scores = json.loads(val.read_text())['channels']
+    assert scores['position']['fit_percent'] > 95 and scores['speed']['fit_percent'] > 90
 
 
 def test_analyze_of_an_arm_routine(arm, tmp_path, capsys):
@@ -127,6 +134,11 @@ def test_a_json_arm_log_fits_as_an_arm(arm, tmp_path, capsys):
     assert main(['fit', str(path), '-q', '--json', str(out)]) == 0
     assert "mechanism: arm (the log's test" in capsys.readouterr().err
     check_arm(feedforward(json.loads(out.read_text())), arm.truth.motors['arm'])
+    val = tmp_path / 'validate.json'   # the mechanism from the log's test again
+    assert main(['validate', str(out), str(path), '--json', str(val)]) == 0
+    assert "mechanism: arm (the log's test" in capsys.readouterr().err
+    scores = json.loads(val.read_text())['channels']
+    assert scores['position']['fit_percent'] > 95 and scores['speed']['fit_percent'] > 90
     # --mechanism overrides the log: an arm fitted as a simple mechanism has no kG
     assert main(['fit', str(path), '-q', '--mechanism', 'simple', '--json', str(out)]) == 0
     assert 'kG' not in feedforward(json.loads(out.read_text()))
