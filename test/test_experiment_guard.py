@@ -13,7 +13,7 @@ import pytest
 from motor_id.data.load import load_recording
 from motor_id.errors import ConfigError
 from motor_id.experiment.coast import CoastModel, OnlineModel, predict_coast
-from motor_id.experiment.guard import Guard, limit_command, StateSample
+from motor_id.experiment.guard import Guard, limit_command, StateSample, StreamStats
 from motor_id.experiment.plan import arrange, build_plan, LOW_STEP_FRACTION, STEP_FRACTION
 from motor_id.experiment.session import EXPERIMENT, ExperimentSession, RECORDING
 from motor_id.experiment.settings import ExperimentSettings, Travel
@@ -345,6 +345,59 @@ def test_the_online_model_learns_a_decay():
     fit = m.fitted()
     assert fit is not None
     assert fit.time_constant() == pytest.approx(0.05, rel=0.25)
+
+
+def test_states_that_arrive_late_teach_the_online_model_what_drove_the_joint(tmp_path):
+    # a busy machine: every 0.4 s the states stall for 0.24 s and then arrive at once,
+    # each decided on when it arrives; the joint ran on the command sent before it was
+    # measured (J 4e-5, K 0.02, R 0.5, B 1e-5: tau 0.049 s, 1000 rad/s^2 per volt).
+    # Paired with the command decided on the state before (what was never applied), the
+    # model took tau for 0.196 s and the gain for 263 (measured)
+    rng = np.random.default_rng(0)
+    joint = wheel()
+    sess = ExperimentSession(settings(tmp_path, watchdog=1.0))
+    sess.open()
+    sess.start(0.0)
+    u, t, k, held = 0.0, 0.0, 0, []
+    while not sess.guard.finished and t < 60.0:
+        held.append(StateSample(t, 0.0, joint.x + 1e-4 * rng.standard_normal(),
+                                joint.w + 0.01 * rng.standard_normal()))
+        if k % 40 < 15 or k % 40 == 39:   # delivered now
+            for s in held:
+                late = t + 0.003 - s.t
+                cmd = sess.on_state(StateSample(s.t, t + 0.003, s.position, s.velocity,
+                                                lag=late))
+                if cmd is not None:
+                    sess.note_sent(t + 0.004, cmd)
+                    u = cmd
+            held = []
+        joint.step(u, 0.01)
+        t, k = t + 0.01, k + 1
+    assert [x.end_reason for x in sess.guard.log.tests] == ['complete'] * 6
+    fit = sess.guard.model.fitted()
+    assert fit is not None
+    assert fit.time_constant() == pytest.approx(0.049, rel=0.15)
+    assert fit.theta[0] == pytest.approx(1000.0, rel=0.15)
+    assert sess.guard.in_effect(-1.0) == 0.0   # before anything was sent
+    # experiment.json says so: 20 states of each stall over 0.05 s late, up to 0.24 s
+    timing = sess.guard.stats.timing()
+    assert timing['late_states'] >= 0.45 * k   # 20 of every 40 samples (less the end)
+    assert timing['latest_state'] == pytest.approx(0.24, abs=0.011)
+
+
+def test_a_state_that_arrives_late_lengthens_the_coast_by_its_lag():
+    # the arm demo on a busy machine: states 0.28 s late while the median lag was 5 ms;
+    # the coast from such a state starts where the arm was 0.28 s ago (it went 0.014 rad
+    # past its travel once, on the median lag)
+    stats = StreamStats()
+    last = None
+    for k in range(50):
+        s = StateSample(0.01 * k, 0.01 * k + 0.005, 0.0, 0.0, lag=0.005)
+        stats.lateness(s)
+        stats.add(s, last)
+        last = s
+    assert stats.latency(0.285) - stats.latency() == pytest.approx(0.28, abs=1e-12)
+    assert stats.latency(0.001) == stats.latency()
 
 
 # ---------------------------------------------------------------------------- the record

@@ -23,6 +23,7 @@ stamped ``watchdog`` seconds later than the smallest lag seen, stop it with 0.
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 import math
 import statistics
@@ -109,6 +110,7 @@ class Guard:
         self._repeated: set[str] = set()
         self._baseline: list[StateSample] = []
         self._settled_since: float | None = None
+        self._sent: tuple[list[float], list[float]] = ([], [])   # send times, values
         self._peak_speed = 0.0
         self.rest_position = math.nan
         self.noise_position = 0.0
@@ -181,12 +183,36 @@ class Guard:
             self._t0 = s.t
         if last is not None:
             if self.model is not None:
-                self.model.add(s.t, s.position, s.velocity, self.command)
+                self.model.add(s.t, s.position, s.velocity, self.in_effect(s.t))
         self.stats.add(s, last)
         self._last = s
         self._last_rx = s.received
         if self.phase == 'test':
             self.log.tests[-1].update(self.command, s.position, s.velocity)
+
+    def note_sent(self, t: float, value: float) -> None:
+        """A command left at ``t`` [s, the clock of the receive times]."""
+        times, values = self._sent
+        if times and t < times[-1]:
+            return
+        times.append(float(t))
+        values.append(float(value))
+
+    def in_effect(self, t: float) -> float:
+        """The command in effect at the stamp ``t``: the last one sent before it (the
+        robot's clock offset taken off where it stamps on its own clock); the last one
+        decided where none was sent (:meth:`note_sent`).
+
+        A state that arrives late (a busy machine) was measured under the command sent
+        before it was measured, not under the one decided on the state before it: taken
+        so, the on-line model learns the joint from what it was driven by.
+        """
+        times, values = self._sent
+        if not times:
+            return self.command
+        lag = self.stats.min_lag if self.stats.other_clock else 0.0
+        k = bisect.bisect_left(times, t + lag) - 1
+        return values[k] if k >= 0 else 0.0
 
     def elapsed(self, t: float) -> float:
         """Seconds since the first sample after the start."""
@@ -336,7 +362,8 @@ class Guard:
         w = self.speed()
         model = self.model.fitted() if self.model is not None else None
         support = self.rest_position if self.settings.mechanism == 'elevator' else None
-        c = predict_coast(model, s.position, w, self.command, self.stats.latency(), support)
+        c = predict_coast(model, s.position, w, self.command, self.stats.latency(s.lag),
+                          support)
         if model is None and self.settings.mechanism == 'arm':
             mirror = 2.0 * self.rest_position - s.position
             c = Coast(min(c.low, mirror), max(c.high, mirror), False)
@@ -361,7 +388,7 @@ class Guard:
         travel = self.settings.travel
         m = MARGIN * travel.width
         w = self.speed()
-        ahead = s.position + w * self.stats.latency()
+        ahead = s.position + w * self.stats.latency(s.lag)
         if w > 0 and ahead > travel.high - m:
             return 'travel_high'
         if w < 0 and ahead < travel.low + m:
@@ -386,11 +413,17 @@ class StreamStats:
         self._periods: list[float] = []
         self._lags: list[float] = []
         self._speeds: list[float] = []
+        self.late = 0
+        """States that arrived over :data:`EXTRA_LATENCY` later than the smallest lag."""
+        self.latest = 0.0
+        """The most any state arrived later than the smallest lag [s]."""
 
     def lateness(self, s: StateSample) -> float:
         """How much later than the smallest lag so far ``s`` is stamped [s]."""
         late = s.lag - self._min_lag if math.isfinite(self._min_lag) else 0.0
         self._min_lag = min(self._min_lag, s.lag)
+        self.late += int(late > EXTRA_LATENCY)
+        self.latest = max(self.latest, late)
         return late
 
     def add(self, s: StateSample, last: StateSample | None) -> None:
@@ -415,12 +448,18 @@ class StreamStats:
         """Median sample period [s] (0.01 before two samples)."""
         return statistics.median(self._periods) if self._periods else 0.01
 
-    def latency(self) -> float:
+    def latency(self, lag_now: float | None = None) -> float:
         """Seconds a command may take to act: the state's latency (its excess over the
         smallest for stamps on another clock, :data:`OTHER_CLOCK`), two sample periods
-        (and half the speed mean's), and :data:`EXTRA_LATENCY`."""
+        (and half the speed mean's), and :data:`EXTRA_LATENCY`.
+
+        ``lag_now``: the lag of the state the coast starts from. A state that arrives
+        late (a busy machine: 0.28 s, where the median was 5 ms) shows the joint where
+        it was that long ago, and it has moved on since: the larger lag counts."""
         floor = self.min_lag if self.other_clock else min(self.min_lag, 0.0)
         lag = max(0.0, statistics.median(self._lags) - floor) if self._lags else 0.0
+        if lag_now is not None and math.isfinite(lag_now):
+            lag = max(lag, lag_now - floor)
         return lag + (2.0 + SPEED_MEAN / 2.0) * self.period() + EXTRA_LATENCY
 
     def speed(self, noise: float) -> float:
@@ -431,11 +470,15 @@ class StreamStats:
         return _deadband(statistics.fmean(self._speeds), 2.0 * noise)
 
     def timing(self) -> dict[str, float]:
-        """Median sample period and state latency, and the latency allowed for [s]."""
+        """Median sample period and state latency, and the latency allowed for [s]; the
+        states that arrived late (a busy machine or network: their stamps still hold,
+        and the command each was measured under is the one sent before it) and the
+        longest such delay [s]."""
         lag = statistics.median(self._lags) if self._lags else 0.0
         return {'sample_period': statistics.median(self._periods) if self._periods else 0.0,
                 'state_latency': lag - self.min_lag if self.other_clock else lag,
-                'allowed_latency': self.latency()}
+                'allowed_latency': self.latency(), 'late_states': float(self.late),
+                'latest_state': self.latest}
 
 
 def drifting(positions: list[float]) -> bool:

@@ -80,7 +80,7 @@ class RunLog:
         Position and speed noise measured at rest before the first test.
     timing : dict
         Median sample period, state latency (receive time - stamp) and the latency the
-        guard allowed for.
+        guard allowed for; the states that arrived late and the longest delay.
     clamped : int
         Commands the limit clamped (the plan never asks more than the limit, so 0).
     """

@@ -231,6 +231,11 @@ def _finish(session: ExperimentSession, failure: str | None, signum: int | None,
     log = session.guard.log
     say(f'experiment: {log.stop_reason}; tests: ' + ', '.join(
         f'{t.name} ({t.end_reason})' for t in log.tests) + f'; wrote {session.out}')
+    stats = session.guard.stats
+    if stats.late:
+        say(f'experiment: {stats.late} states arrived late, up to {stats.latest:.2f} s (a '
+            'busy machine or network); each is recorded at its stamp, under the command '
+            'sent before it')
     if signum is not None:
         return 128 + signum
     if failure is not None:
