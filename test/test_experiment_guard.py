@@ -378,7 +378,7 @@ def test_states_that_arrive_late_teach_the_online_model_what_drove_the_joint(tmp
     assert fit is not None
     assert fit.time_constant() == pytest.approx(0.049, rel=0.15)
     assert fit.theta[0] == pytest.approx(1000.0, rel=0.15)
-    assert sess.guard.in_effect(-1.0) == 0.0   # before anything was sent
+    assert sess.guard.sent.at(-1.0, 9.0) == 0.0   # before anything was sent
     # experiment.json says so: 20 states of each stall over 0.05 s late, up to 0.24 s
     timing = sess.guard.stats.timing()
     assert timing['late_states'] >= 0.45 * k   # 20 of every 40 samples (less the end)

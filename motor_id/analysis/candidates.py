@@ -191,19 +191,6 @@ class CandidateFitter:
             est.fit(self.rec, sample_weight=sw)
         return est
 
-    def _linear_from(self, generations: int, seed: int | None
-                     ) -> tuple[Identifier, dict[str, tuple[float, float]]]:
-        """The linear model (with the mechanism's gravity) from the GA of ``seed``, and
-        the ranges its fit widened."""
-        sw = self.split.train.astype(float)
-        est = self.identifier(generations=generations, settle=False, random_state=seed)
-        with np.errstate(all='ignore'):
-            est.fit(self.rec, sample_weight=sw)
-        widened = dict(est.widened_)
-        if self.gravity:   # the mechanism's gravity, from the equation error's start
-            est = with_gravity(est, self.rec, self.mechanism, sw, bounds=widened or None)
-        return est, widened
-
     def bounds_for(self, key: str) -> tuple[float, float]:
         """Search range of ``effect.param`` on this recording's scale."""
         e, _, p = key.partition('.')
@@ -415,14 +402,14 @@ class CandidateFitter:
         cost is lower by :data:`LINEAR_RESTART_GAIN` (a GA can end in a poor basin).
         """
         t0 = time.perf_counter()
-        est, widened = self._linear_from(generations, self.settings.random_state)
+        est, widened = linear_from(self, generations, self.settings.random_state)
         seed = self.settings.random_state
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             # a second GA from the next seed: one run can end in a poor basin (an
             # inertia on its lower bound with a slow electrical pole, a training cost
             # 3.5 times the other seeds' on a wheel recording), and every candidate
             # would then be judged against that poor base
-            other = self._linear_from(generations, int(seed) + 1)
+            other = linear_from(self, generations, int(seed) + 1)
             if other[0].result_.fit.cost < (1.0 - LINEAR_RESTART_GAIN) * est.result_.fit.cost:
                 est, widened = other
         self.physical_bounds = widened
@@ -431,3 +418,18 @@ class CandidateFitter:
         self.resistance = est.result_.resistance
         self.linear_estimator = est
         return s
+
+
+def linear_from(fitter: CandidateFitter, generations: int,
+                seed: int | np.random.Generator | None
+                ) -> tuple[Identifier, dict[str, tuple[float, float]]]:
+    """The linear model of ``fitter`` (with the mechanism's gravity) from the GA of
+    ``seed`` on the training blocks, and the ranges its fit widened."""
+    sw = fitter.split.train.astype(float)
+    est = fitter.identifier(generations=generations, settle=False, random_state=seed)
+    with np.errstate(all='ignore'):
+        est.fit(fitter.rec, sample_weight=sw)
+    widened = dict(est.widened_)
+    if fitter.gravity:   # the mechanism's gravity, from the equation error's start
+        est = with_gravity(est, fitter.rec, fitter.mechanism, sw, bounds=widened or None)
+    return est, widened

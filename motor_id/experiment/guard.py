@@ -110,7 +110,8 @@ class Guard:
         self._repeated: set[str] = set()
         self._baseline: list[StateSample] = []
         self._settled_since: float | None = None
-        self._sent: tuple[list[float], list[float]] = ([], [])   # send times, values
+        self.sent = SentCommands()
+        """The commands sent (:meth:`ExperimentSession.note_sent` adds them)."""
         self._peak_speed = 0.0
         self.rest_position = math.nan
         self.noise_position = 0.0
@@ -183,36 +184,14 @@ class Guard:
             self._t0 = s.t
         if last is not None:
             if self.model is not None:
-                self.model.add(s.t, s.position, s.velocity, self.in_effect(s.t))
+                offset = self.stats.min_lag if self.stats.other_clock else 0.0
+                self.model.add(s.t, s.position, s.velocity,
+                               self.sent.at(s.t + offset, self.command))
         self.stats.add(s, last)
         self._last = s
         self._last_rx = s.received
         if self.phase == 'test':
             self.log.tests[-1].update(self.command, s.position, s.velocity)
-
-    def note_sent(self, t: float, value: float) -> None:
-        """A command left at ``t`` [s, the clock of the receive times]."""
-        times, values = self._sent
-        if times and t < times[-1]:
-            return
-        times.append(float(t))
-        values.append(float(value))
-
-    def in_effect(self, t: float) -> float:
-        """The command in effect at the stamp ``t``: the last one sent before it (the
-        robot's clock offset taken off where it stamps on its own clock); the last one
-        decided where none was sent (:meth:`note_sent`).
-
-        A state that arrives late (a busy machine) was measured under the command sent
-        before it was measured, not under the one decided on the state before it: taken
-        so, the on-line model learns the joint from what it was driven by.
-        """
-        times, values = self._sent
-        if not times:
-            return self.command
-        lag = self.stats.min_lag if self.stats.other_clock else 0.0
-        k = bisect.bisect_left(times, t + lag) - 1
-        return values[k] if k >= 0 else 0.0
 
     def elapsed(self, t: float) -> float:
         """Seconds since the first sample after the start."""
@@ -402,6 +381,33 @@ class Guard:
             self.log.clamped += 1
         self.command = limited
         return limited
+
+
+class SentCommands:
+    """The commands sent and their send times: which one drove the joint at a stamp."""
+
+    def __init__(self) -> None:
+        self._t: list[float] = []
+        self._v: list[float] = []
+
+    def add(self, t: float, value: float) -> None:
+        """A command left at ``t`` [s, the clock of the receive times]."""
+        if not self._t or t >= self._t[-1]:
+            self._t.append(float(t))
+            self._v.append(float(value))
+
+    def at(self, t: float, unsent: float) -> float:
+        """The command in effect at ``t`` (the receive times' clock): the last one sent
+        before it, 0 before the first; ``unsent`` where none was sent.
+
+        A state that arrives late (a busy machine) was measured under the command sent
+        before it was measured, not under the one decided on the state before it: so
+        taken, the on-line model learns the joint from what drove it.
+        """
+        if not self._t:
+            return unsent
+        k = bisect.bisect_left(self._t, t) - 1
+        return self._v[k] if k >= 0 else 0.0
 
 
 class StreamStats:

@@ -120,7 +120,7 @@ class ExperimentSession:
     def note_sent(self, t: float, value: float) -> None:
         """A command left at time ``t`` [s, the clock of the receive times]."""
         self.sent.append((float(t), float(value)))
-        self.guard.note_sent(t, value)
+        self.guard.sent.add(t, value)
 
     def start(self, now: float) -> float:
         """Start the plan; the first command (0)."""
