@@ -150,14 +150,19 @@ def split_input_maps(effects: Mapping[str, Mapping[str, ArrayLike]]
     return maps, {e: v for e, v in effects.items() if e not in INPUT_MAPS}
 
 
-def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]], P: int
-                     ) -> np.ndarray:
-    """Static input maps and delay, per member: returns ``u_eff`` of shape (P, N)."""
+def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]], P: int,
+                     segments: Sequence[tuple[int, int]] | None = None) -> np.ndarray:
+    """Static input maps and delay, per member: returns ``u_eff`` of shape (P, N).
+
+    ``segments``: the ranges ``[start, stop)`` of separate runs (a SysId log's tests),
+    each mapped on its own: a delay at a run's start reaches back to the run's first
+    input, not to the previous run's last (a test that starts from the idle drive)."""
     u = np.broadcast_to(np.asarray(u, dtype=float), (P, np.shape(u)[-1])).copy()
-    for name in INPUT_MAPS:
-        if name in effects:
-            spec = EFFECTS[name]
-            u = spec.input_map.apply(u, spec.batch(effects[name], P))
+    for a, b in segments or [(0, u.shape[1])]:
+        for name in INPUT_MAPS:
+            if name in effects:
+                spec = EFFECTS[name]
+                u[:, a:b] = spec.input_map.apply(u[:, a:b], spec.batch(effects[name], P))
     return u
 
 

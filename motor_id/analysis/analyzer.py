@@ -48,6 +48,7 @@ from motor_id.metrics import noise_floor
 
 if TYPE_CHECKING:
     from motor_id.analysis.report import DiscrepancyReport, ModelScore
+    from motor_id.analysis.simulation_result import SimulationStage
     from motor_id.recording import Recording
 
 CANDIDATES = tuple(e for e, spec in EFFECTS.items()
@@ -316,12 +317,25 @@ class DiscrepancyAnalysis:
             self.report_.simulation = simulation_stage(
                 rec, model, self.init_samples, min_gain=self.min_gain, progress=self._say,
                 jobs=self.jobs)
+            self.report_.verdict = _late_starts(self.report_.verdict,
+                                                self.report_.simulation)
         self.report_.runs = _run_scores(self.report_, rec)
         if rec.input_kind == 'voltage' and not resistance_enters('voltage', rec.has_current):
             self.report_.resistance = str(self.report_.parameters['R_m'].get('reason')) + (
                 '' if self.R_m is None else f'; the given {self.R_m:g} Ohm is not used')
         self.report_.seconds = time.perf_counter() - t_start
         return self
+
+
+def _late_starts(verdict: str, sim: SimulationStage) -> str:
+    """The verdict with its input delay named a start latency where the simulation
+    stage found that only the starts are late (:func:`.simulation_fit.simulation_stage`
+    swapped the delay for the latency: the equation-error stage has no latency)."""
+    effects = sim.model.effects if sim.model is not None else {}
+    if 'start_latency' in effects and 'input_delay' not in effects:
+        return '+'.join('start_latency' if n == 'input_delay' else n
+                        for n in verdict.split('+'))
+    return verdict
 
 
 def _run_scores(report: DiscrepancyReport, rec: Recording) -> tuple[RunScore, ...]:

@@ -187,34 +187,15 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         if ev.found:
             say(f'  held readings on {ch}: {ev.reason}')
     setup = StageSetup(rec, init_samples, train, held, fresh, say)
-    cands: list[SimCandidate] = []
-    best: tuple[SimCandidate, np.ndarray, SimulationProblem] | None = None
-    gain_needed = (1.0 - min_gain) ** 2    # on the squared error
-    helpful: list[str] = []
-    singles: list[tuple[str, ...]] = [(e,) for e in refinements(model, rec)]
-    single_costs: dict[str, float] = {}
-    fitted: dict[tuple[str, ...], tuple[float, dict[str, float]]] = {}
-    """Per family fitted so far: its held-out cost and its values by free name."""
-    best_family: tuple[str, ...] = ()
-    for stage in ('base', 'singles', 'pairs'):
-        families: list[tuple[str, ...]] = ([()] if stage == 'base' else
-                                           singles if stage == 'singles' else pairs(helpful))
-        for extra, (cand, z, prob) in zip(families, _fit_families(setup, model, families,
-                                                                   fitted, jobs), strict=True):
-            cands.append(cand)
-            if not cand.scored:
-                continue
-            fitted[extra] = (cand.heldout_cost, _values(prob, z))
-            if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
-                best = _polish(setup, best, cand, z, prob)
-                fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
-            if stage == 'singles':
-                single_costs[extra[0]] = cand.heldout_cost
-            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
-                best, best_family = (cand, z, prob), extra
-        if stage == 'singles':   # judged against the base as polished by them all
-            helpful = [e for e, c in single_costs.items()
-                       if c < gain_needed * cands[0].heldout_cost]
+    cands, best = _search(setup, model, min_gain, jobs)
+    latency = _latency_for_delay(model, rec)
+    if latency is not None:   # the delay swapped for a start latency: the better kept
+        say('simulation error: the input delay swapped for a start latency')
+        alt, alt_best = _search(setup, latency, min_gain, jobs)
+        if alt_best is not None and (best is None
+                                     or alt_best[0].heldout_cost < best[0].heldout_cost):
+            best = alt_best
+        cands += alt
     shared = SimulationStage(channels=tuple(sim_channels(rec)), init_samples=init_samples,
                              blocks=tuple(blocks), heldout_blocks=tuple(held),
                              min_gain=min_gain, held_readings=frames, candidates=())
@@ -242,6 +223,65 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                    model=StageModel(input_kind=model.input_kind, parameters=params,
                                     effects=effects), estimates=estimates,
                    friction=friction_summary(params, effects, model.input_kind), rmse=rmse)
+
+
+Best = tuple[SimCandidate, np.ndarray, SimulationProblem]
+"""A fitted candidate, its values and its problem."""
+
+
+def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int
+            ) -> tuple[list[SimCandidate], Best | None]:
+    """``model`` and its refinements (:func:`refinements`), each alone then in
+    :func:`pairs`, fitted on the training blocks: every candidate, and the best (one
+    that beats the best so far by ``min_gain`` on the held-out blocks)."""
+    rec = setup.rec
+    cands: list[SimCandidate] = []
+    best: Best | None = None
+    gain_needed = (1.0 - min_gain) ** 2    # on the squared error
+    helpful: list[str] = []
+    singles: list[tuple[str, ...]] = [(e,) for e in refinements(model, rec)]
+    single_costs: dict[str, float] = {}
+    fitted: dict[tuple[str, ...], tuple[float, dict[str, float]]] = {}
+    """Per family fitted so far: its held-out cost and its values by free name."""
+    best_family: tuple[str, ...] = ()
+    for stage in ('base', 'singles', 'pairs'):
+        families: list[tuple[str, ...]] = ([()] if stage == 'base' else
+                                           singles if stage == 'singles' else pairs(helpful))
+        for extra, (cand, z, prob) in zip(families, _fit_families(setup, model, families,
+                                                                   fitted, jobs), strict=True):
+            cands.append(cand)
+            if not cand.scored:
+                continue
+            fitted[extra] = (cand.heldout_cost, _values(prob, z))
+            if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
+                best = _polish(setup, best, cand, z, prob)
+                fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
+            if stage == 'singles':
+                single_costs[extra[0]] = cand.heldout_cost
+            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
+                best, best_family = (cand, z, prob), extra
+        if stage == 'singles':   # judged against the base as polished by them all
+            helpful = [e for e, c in single_costs.items()
+                       if c < gain_needed * cands[0].heldout_cost]
+    return cands, best
+
+
+def _latency_for_delay(model: SavedModel, rec: Recording) -> SavedModel | None:
+    """``model`` with its input delay swapped for a start latency of as many samples,
+    where it has a delay and the record's input leaves zero (None elsewhere).
+
+    At a step from rest the two are alike (nothing for d samples, then the step); on a
+    ramp a delay lags the whole input, a latency does not (a delay in its place biases
+    kS by ramp rate x delay). The equation-error stage has no start latency (it acts
+    only through the simulation), so it names a delay where the drive's enable is late:
+    the stage fits both and keeps the better (both have one whole number of samples).
+    """
+    if 'input_delay' not in model.effects or 'start_latency' in model.effects or \
+            not _leaves_zero(rec):
+        return None
+    effects = {('start_latency' if e == 'input_delay' else e): dict(v)
+               for e, v in model.effects.items()}
+    return SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
 
 
 def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, float]:
