@@ -70,6 +70,9 @@ class DerivedEstimate(Record):
     determined: bool
     halves: tuple[float, float] | None = optional()
     std: float
+    std_delay: float | None = optional()
+    """The part of ``std`` from a whole-sample delay (in quadrature; see
+    :mod:`.simulation_uncertainty`), where the model has one."""
     interval: tuple[float, float] | None = optional()
     note: str = optional('', when='empty')
 

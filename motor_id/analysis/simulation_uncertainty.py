@@ -67,6 +67,9 @@ MAX_ANGLE_STD = 0.35
 """Largest error bar of a determined angle [rad] (20 deg)."""
 HALF_NFEV = 40
 """Residual evaluations of each half's refit (it starts at the whole-record estimate)."""
+DELAY_SPREAD = 1.0 / math.sqrt(3.0)
+"""Standard deviation [samples] of a real delay uniform within one sample each side of
+the whole number the stage found."""
 
 
 def _noise_weights(r: np.ndarray, chan: np.ndarray, n_params: int) -> np.ndarray:
@@ -143,6 +146,37 @@ def _halves(prob: SimulationProblem, z: np.ndarray, blocks: Sequence[tuple[int, 
     return za, zb
 
 
+def whole_sample_effects(effects: Mapping[str, Mapping[str, float]]) -> list[str]:
+    """The effects of ``effects`` that are a whole number of samples (a delay)."""
+    return [e for e in effects if e in EFFECTS and EFFECTS[e].params
+            and all(p.spacing == 'integer' for p in EFFECTS[e].params)]
+
+
+def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
+                      blocks: Sequence[tuple[int, int]], say: Callable[[str], object]
+                      ) -> list[tuple[SimulationProblem, np.ndarray]]:
+    """The model refitted (from ``z``, :data:`HALF_NFEV` evaluations) with each of its
+    whole-sample delays one sample shorter (where it is not 0) and one longer."""
+    from motor_id.identify.validation import SavedModel
+
+    out: list[tuple[SimulationProblem, np.ndarray]] = []
+    for e in whole_sample_effects(prob.model.effects):
+        p = EFFECTS[e].params[0].name
+        d = float(prob.model.effects[e][p])
+        for step in (-1.0, 1.0):
+            if d + step < 0:
+                continue
+            effects = {**prob.model.effects, e: {**prob.model.effects[e], p: d + step}}
+            m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
+                           prob.model.source)
+            q = type(prob)(prob.rec, m, prob.n_init, prob.free, prob.fresh)
+            say(f'simulation error: refitting with {e} {d + step:g} samples for the error '
+                'bars')
+            zq, _ = q.fit(blocks, z, max_nfev=HALF_NFEV)
+            out.append((q, zq))
+    return out
+
+
 def _si(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
     """The free parameters of ``z`` in SI units, by name."""
     params, effects = prob.to_model(z)
@@ -156,20 +190,24 @@ def _si(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
 def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
              halves: tuple[np.ndarray, np.ndarray] | None,
              fn: Callable[[dict[str, float], dict[str, dict[str, float]]],
-                          Mapping[str, float] | None]) -> list[DerivedEstimate]:
+                          Mapping[str, float] | None],
+             neighbours: Sequence[tuple[SimulationProblem, np.ndarray]] = ()
+             ) -> list[DerivedEstimate]:
     """Quantities ``fn(params, effects)`` of the model with delta-method error bars,
-    floored by the halves' spread as the parameters are; one whose error bar is over
+    floored by the halves' spread as the parameters are, and the delay's part from the
+    ``neighbours`` (:func:`_delay_neighbours`) in quadrature; one whose error bar is over
     :data:`~motor_id.identify.determinacy.MAX_RELATIVE_STD` of its value is not
     determined (the fit's rule), with the interval of two error bars."""
 
-    def values(zz: np.ndarray) -> dict[str, float]:
-        params, effects = prob.to_model(zz)
+    def values(zz: np.ndarray, of: SimulationProblem = prob) -> dict[str, float]:
+        params, effects = of.to_model(zz)
         return dict(fn(params, effects) or {})
 
     base, std_model = delta_method(values, z, cov)
     ha = hb = None
     if halves is not None:
         ha, hb = values(halves[0]), values(halves[1])
+    moved = [values(zq, q) for q, zq in neighbours]
     out: list[DerivedEstimate] = []
     for key, val in base.items():
         std = std_model[key]
@@ -177,8 +215,13 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
         if ha is not None and hb is not None:
             pair = (ha[key], hb[key])
             std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
+        std_delay = None
+        if moved:
+            std_delay = DELAY_SPREAD * max(_angle_diff(key, m.get(key, val), val)
+                                           for m in moved)
+            std = math.hypot(std, std_delay)
         entry = DerivedEstimate(name=key, value=float(val), std_model=std_model[key],
-                                determined=True, halves=pair, std=std)
+                                determined=True, halves=pair, std=std, std_delay=std_delay)
         if key in ANGLES and std <= MAX_ANGLE_STD:
             pass   # an angle: its error bar, not its value, says what the data determine
         elif not std <= MAX_RELATIVE_STD * abs(val):
@@ -189,6 +232,11 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
                 f'% of the value (data allow about {lo:.3g} .. {hi:.3g})'))
         out.append(entry)
     return out
+
+
+def _angle_diff(key: str, a: float, b: float) -> float:
+    """``|a - b|``, for an angle the shortest way round."""
+    return abs(math.remainder(a - b, 2.0 * math.pi)) if key in ANGLES else abs(a - b)
 
 
 def stage_estimates(prob: SimulationProblem, z: np.ndarray,
@@ -218,10 +266,14 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
     cov = combine(cov_gn, cov_rob)
     seen = _seen(Jw)
     half = _halves(prob, z, blocks, say) if halves else None
+    nbrs = _delay_neighbours(prob, z, blocks, say) if halves else []
     std_z = np.sqrt(np.maximum(np.diag(cov), 0.0))
     floor = np.zeros(d) if half is None else \
         np.maximum(np.abs(half[0] - half[1]) / 2, np.abs(z - (half[0] + half[1]) / 2))
     std_final = np.maximum(std_z, floor)
+    if nbrs:
+        std_final = np.hypot(std_final, DELAY_SPREAD * np.max(
+            [np.abs(zq - z) for _, zq in nbrs], axis=0))
     values = _si(prob, z)
     ha = _si(prob, half[0]) if half is not None else None
     hb = _si(prob, half[1]) if half is not None else None
@@ -260,10 +312,10 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
         params[name] = ParameterEstimate(
             value=prob.model.parameters[name], std=None, std_model=None, determined=False,
             note='held at the equation-error value (speed alone cannot tell it)')
-    combinations = (tuple(_derived(prob, z, cov, half, feedforward_of))
+    combinations = (tuple(_derived(prob, z, cov, half, feedforward_of, nbrs))
                     if prob.kind == 'voltage' else None)
     friction = _derived(prob, z, cov, half, lambda p, e: friction_summary(
-        p, e, prob.kind))
+        p, e, prob.kind), nbrs)
     return StageEstimates(method=ESTIMATES_METHOD, parameters=params,
                           combinations=combinations,
                           friction=tuple(friction) if friction and not speed_only else ())
