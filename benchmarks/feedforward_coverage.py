@@ -35,15 +35,15 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from motor_id.analysis import DiscrepancyAnalysis  # noqa: E402
-from motor_id.analysis.simulation_fit import simulation_stage  # noqa: E402
-from motor_id.cli.demo_robot import ROBOTS, TOPIC  # noqa: E402
-from motor_id.experiment.settings import ExperimentSettings, Travel  # noqa: E402
-from motor_id.identify.validation import SavedModel  # noqa: E402
-from motor_id.recording import Recording  # noqa: E402
-from motor_id.testing.independent_physics import Motor  # noqa: E402
-from motor_id.testing.robot_runs import robot_run  # noqa: E402
-from motor_id.testing.sim_joint import MECHANISMS, SimConfig  # noqa: E402
+from motor_id.analysis import DiscrepancyAnalysis
+from motor_id.analysis.simulation_fit import simulation_stage
+from motor_id.cli.demo_robot import ROBOTS, TOPIC
+from motor_id.experiment.settings import ExperimentSettings, Travel
+from motor_id.identify.validation import SavedModel
+from motor_id.recording import Recording
+from motor_id.testing.independent_physics import Motor
+from motor_id.testing.robot_runs import robot_run
+from motor_id.testing.sim_joint import MECHANISMS, SimConfig
 
 KEYS = ('kS', 'kV', 'kA', 'kG', 'offset')
 OFF = 1.2
