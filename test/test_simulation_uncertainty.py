@@ -213,3 +213,48 @@ def test_emps_halves_agree_within_the_error_bars_each_reports():
                 'stribeck_friction.T_s' not in est['parameters']:
             assert est['parameters']['load_torque.T_L']['std'] is None
             assert not est['parameters']['coulomb_friction.T_c']['determined']
+
+
+# ------------------------------------------------------------------ repeats: a latency
+def _fitted_estimates(rec, start):
+    """The stage's estimates of ``start``'s model fitted on every block (no candidates)."""
+    from motor_id.analysis.frames import held_channels
+    from motor_id.analysis.simulation_problem import (
+        free_names,
+        make_blocks,
+        sim_channels,
+        SimulationProblem,
+    )
+    from motor_id.analysis.simulation_uncertainty import stage_estimates
+    fresh = {ch: ev.fresh for ch, ev in held_channels(rec, sim_channels(rec)).items()
+             if ev.found} or None
+    prob = SimulationProblem(rec, start, 20, free_names(start, rec), fresh)
+    blocks = make_blocks(rec, 6, 20)
+    z, _ = prob.fit(blocks)
+    est = stage_estimates(prob, z, blocks)
+    return {c.name: c for c in est.combinations}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_error_bars_cover_a_latency_between_whole_samples(tmp_path, seed):
+    """A SysId log of 5 ms samples whose drive applies each voltage 4 ms late, fitted with
+    an input delay of one sample (the grid's nearest): kA comes out low by about
+    kV * 1 ms. Its error bar without the delay's part put the truth over 3 of them away;
+    with it, kS, kV and kA each cover the truth within 2 error bars."""
+    rec, truth = _log(tmp_path, seed, kS=0.4, hold=4, jitter=0.2, noise=0.004,
+                      latency=0.004)
+    ff = truth.feedforward
+    start = SavedModel('voltage', {'J': 1.2 * MOTOR.J, 'K_T': MOTOR.K / 1.2, 'K_b': MOTOR.K,
+                                   'B': 1.2 * MOTOR.B, 'L_m': MOTOR.L, 'R_m': MOTOR.R},
+                       {'coulomb_friction': {'T_c': 1.2 * ff.kS * MOTOR.K / MOTOR.R},
+                        'input_delay': {'d': 1.0}}, 'test')
+    combos = _fitted_estimates(rec, start)
+    for key in ('kS', 'kV', 'kA'):
+        c = combos[key]
+        assert c.determined and abs(c.value - getattr(ff, key)) < 2 * c.std, \
+            (key, c, getattr(ff, key))
+    kA = combos['kA']
+    without = math.sqrt(kA.std ** 2 - kA.std_delay ** 2)
+    assert abs(kA.value - ff.kA) > 3 * without, (kA, ff.kA)   # the error bar before
+    assert kA.std < 0.2 * ff.kA   # not widened past use

@@ -25,19 +25,19 @@ The error bars here are the largest of three estimates, each in the search coord
 To that, in quadrature, a model error none of the three can see: a delay of a whole
 number of samples (an input delay, a start latency; the stage finds it on a grid) stands
 for a real one that lies anywhere between its neighbours on the grid (a robot's latency
-is a few milliseconds that jitter, a fraction of a sample), and a model without an input
-delay for one of up to a sample. The model is refitted at the neighbouring delays
-(:func:`_delay_neighbours`; without a delay, at one sample); a value that moves by ``D``
-per sample of delay gets ``D / sqrt(3)`` (:data:`DELAY_SPREAD`), the root mean square of
-a delay uniform over a sample each side (or over [0, 1] sample without one), as
-``std_delay``. Below a sample a delay and kA act alike at low frequencies
-(``V(t - tau) ~ V - kV tau dw/dt``), and the data cannot tell them apart: freeing a
-continuous delay in the Gauss-Newton step moved kA by a third of its real error at most.
-On the simulated arm (100 Hz, 3 ms latency) a one-sample input delay took kA from 0.083
-to 0.070 V s^2/rad (truth 0.080), and its error bar of 0.0017 put the truth 4 to 8 of
-them away in each of 5 live runs that chose the delay; on a SysId .wpilog of a 20 ms
-loop with a 4 ms latency the model without a delay put kA 7.6e-5 V s^2/rad (8 %) high
-with an error bar of 1.3e-6 (up to 78 of them).
+is a few milliseconds that jitter, a fraction of a sample). The model is refitted at the
+neighbouring delays (:func:`_delay_neighbours`); a value that moves by ``D`` per sample
+of delay gets ``D / sqrt(3)`` (:data:`DELAY_SPREAD`), the root mean square of a delay
+uniform over a sample each side, as ``std_delay``. Below a sample a delay and kA act
+alike at low frequencies (``V(t - tau) ~ V - kV tau dw/dt``) and the data hardly tell
+them apart: a continuous delay freed in the Gauss-Newton step moved kA by a third of its
+real error at most. On the simulated arm (100 Hz, 3 ms latency) a one-sample input delay
+took kA from 0.083 to 0.070 V s^2/rad (truth 0.080), and its error bar of 0.0017 put the
+truth 4 to 8 of them away in each of 5 live runs that chose the delay.
+
+A model without a delay is not widened: the same rule there (a delay uniform over [0, 1]
+sample) covered a 4 ms latency of a 20 ms loop, but widened kA 75-fold and kS 5-fold on
+records without any latency, which the costs of the two cannot tell apart (open).
 
 A parameter is determined when the data see it: its column of the weighted Jacobian is
 not (numerically) a combination of the others. A voltage plant measured by speed (and
@@ -173,24 +173,17 @@ def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
                       blocks: Sequence[tuple[int, int]], say: Callable[[str], object]
                       ) -> list[tuple[SimulationProblem, np.ndarray]]:
     """The model refitted (from ``z``, :data:`HALF_NFEV` evaluations) with each of its
-    whole-sample delays one sample shorter (where it is not 0) and one longer; without
-    one, with a delay the stage always tries (an input delay) of one sample."""
+    whole-sample delays one sample shorter (where it is not 0) and one longer."""
     from motor_id.identify.validation import SavedModel
 
     out: list[tuple[SimulationProblem, np.ndarray]] = []
-    delays = whole_sample_effects(prob.model.effects) or [
-        e for e in whole_sample_effects(EFFECTS) if EFFECTS[e].stage_rule == 'always'
-        and prob.kind in EFFECTS[e].kinds and not any(
-            x in EFFECTS[e].excludes or e in EFFECTS[x].excludes
-            for x in prob.model.effects if x in EFFECTS)][:1]
-    for e in delays:
+    for e in whole_sample_effects(prob.model.effects):
         p = EFFECTS[e].params[0].name
-        d = float(prob.model.effects.get(e, {p: 0.0})[p])
+        d = float(prob.model.effects[e][p])
         for step in (-1.0, 1.0):
             if d + step < 0:
                 continue
-            effects = {**prob.model.effects, e: {**prob.model.effects.get(e, {}),
-                                                 p: d + step}}
+            effects = {**prob.model.effects, e: {**prob.model.effects[e], p: d + step}}
             m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
                            prob.model.source)
             q = type(prob)(prob.rec, m, prob.n_init, prob.free, prob.fresh)
