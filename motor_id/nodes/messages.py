@@ -51,14 +51,15 @@ ROBOT_DEPTH = 1000
 """Queue of the robot's own topics (JointState, command) for the live topics input."""
 
 
-def robot_qos(reliable: bool) -> QoSProfile:
+def robot_qos(reliable: bool, depth: int = ROBOT_DEPTH) -> QoSProfile:
     """QoS for a robot topic: reliable only when every publisher found is reliable.
 
     A reliable subscription never matches a best-effort (sensor-data) publisher; a
     best-effort one matches both, so it is the choice whenever any publisher is
-    best-effort.
+    best-effort. ``depth`` messages are kept for a subscriber that fell behind (the
+    older ones are lost).
     """
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=ROBOT_DEPTH,
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
                       reliability=(ReliabilityPolicy.RELIABLE if reliable
                                    else ReliabilityPolicy.BEST_EFFORT),
                       durability=DurabilityPolicy.VOLATILE)
