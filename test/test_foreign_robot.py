@@ -55,8 +55,9 @@ def results(tmp_path):
 @pytest.mark.slow   # until it has passed 10 of 10 with a burner per core: 2026-11-28 (load
 # average 16-34) 3 of 3 passed once the experiment kept 10 states queued, not 1000 (kV
 # -0.7..+0.3 %, kA +15..+19 %, kS 0.243-0.257); before, 2 runs stopped on a 0.6-0.85 s
-# backlog of states ('stale state') and 3 were not identified by the analysis (an input
-# delay of 42 samples, or K_b 0: under 1 % of the speed explained)
+# backlog of states ('stale state'), and 3 were not identified while the robot still sent
+# a stall's states in a burst (unset stamps: their source times bunched, the speeds
+# derived from them wrong)
 def test_wheel_on_a_foreign_robot_meets_the_targets(launch, tmp_path):
     # the experiment first, the robot after it; no velocity, no stamps, shuffled joints,
     # 250 Hz with 20 ms latency, a controller of three joints read from its parameter
