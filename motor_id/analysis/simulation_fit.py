@@ -258,12 +258,20 @@ def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int
                 fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
             if stage == 'singles':
                 single_costs[extra[0]] = cand.heldout_cost
-            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost:
+            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost or (
+                    _rivals(extra, best_family) and cand.heldout_cost < best[0].heldout_cost):
                 best, best_family = (cand, z, prob), extra
         if stage == 'singles':   # judged against the base as polished by them all
             helpful = [e for e, c in single_costs.items()
                        if c < gain_needed * cands[0].heldout_cost]
     return cands, best
+
+
+def _rivals(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
+    """Families of as many parameters that differ by one delay for another (an input
+    delay, a start latency): the better wins without the gain a larger model needs."""
+    diff = set(a) ^ set(b)
+    return len(a) == len(b) and len(diff) == 2 and diff <= set(PROFILED)
 
 
 def _latency_for_delay(model: SavedModel, rec: Recording) -> SavedModel | None:
