@@ -76,6 +76,20 @@ def ff(report, name):
     return report['controller']['feedforward'][name]
 
 
+def gravity_experiment(launch, tmp_path, mechanism, travel):
+    """The full plan on the simulated ``mechanism`` (seed 2), run to its end: the robot's
+    truth, its true feedforward and the experiment's report."""
+    robot = launch('robot', robot_args(tmp_path, mechanism, seed=2))
+    robot.wait_for(READY, timeout=180)
+    exp = launch('experiment', experiment_args(
+        tmp_path, f'{mechanism}_joint', '--mechanism', mechanism, f'--travel={travel}',
+        '--seed', '2', time_scale=1.0))
+    assert exp.wait(timeout=900) == EXIT_OK, exp.output()
+    robot.stop(signal.SIGINT)
+    t = truth(tmp_path)
+    return t, t['feedforward'], json.loads((tmp_path / 'out' / 'report.json').read_text())
+
+
 # ------------------------------------------------------------------ identification
 
 def test_wheel_end_to_end_identifies_the_feedforward(client, launch, tmp_path):
@@ -159,16 +173,7 @@ def test_an_arm_is_never_pushed_past_its_travel(launch, tmp_path):
 
 @pytest.mark.slow   # the full plan on the arm and its analysis: about 2 minutes
 def test_arm_end_to_end_identifies_gravity_and_the_feedforward(launch, tmp_path):
-    robot = launch('robot', robot_args(tmp_path, 'arm', seed=2))
-    robot.wait_for(READY, timeout=180)
-    exp = launch('experiment', experiment_args(
-        tmp_path, 'arm_joint', '--mechanism', 'arm', '--travel=-2.3:1.3', '--seed', '2',
-        time_scale=1.0))
-    assert exp.wait(timeout=900) == EXIT_OK, exp.output()
-    robot.stop(signal.SIGINT)
-    t = truth(tmp_path)
-    true = t['feedforward']
-    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    t, true, report = gravity_experiment(launch, tmp_path, 'arm', '-2.3:1.3')
     assert ff(report, 'kG')['value'] == pytest.approx(true['kG']['value'], rel=0.10)
     assert ff(report, 'offset')['value'] == pytest.approx(true['offset']['value'], abs=0.1)
     assert ff(report, 'kV')['value'] == pytest.approx(true['kV']['value'], rel=0.10)
@@ -359,16 +364,7 @@ def test_a_controller_that_does_not_answer_is_named(launch, tmp_path):
 @pytest.mark.slow   # the full plan on the elevator and its analysis: about 2 minutes
 def test_elevator_on_its_bottom_identifies_gravity_and_the_feedforward(launch, tmp_path):
     # it rests on its bottom stop: the samples pinned there are left out of the fit
-    robot = launch('robot', robot_args(tmp_path, 'elevator', seed=2))
-    robot.wait_for(READY, timeout=180)
-    exp = launch('experiment', experiment_args(
-        tmp_path, 'elevator_joint', '--mechanism', 'elevator', '--travel=0:1.1', '--seed',
-        '2', time_scale=1.0))
-    assert exp.wait(timeout=900) == EXIT_OK, exp.output()
-    robot.stop(signal.SIGINT)
-    t = truth(tmp_path)
-    true = t['feedforward']
-    report = json.loads((tmp_path / 'out' / 'report.json').read_text())
+    t, true, report = gravity_experiment(launch, tmp_path, 'elevator', '0:1.1')
     assert ff(report, 'kG')['value'] == pytest.approx(true['kG']['value'], rel=0.10)
     assert ff(report, 'kV')['value'] == pytest.approx(true['kV']['value'], rel=0.10)
     assert ff(report, 'kS')['value'] == pytest.approx(true['kS']['value'], abs=0.1)
