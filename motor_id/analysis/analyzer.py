@@ -319,6 +319,7 @@ class DiscrepancyAnalysis:
                 jobs=self.jobs)
             self.report_.verdict = _late_starts(self.report_.verdict,
                                                 self.report_.simulation)
+            _stage_warnings(self.report_, self.report_.simulation)
         self.report_.runs = _run_scores(self.report_, rec)
         if rec.input_kind == 'voltage' and not resistance_enters('voltage', rec.has_current):
             self.report_.resistance = str(self.report_.parameters['R_m'].get('reason')) + (
@@ -336,6 +337,18 @@ def _late_starts(verdict: str, sim: SimulationStage) -> str:
         return '+'.join('start_latency' if n == 'input_delay' else n
                         for n in verdict.split('+'))
     return verdict
+
+
+def _stage_warnings(report: DiscrepancyReport, sim: SimulationStage) -> None:
+    """What the simulation-error stage says of the report (in place): a stage with no
+    sound model makes it inadequate (no feedforward constants, and why); a stage that
+    left the analysis' model for a simpler one says so."""
+    if sim.failed:
+        why = f'the simulation-error stage found no model: {sim.failed}'
+        report.warnings.insert(0 if report.adequate else len(report.warnings), why)
+        report.adequate = False
+    elif sim.fallback:
+        report.warnings.append(f'simulation error: {sim.fallback}')
 
 
 def _run_scores(report: DiscrepancyReport, rec: Recording) -> tuple[RunScore, ...]:

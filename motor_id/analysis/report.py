@@ -243,9 +243,12 @@ def _simulation_lines(sim: SimulationStage | None,
             lines.append(f'  held readings on {ch}: {ev.reason}; scored at the fresh '
                          'samples only')
     for c in sim.candidates:
-        err = ', '.join(f'{ch} {v:.4g}' for ch, v in c.heldout_rmse.items()) or c.failed
+        err = '; '.join(x for x in (', '.join(f'{ch} {v:.4g}' for ch, v in
+                                             c.heldout_rmse.items()), c.failed) if x)
         mark = '*' if c.name == sim.chosen else ' '
         lines.append(f'  {mark} {c.name:<58} {err}')
+    if sim.fallback:
+        lines.append(f'  fell back: {sim.fallback}')
     if sim.gains:
         lines.append('  gains on the held-out blocks: ' + ', '.join(
             f'{k} {100 * v:.1f} %' for k, v in sim.gains.items()))

@@ -32,6 +32,7 @@ import numpy as np
 
 from motor_id.analysis.frames import held_channels
 from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.simulation_guard import reduced_model, stage_scales, unsound
 from motor_id.analysis.simulation_problem import (
     free_names,
     make_blocks,
@@ -143,6 +144,8 @@ class StageSetup:
     held: list[tuple[int, int]]
     fresh: dict[str, np.ndarray] | None
     say: Callable[[str], object]
+    scales: dict[str, float]
+    """The record's data scales (the effects' plausibility checks read them)."""
 
 
 def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
@@ -186,22 +189,30 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     for ch, ev in frames.items():
         if ev.found:
             say(f'  held readings on {ch}: {ev.reason}')
-    setup = StageSetup(rec, init_samples, train, held, fresh, say)
-    cands, best = _search(setup, model, min_gain, jobs)
+    setup = StageSetup(rec, init_samples, train, held, fresh, say,
+                       stage_scales(rec, model.parameters))
+    reduced = reduced_model(model)
+    rival = reduced is not None
+    cands, best = _search(setup, model, min_gain, jobs, rival=rival)
     latency = _latency_for_delay(model, rec)
     if latency is not None:   # the delay swapped for a start latency: the better kept
         say('simulation error: the input delay swapped for a start latency')
-        alt, alt_best = _search(setup, latency, min_gain, jobs)
+        alt, alt_best = _search(setup, latency, min_gain, jobs, rival=rival)
         if alt_best is not None and (best is None
                                      or alt_best[0].heldout_cost < best[0].heldout_cost):
             best = alt_best
         cands += alt
+    fallback = ''
+    if reduced is not None:
+        cands, best, fallback = _with_rival(setup, reduced, cands, best, min_gain, jobs)
     shared = SimulationStage(channels=tuple(sim_channels(rec)), init_samples=init_samples,
                              blocks=tuple(blocks), heldout_blocks=tuple(held),
-                             min_gain=min_gain, held_readings=frames, candidates=())
+                             min_gain=min_gain, held_readings=frames, candidates=(),
+                             fallback=fallback)
     if best is None:
-        return replace(shared, candidates=tuple(cands),
-                       failed='no model could be fitted by simulation error')
+        return replace(shared, candidates=tuple(cands), failed=(
+            'no sound model could be fitted by simulation error (every candidate failed, '
+            'diverged or was implausible)'))
     chosen, best_z, best_prob = best
     if fresh:
         cands.append(_every_sample(setup, best_prob, chosen))
@@ -229,11 +240,14 @@ Best = tuple[SimCandidate, np.ndarray, SimulationProblem]
 """A fitted candidate, its values and its problem."""
 
 
-def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int
+def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int,
+            base: Best | None = None, rival: bool = False
             ) -> tuple[list[SimCandidate], Best | None]:
     """``model`` and its refinements (:func:`refinements`), each alone then in
     :func:`pairs`, fitted on the training blocks: every candidate, and the best (one
-    that beats the best so far by ``min_gain`` on the held-out blocks)."""
+    that beats the best so far by ``min_gain`` on the held-out blocks). ``base``:
+    ``model`` fitted already; ``rival``: a simpler model will be searched where
+    ``model`` itself is unsound (its refinements are then not tried)."""
     rec = setup.rec
     cands: list[SimCandidate] = []
     best: Best | None = None
@@ -247,8 +261,9 @@ def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int
     for stage in ('base', 'singles', 'pairs'):
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
-        for extra, (cand, z, prob) in zip(families, _fit_families(setup, model, families,
-                                                                   fitted, jobs), strict=True):
+        fits = [base] if stage == 'base' and base is not None else \
+            _fit_families(setup, model, families, fitted, jobs)
+        for extra, (cand, z, prob) in zip(families, fits, strict=True):
             cands.append(cand)
             if not cand.scored:
                 continue
@@ -264,7 +279,33 @@ def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int
         if stage == 'singles':   # judged against the base as polished by them all
             helpful = [e for e, c in single_costs.items()
                        if c < gain_needed * cands[0].heldout_cost]
+        if best is None and rival:   # a diverged model is no start for refinements
+            break
     return cands, best
+
+
+def _with_rival(setup: StageSetup, reduced: SavedModel, cands: list[SimCandidate],
+                best: Best | None, min_gain: float, jobs: int
+                ) -> tuple[list[SimCandidate], Best | None, str]:
+    """The analysis' model against its rival without the extra effects
+    (:func:`.simulation_guard.reduced_model`): ``best`` stands where it is sound and
+    beats the rival on the held-out blocks; otherwise the stage searches from the
+    rival (its refinements and delays included). Returns the candidates, the best and
+    why the stage fell back ('' where it did not)."""
+    rival = _fit_families(setup, reduced, [()], {}, 1)[0]
+    r_cand = rival[0]
+    if best is not None and (not r_cand.scored
+                             or best[0].heldout_cost < r_cand.heldout_cost):
+        return [*cands, r_cand], best, ''
+    lead = best[0] if best is not None else cands[0]
+    why = (f'{lead.name}, held-out cost {lead.heldout_cost:.4g}' if best is not None else
+           f'no sound candidate ({lead.name}: {lead.failed})')
+    note = (f'the model the analysis chose did no better in simulation than {r_cand.name} '
+            f'(held-out cost {r_cand.heldout_cost:.4g}; best: {why}): the stage searched '
+            f'again from {r_cand.name}')
+    setup.say(f'simulation error: {note}')
+    more, alt = _search(setup, reduced, min_gain, jobs, base=rival)
+    return [*cands, *more], alt if alt is not None else best, note
 
 
 def _rivals(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
@@ -469,6 +510,7 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
             if setup.held:
                 cand.heldout_rmse = prob.rmse(z, setup.held)
             cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
+        cand.failed = unsound(cand.heldout_cost, cand.effects, setup.scales)
     except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'
     return cand, z, prob

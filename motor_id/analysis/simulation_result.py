@@ -107,8 +107,8 @@ class SimulationStage(Record):
     ``candidates`` were each fitted on the training blocks and scored on the held-out
     ones; ``model`` is the chosen one refitted on every block, ``estimates`` its error
     bars, ``rmse`` its RMSE on every block, ``gains`` the share of the held-out error
-    each of its effects removes. A stage that fitted nothing has ``failed`` and no
-    ``chosen`` model.
+    each of its effects removes. A stage that fitted nothing sound has ``failed`` and no
+    ``chosen`` model; ``fallback`` says why it left the analysis' model, where it did.
     """
 
     method: str = STAGE_METHOD
@@ -126,3 +126,6 @@ class SimulationStage(Record):
     friction: dict[str, float] | None = optional(None, when=omit_if_failed)
     rmse: dict[str, float] = optional({}, when=omit_if_failed)
     failed: str = optional('', when='empty')
+    fallback: str = optional('', when='empty')
+    """Why the stage searched from the model without the analysis' extra effects
+    (:func:`.simulation_guard.reduced_model`), where it did."""

@@ -143,7 +143,9 @@ def feedforward_line(report: ExperimentReport) -> str:
     """``kS 0.21 +- 0.01 V, kV ...``: the constants in one line (or why there are none)."""
     ff = report.feedforward
     if not ff:
-        return 'no feedforward constants (the analysis found no simulation-error model)'
+        sim = report.analysis.simulation if report.analysis else None
+        return ('no feedforward constants (the analysis found no simulation-error model'
+                + (f': {sim.failed})' if sim is not None and sim.failed else ')'))
     parts = []
     for name, e in ff.items():
         if e.value is None:
