@@ -220,8 +220,12 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     with np.errstate(all='ignore'):
         try:
             z, _ = best_prob.fit(blocks, best_z)
-        except FIT_ERRORS as exc:   # keep the training blocks' fit
-            say(f'simulation error: the refit on every block failed ({exc})')
+            why = unsound(float(np.mean(best_prob.residuals(z[None, :], blocks) ** 2)),
+                          best_prob.to_model(z)[1], setup.scales)
+        except FIT_ERRORS as exc:
+            why = str(exc)
+        if why:   # keep the training blocks' fit
+            say(f'simulation error: the refit on every block failed ({why})')
             z = best_z
         params, effects = best_prob.to_model(z)
         rmse = best_prob.rmse(z, blocks)
