@@ -75,7 +75,11 @@ def test_stage_leaves_a_model_that_diverges_for_the_simpler_one():
     assert {'arm_gravity', 'coulomb_friction'} <= set(sim.model.effects)
     first = sim.candidates[0]
     assert first.name == 'arm_gravity+coulomb_friction+resonance'
-    assert first.failed.startswith('diverged') and first.heldout_cost >= DIVERGED
+    # unsound: it diverges, or (with each run fitted from its first samples, as
+    # validate scores it) explains next to nothing with a resonance that is an alias
+    # (held-out cost 0.97 of the channels' spread, 97.8 Hz against a 50 Hz Nyquist)
+    assert first.failed.startswith(('diverged', 'implausible')), first.failed
+    assert first.heldout_cost >= 0.5 * DIVERGED
     # a diverged model is no start for refinements: the next candidate is the rival
     assert sim.candidates[1].name == 'arm_gravity+coulomb_friction'
     assert sim.candidates[1].heldout_cost < 0.002

@@ -48,7 +48,11 @@ def test_a_run_that_opens_with_a_step_from_rest_is_simulated_from_its_first_samp
 
 def test_a_run_that_opens_after_a_holding_input_sets_its_state_from_its_first_samples():
     # 0.5 V held the axis on its friction: the speed reads zero, but the current does
-    # not: not at rest, the first samples set the state
+    # not: not at rest, the run's first samples set the state (as `motor-id validate`
+    # scores the run: 2 without a measured current); a block inside a run from its own
     rec = _two_runs(held=0.5)
     assert rec.speed[120] == 0.0
-    assert _problem(rec).first(120) == 120 + N_INIT - 1
+    prob = _problem(rec)
+    assert prob.n_open == 2
+    assert prob.first(120) == 120 + prob.n_open - 1
+    assert prob.first(150) == 150 + N_INIT - 1

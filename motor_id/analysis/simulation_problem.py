@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 from motor_id.analysis.friction import folded_load
 from motor_id.effects import EFFECTS, role_keys
 from motor_id.identify.space import VOLTAGE_FREE
-from motor_id.identify.validation import initial_state_at, SavedModel
+from motor_id.identify.validation import initial_state_at, run_init_samples, SavedModel
 from motor_id.metrics import noise_floor
 from motor_id.model import MECHANICAL_PARAMS
 from motor_id.simulate import apply_input_maps, discretise_batch, split_input_maps
@@ -78,11 +78,18 @@ def reading_noise(rec: Recording, fresh: Mapping[str, np.ndarray]) -> dict[str, 
     return out
 
 
-def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[int, int]]:
+def make_blocks(rec: Recording, n_blocks: int, init_samples: int,
+                open_samples: int | None = None) -> list[tuple[int, int]]:
     """Contiguous ``[start, stop)`` blocks inside each run, about ``n_blocks`` in all.
 
-    A run too short for a block of :data:`MIN_BLOCK` scored samples is one block.
+    A run too short for a block of :data:`MIN_BLOCK` scored samples is one block. A block
+    needs samples to score after its initial ones: ``init_samples``, or for a block that
+    opens a run ``open_samples`` (:meth:`SimulationProblem.first`; default: the scored
+    run's, :func:`~motor_id.identify.validation.run_init_samples`), so a short run (a
+    step test stopped early) is a block of its own.
     """
+    if open_samples is None:
+        open_samples = run_init_samples(rec.input_kind, rec.has_current)
     runs = rec.segment_ranges
     total = sum(b - a for a, b in runs)
     out: list[tuple[int, int]] = []
@@ -91,7 +98,7 @@ def make_blocks(rec: Recording, n_blocks: int, init_samples: int) -> list[tuple[
         k = max(1, min(k, (b - a) // (MIN_BLOCK + init_samples)))
         edges = np.linspace(a, b, k + 1).round().astype(int)
         out += [(int(x), int(y)) for x, y in itertools.pairwise(edges)
-                if y - x > init_samples + 1]
+                if y - x > (open_samples if x == a else init_samples) + 1]
     return out
 
 
@@ -113,16 +120,25 @@ class SimulationProblem:
                       else np.asarray(fresh[ch], dtype=bool) for ch in self.channels}
         """Per channel: the samples scored (held readings: the fresh ones)."""
         self._start = self._start_vector()
-        starts = {a for a, _ in rec.segment_ranges}
+        self._opens = {a for a, _ in rec.segment_ranges}
+        self.n_open = run_init_samples(self.kind, rec.has_current)
+        """Initial samples of a block that opens a run (as :func:`validate` scores it)."""
         noise = reading_noise(rec, self.fresh)
-        self._rest = {a for a in starts if _at_rest(rec, a, noise)}
+        self._rest = {a for a in self._opens if _at_rest(rec, a, noise)}
 
     def first(self, a: int) -> int:
-        """The sample a block from ``a`` is simulated from: after its initial samples, or
-        its first sample when it opens a run at rest (at rest, the state is known from
-        that one sample, speed and current zero, and what follows, a step's delay
-        included, is the model's to predict)."""
-        return a if a in self._rest else a + self.n_init - 1
+        """The sample a block from ``a`` is simulated from: after its initial samples;
+        for a block that opens a run, its first sample when the run opens at rest (the
+        state is known from that one sample, speed and current zero, and what follows, a
+        step's delay included, is the model's to predict), else after the run's own
+        initial samples, :attr:`n_open`, as ``motor-id validate`` and the report's fit %
+        per run simulate it. A run that opens with a step (a SysId test: its logger
+        samples the speed after the step is applied, so the first reading already moves)
+        is fitted on its whole response: after the block's ``n_init`` samples, its
+        transient, all that shows the acceleration (kA), would be left out."""
+        if a in self._rest:
+            return a
+        return a + (self.n_open if a in self._opens else self.n_init) - 1
 
     # parameter vector <-> model
     def unpack(self, z: np.ndarray) -> tuple[dict[str, np.ndarray | float],

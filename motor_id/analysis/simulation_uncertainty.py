@@ -77,9 +77,11 @@ if TYPE_CHECKING:
 RANK_TOL = 1e-7
 """Singular-value ratio of the column-scaled weighted Jacobian below which a direction
 is not seen."""
-ANGLES = ('offset',)
-"""Combinations that are angles: determined by their error bar alone (an offset near 0 is
-no less known than one near 1 rad)."""
+ANGLES = {'offset': 'kG'}
+"""Combinations that are angles, each with the amplitude it is the phase of: determined by
+their error bar alone (an offset near 0 is no less known than one near 1 rad), and only
+where the amplitude is (the angle of a gravity the data cannot tell from none is not
+known, however alike the halves' values)."""
 MAX_ANGLE_STD = 0.35
 """Largest error bar of a determined angle [rad] (20 deg)."""
 HALF_NFEV = 40
@@ -125,23 +127,31 @@ def halves_split(blocks: Sequence[tuple[int, int]],
                  ) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
     """Two halves of the blocks, each like a repeat recording of the whole.
 
-    Within each run the blocks in time order are cut into a first and a second half, so a
-    record of one run splits into its earlier and its later half (a drift between them
-    shows). A run's middle block (an odd count, a run of one block) goes to the two sides
-    in turn: a WPILib SysId log of two ramps and two step tests gives each half a ramp
-    each way and one step test, where cutting the record at its middle left one half
-    with ramps only, and so without the acceleration (kA) that only steps show.
+    Within each run the blocks in time order are cut into an earlier and a later half,
+    so a record of one run splits into its earlier and its later half (a drift between
+    them shows). Of the runs of several blocks, the first gives its earlier half to the
+    first half, the next to the second, and so on in turn: the earlier and the later part
+    of a run differ by more than noise (the low and the high speeds of a SysId ramp, where
+    only the low ones tell kS from kV), so each half gets the one of a run and the other
+    of the next, where giving the first half every earlier part left the second with
+    high speeds only (on a real drivetrain's ramps kS 0 against 0.19 V). A run's middle
+    block (an odd count, a run of one block) goes to the two sides in turn: a WPILib SysId
+    log of two ramps and two step tests gives each half a ramp each way and one step test,
+    where cutting the record at its middle left one half with ramps only, and so without
+    the acceleration (kA) that only steps show.
     """
     runs = list(runs) if runs else [(min(a for a, _ in blocks), max(b for _, b in blocks))] \
         if blocks else []
     first: list[tuple[int, int]] = []
     second: list[tuple[int, int]] = []
-    turn = 0
+    turn = flip = 0
     for lo, hi in runs:
         own = sorted(b for b in blocks if lo <= b[0] < hi)
         k = len(own) // 2
-        first += own[:k]
-        second += own[len(own) - k:]
+        early, late = (first, second) if flip % 2 == 0 else (second, first)
+        early += own[:k]
+        late += own[len(own) - k:]
+        flip += k > 0
         if len(own) % 2:
             (first if turn % 2 == 0 else second).append(own[k])
             turn += 1
@@ -155,12 +165,26 @@ def _halves(prob: SimulationProblem, z: np.ndarray, blocks: Sequence[tuple[int, 
         return None
     say(f'simulation error: refitting on each half ({len(first)} and {len(second)} '
         'blocks) for the error bars')
-    # from the stage's own start, not from z: where the cost has a long shallow valley
-    # (a load torque against asymmetric Coulomb levels) the optimiser stops at a point
-    # that depends on its path, and that spread belongs in the error bar too
-    za, _ = prob.fit(first, max_nfev=HALF_NFEV)
-    zb, _ = prob.fit(second, max_nfev=HALF_NFEV)
-    return za, zb
+    return _half_fit(prob, z, first), _half_fit(prob, z, second)
+
+
+def _half_fit(prob: SimulationProblem, z: np.ndarray, half: Sequence[tuple[int, int]]
+              ) -> np.ndarray:
+    """``prob`` fitted on the blocks of ``half``: from the stage's own start and from the
+    whole record's estimate ``z``, the one that fits the half better.
+
+    From the stage's start, not only from ``z``: where the cost has a long shallow
+    valley (a load torque against asymmetric Coulomb levels) the optimiser stops at a
+    point that depends on its path, and that spread belongs in the error bar too. From
+    ``z`` as well: where the cost has two basins (a speed sensor's lag against the
+    inertia: a fast wheel read through a slow filter, or a slow wheel read as it is),
+    the start can lie in the other one, and a half stopped there differs from the whole
+    record by the distance between the basins, not by what the half's data allow; the
+    half's own best fit is the one a repeat recording would give.
+    """
+    fits = [prob.fit(half, max_nfev=HALF_NFEV)[0], prob.fit(half, z, max_nfev=HALF_NFEV)[0]]
+    costs = [float(np.mean(prob.residuals(zz[None, :], half) ** 2)) for zz in fits]
+    return fits[int(np.argmin(costs))]
 
 
 def whole_sample_effects(effects: Mapping[str, object]) -> list[str]:
@@ -239,7 +263,12 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
             std = math.hypot(std, std_delay)
         entry = DerivedEstimate(name=key, value=float(val), std_model=std_model[key],
                                 determined=True, halves=pair, std=std, std_delay=std_delay)
-        if key in ANGLES and std <= MAX_ANGLE_STD:
+        amplitude = next((e for e in out if e.name == ANGLES.get(key)), None)
+        if amplitude is not None and not amplitude.determined:
+            entry = replace(entry, determined=False, note=(
+                f'not determined by this record: {amplitude.name}, whose angle it is, is '
+                'not determined'))
+        elif key in ANGLES and std <= MAX_ANGLE_STD:
             pass   # an angle: its error bar, not its value, says what the data determine
         elif not std <= MAX_RELATIVE_STD * abs(val):
             lo, hi = float(val - 2 * std), float(val + 2 * std)

@@ -247,7 +247,8 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None,
         raise DataError(f'the model is of a {model.input_kind} plant, the recording has '
                         f'{rec.input_kind} input')
     unmeasured = model.input_kind == 'voltage' and not rec.has_current
-    n_init = init_samples if init_samples is not None else (2 if unmeasured else 1)
+    n_init = init_samples if init_samples is not None else \
+        run_init_samples(model.input_kind, rec.has_current)
     if n_init < 1:
         raise ConfigError(f'init_samples must be at least 1, got {n_init}',
                           params=('init_samples',))
@@ -276,6 +277,13 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None,
                       measured={ch: getattr(rec, ch) for ch in channels}, simulated=sims,
                       model=model.source,
                       runs=_run_scores(rec, sims, score_mask, channels))
+
+
+def run_init_samples(input_kind: str, has_current: bool) -> int:
+    """Samples at the start of a run that set its state when it is scored (the default
+    of :func:`validate`): 1, or 2 for a voltage plant without a measured current (the
+    first speed change shows the initial current)."""
+    return 2 if input_kind == 'voltage' and not has_current else 1
 
 
 def _simulate(model: SavedModel, rec: Recording, x0: np.ndarray) -> dict[str, np.ndarray]:

@@ -286,8 +286,8 @@ def routine_commands(name: str, timing: Timing, rng: np.random.Generator, ramp_r
 
 def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
             timing: Timing, w_noise: float, phase: int, rng: np.random.Generator,
-            effects: Mapping[str, Mapping[str, float]] | None = None, theta0: float = 0.0
-            ) -> tuple[np.ndarray, np.ndarray]:
+            effects: Mapping[str, Mapping[str, float]] | None = None, theta0: float = 0.0,
+            read_after: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Position [rad] and speed [rad/s] readings of one motor at the loops of one test.
 
     The command is delayed by ``timing.latency``, blanked for ``timing.start_latency``
@@ -295,12 +295,13 @@ def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
     friction ``kS`` [V] and any further ``effects`` of
     :func:`motor_id.testing.independent_physics.integrate`); the speed gets white noise of
     std ``w_noise`` and both readings are refreshed every ``timing.hold`` loops from loop
-    ``phase``. The joint starts at rest at ``theta0`` [rad, or m for an elevator].
+    ``phase``. The joint starts at rest at ``theta0`` [rad, or m for an elevator]. Each
+    loop's readings are taken ``read_after`` integration steps after its command.
     """
     grid, u = command
     h = timing.sample_period / timing.sub
     delay = int(round(timing.latency / h))
-    j = np.arange(int(grid[-1]) + 1)
+    j = np.arange(int(grid[-1]) + 1 + read_after)
     k = np.searchsorted(grid, j - delay, side='right') - 1
     v = np.where(k >= 0, u[np.maximum(k, 0)], 0.0)
     off = int(round(timing.start_latency / h))
@@ -311,8 +312,8 @@ def measure(motor: Motor, kS: float, command: tuple[np.ndarray, np.ndarray],
         T_c = kS * motor.K / motor.R
         hidden['coulomb_friction'] = {'T_c': T_c, 'T_s': T_c}
     states = integrate(motor, v, h, hidden, theta0=theta0)
-    speed = states['speed'][grid] + w_noise * rng.standard_normal(grid.size)
-    angle = states['angle'][grid]
+    speed = states['speed'][grid + read_after] + w_noise * rng.standard_normal(grid.size)
+    angle = states['angle'][grid + read_after]
     n = grid.size
     held = np.maximum((np.arange(n) - phase) // timing.hold * timing.hold + phase, 0)
     return angle[held], speed[held]

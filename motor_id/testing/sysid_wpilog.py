@@ -157,7 +157,7 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
                        tests: Sequence[str] = ROUTINE, rest: float = 2.0,
                        others: bool = True, sub: int = 10,
                        entry_names: Mapping[str, str] | None = None,
-                       metadata: bool = True) -> SysIdWpilog:
+                       metadata: bool = True, frame_delay: float = 0.0) -> SysIdWpilog:
     """Run the routine on the robot and write its DataLog as SysIdRoutineLog does.
 
     Parameters
@@ -200,6 +200,13 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
         'velocity', 'state': name}`` (one motor).
     metadata : bool
         Write each entry's unit as its metadata (False: no metadata, as some loggers).
+    frame_delay : float
+        A vendor logger's readings (REV's URCL, CTRE's SignalLogger: the motor
+        controller's status frames): each loop logs the position and velocity the
+        controller measured this long [s] after the loop's command, and a test's log
+        opens with its first applied command (the loop before it, command 0, is not
+        logged), so the first velocity of a step test already moves. 0: SysIdRoutineLog's
+        own entries, read in the loop.
 
     Returns
     -------
@@ -218,6 +225,7 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
     vel_unit, si_per_unit = UNIT_PAIRS[units]
     raw_per_rad = (meters_per_radian if units in _LINEAR else 1.0) / si_per_unit
     w_scale = noise * motors[0].motor.no_load_speed(step_voltage)
+    read_after = int(round(frame_delay / (timing.sample_period / timing.sub)))
     log = wpiutil.DataLogWriter(str(path))
     t_us = 3_000_000   # the robot has been up 3 s when the first test starts
     state = None
@@ -235,7 +243,7 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
         for k, m in enumerate(motors):
             start = m.start_of(test)
             angle, speed = measure(m.motor, m.kS, (grid, u), timing, w_scale, phase, rng,
-                                   m.effects, 0.0 if start is None else start)
+                                   m.effects, 0.0 if start is None else start, read_after)
             if start is None:
                 angle = angles[k] + angle
                 angles[k] = float(angle[-1])
@@ -243,6 +251,8 @@ def write_sysid_wpilog(path: str | os.PathLike[str], seed: int = 0, *,
         if console is not None:
             console.append(f'starting {test}', int(stamps[0]) - 400)
         for i, stamp in enumerate(stamps):
+            if frame_delay > 0 and i == 0:
+                continue   # the loop before the first applied command
             at = int(stamp) + int(rng.integers(0, 8))
             for k, m in enumerate(motors):
                 pos, vel = readings[k]
