@@ -211,19 +211,19 @@ def test_emps_friction_with_offset_and_published_parameters(emps_report):
     names = rep.verdict.split('+')
     assert 'coulomb_friction' in names and 'load_torque' in names
     assert 'speed_quantization' not in names  # a 2.5e-5 m/s grid: a resolution
-    combo = next(e for e in rep.effects if e.name == rep.chosen.name)
+    combo = next(e for e in rep.effects if e.name == rep.chosen.search.name)
     assert combo.gain > 0.6
     assert all(c['marginal'] > 0.05 for c in combo.components.values())
     idim = {k: v.value for k, v in rep.inverse_dynamics.parameters.items()}
-    oe = {k: v['value'] for k, v in rep.chosen.output_error_parameters.items()}
+    oe = {k: v['value'] for k, v in rep.chosen.search.output_error_parameters.items()}
     head = {k: rep.parameters[k]['value'] for k in EMPS_PUBLISHED}
     print(f'\nEMPS {rep.verdict}: gain {100 * combo.gain:.1f} %; estimator '
-          f'{rep.chosen.estimator}')
+          f'{rep.chosen.search.estimator}')
     for k, ref in EMPS_PUBLISHED.items():
         print(f'  {k:<22} published {ref:10.4f}  headline {head[k]:10.4f} '
               f'({100 * (head[k] / ref - 1):+6.2f} %)  output error {oe[k]:10.4f} '
               f'({100 * (oe[k] / ref - 1):+6.2f} %)')
-    assert 'inverse dynamics' in rep.chosen.estimator
+    assert 'inverse dynamics' in rep.chosen.search.estimator
     for k in ('J', 'B', 'coulomb_friction.T_c'):
         assert head[k] == pytest.approx(EMPS_PUBLISHED[k], rel=0.05)
     assert head['load_torque.T_L'] == pytest.approx(EMPS_PUBLISHED['load_torque.T_L'],

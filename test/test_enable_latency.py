@@ -42,6 +42,11 @@ def test_an_enable_latency_is_named_and_ks_found(tmp_path, capsys):
     assert 'coulomb_friction' in effects
     assert 'start_latency' in rep['verdict'].split('+'), rep['verdict']
     assert 'input_delay' not in rep['verdict'].split('+'), rep['verdict']
+    # the chosen block is the model the feedforward comes from (before: the search's,
+    # with the input delay), the search's beside it
+    assert rep['chosen']['name'] == rep['controller']['model'] == rep['simulation']['chosen']
+    assert rep['chosen']['effects'] == effects
+    assert 'input_delay' in rep['chosen']['equation_error']['effects']
 
 
 @pytest.mark.slow

@@ -58,7 +58,7 @@ def _score(cases):
         else:
             ok = effect in names
             named += ok
-            spurious += '+' in rep.chosen.name
+            spurious += '+' in rep.chosen.search.name
             for p, truth in case.effect_params.items():
                 key, tol = f'{effect}.{p}', PARAM_TOLERANCE.get(f'{effect}.{p}')
                 if ok and tol is not None and key in rep.parameters:

@@ -139,6 +139,55 @@ def test_the_analysis_report_carries_the_chosen_models_feedforward_block():
     assert 'controller' not in dataclasses.replace(rep, simulation=None).to_dict()
 
 
+def test_the_chosen_block_is_the_model_the_stage_chose():
+    """The stage swapped the search's input delay for a start latency (and added a lag of
+    the speed reading): the report's chosen block, text and JSON, is that model, the one
+    its feedforward comes from; the search's stays beside it, with the report's
+    ``parameters``. Before, the chosen block named coulomb_friction+input_delay while the
+    feedforward came from coulomb_friction+start_latency+sensor_lag."""
+    from motor_id.analysis.assembly import chosen_by_stage
+    from motor_id.analysis.simulation_result import StageModel
+
+    params = {'J': 1e-4, 'K_T': 0.02, 'K_b': 0.02, 'B': 1e-5, 'L_m': 1e-4, 'R_m': 1.0}
+    stage_effects = {'coulomb_friction': {'T_c': 0.004}, 'start_latency': {'d': 8.0},
+                     'sensor_lag': {'tau_s': 0.03}}
+    name = 'coulomb_friction+start_latency+sensor_lag'
+    sim = SimulationStage(channels=('speed',), init_samples=20, blocks=(), heldout_blocks=(),
+                          min_gain=0.05, held_readings={}, candidates=(), chosen=name,
+                          model=StageModel(input_kind='voltage', parameters=params,
+                                           effects=stage_effects),
+                          estimates=StageEstimates(combinations=(DerivedEstimate(
+                              name='kV', value=0.02, std_model=1e-5, std=1e-5,
+                              determined=True),)))
+    fit = FitQuality(channels={}, noise_std={}, cost=0.0, initial_state={})
+    search = ChosenBlock(name='coulomb_friction+input_delay',
+                         estimator='output error (simulation)',
+                         effects={'coulomb_friction': {'T_c': 0.003}, 'input_delay': {'d': 8.0}},
+                         fit=fit)
+    rep = DiscrepancyReport(
+        'coulomb_friction+start_latency', [], False, [],
+        {k: {'value': v, 'std': None, 'determined': False} for k, v in params.items()},
+        Baseline(parameters={}, fit=fit, heldout_error=0.1), chosen_by_stage(search, sim),
+        ResidualBlock(residual={}, binned={}),
+        HeldoutBlock(scheme='', by_run=False, fraction=0.3, blocks=[], base_error=0.1,
+                     final_error=0.1, noise_floor=0.01, min_gain=0.05, resistance=None),
+        'voltage', ('speed',), simulation=sim)
+    d = rep.to_dict()
+    assert d['chosen']['name'] == d['controller']['model'] == name
+    assert d['chosen']['effects'] == stage_effects
+    assert 'simulation' in d['chosen']['estimator'] and d['chosen']['fit'] is None
+    assert d['chosen']['equation_error']['name'] == 'coulomb_friction+input_delay'
+    text = rep.summary()
+    assert f'the chosen model, {name}, is the simulation stage one' in text
+    assert f'chosen, {name}, refitted on every block' in text
+    # what validate simulates, and the equation-error model the stage starts from
+    assert SavedModel.from_report(d).effects == stage_effects
+    assert SavedModel.from_report(d, use_simulation=False).effects == search.effects
+    # without a stage model the search's block is the chosen one, as before
+    assert chosen_by_stage(search, None) is search
+    assert chosen_by_stage(search, dataclasses.replace(sim, model=None)) is search
+
+
 @pytest.mark.parametrize('latency, noise', [(0.08, 0.0), (0.0, 0.0), (0.08, 0.002),
                                             (0.0, 0.002)])
 def test_stage_names_a_start_latency_only_where_the_drive_has_one(tmp_path, latency, noise):

@@ -21,7 +21,7 @@ from typing import Any, cast, TYPE_CHECKING
 import numpy as np
 
 from motor_id.analysis import selection
-from motor_id.analysis.assembly import build_report
+from motor_id.analysis.assembly import build_report, chosen_by_stage
 from motor_id.analysis.candidates import CandidateFitter
 from motor_id.analysis.context import RecordContext
 from motor_id.analysis.diagnostics import map_summary, steady_state_map
@@ -320,6 +320,8 @@ class DiscrepancyAnalysis:
             self.report_.verdict = _late_starts(self.report_.verdict,
                                                 self.report_.simulation)
             _stage_warnings(self.report_, self.report_.simulation)
+            self.report_.chosen = chosen_by_stage(self.report_.chosen,
+                                                  self.report_.simulation)
         self.report_.runs = _run_scores(self.report_, rec)
         if rec.input_kind == 'voltage' and not resistance_enters('voltage', rec.has_current):
             self.report_.resistance = str(self.report_.parameters['R_m'].get('reason')) + (

@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     from motor_id.analysis.context import RecordContext
     from motor_id.analysis.inverse_dynamics import InverseDynamicsFit
     from motor_id.analysis.report import ModelScore
+    from motor_id.analysis.simulation_result import SimulationStage
     from motor_id.identify import Identifier
 
 
@@ -101,6 +102,22 @@ def _chosen_block(chosen: ModelScore, base: ModelScore, full: Identifier | None,
     return ChosenBlock(name=dyn, estimator='output error (simulation)', effects=effects,
                        fit=full.result_.fit if (full is not None and chosen is not base)
                        else None)
+
+
+STAGE_ESTIMATOR = 'simulation error (the simulation stage: simulation.model)'
+"""The chosen block's estimator where the simulation stage chose the model."""
+
+
+def chosen_by_stage(chosen: ChosenBlock, sim: SimulationStage | None) -> ChosenBlock:
+    """The report's ``chosen`` block once the simulation stage has run: the stage's model,
+    the one the report's feedforward and ``motor-id validate`` use (its refinements, a
+    start latency in place of a delay), with the search's model in ``equation_error``;
+    ``chosen`` itself where the stage fitted no model."""
+    if sim is None or sim.model is None or sim.chosen is None:
+        return chosen
+    return ChosenBlock(name=sim.chosen, estimator=STAGE_ESTIMATOR,
+                       effects={e: dict(v) for e, v in sim.model.effects.items()}, fit=None,
+                       equation_error=chosen)
 
 
 def _heldout_block(ctx: RecordContext, base: ModelScore, chosen: ModelScore, n_blocks: int,

@@ -112,16 +112,28 @@ class Baseline(Record):
 
 @dataclass(frozen=True, kw_only=True)
 class ChosenBlock(Record):
-    """The chosen model: its name (``'none'``: the linear one), the estimator of the
-    headline parameters, its effects' values, its fit on all data (None for the linear
-    model or where that fit failed); for a closed-loop torque record whose headline is
-    the inverse-dynamics estimate, the output-error parameters it replaced."""
+    """The chosen model: the one the report's feedforward (``controller``) and ``motor-id
+    validate`` use. Its name (the linear one: ``'none'`` as the search names it,
+    ``'linear'`` as the stage does), its estimator, its effects' values and its fit on
+    all data (None for the linear model, where that fit failed, or for the simulation
+    stage's model, whose fit per run is the report's ``runs``); for a
+    closed-loop torque record whose headline is the inverse-dynamics estimate, the
+    output-error parameters it replaced. Where the simulation stage chose the model
+    (:func:`.assembly.chosen_by_stage`), ``equation_error`` holds the search's chosen
+    model, whose values the report's ``parameters`` are."""
 
     name: str
     estimator: str
     effects: dict[str, dict[str, float]]
     fit: FitQuality | None
     output_error_parameters: dict[str, dict[str, Any]] | None = optional()
+    equation_error: ChosenBlock | None = optional()
+
+    @property
+    def search(self) -> ChosenBlock:
+        """The search's chosen model (the equation-error one): the report's
+        ``parameters``, the fit on all data, the candidate of that name."""
+        return self.equation_error or self
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -254,8 +266,8 @@ def _simulation_lines(sim: SimulationStage | None,
             f'{k} {100 * v:.1f} %' for k, v in sim.gains.items()))
     est = sim.estimates
     if sim.model and est and est.parameters:
-        lines.append('  chosen, refitted on every block (error bars: the largest of '
-                     'Gauss-Newton, block sandwich and halves):')
+        lines.append(f'  chosen, {sim.chosen}, refitted on every block (error bars: the '
+                     'largest of Gauss-Newton, block sandwich and halves):')
         for name, e in est.parameters.items():
             lines.append(f'    {name:<28} ' + (
                 f'{e.value:.5g} +- {e.std:.3g}' if e.determined else
@@ -272,7 +284,7 @@ def _simulation_lines(sim: SimulationStage | None,
         vals = {**sim.model.parameters,
                 **{f'{e}.{p}': v for e, d in sim.model.effects.items()
                    for p, v in d.items()}}
-        lines.append('  chosen, refitted on every block (no error bars: '
+        lines.append(f'  chosen, {sim.chosen}, refitted on every block (no error bars: '
                      f'{(est.failed if est else "") or "not computed"}): ' + ', '.join(
                          f'{k} {v:.5g}' for k, v in vals.items()))
     return lines
@@ -282,11 +294,12 @@ def _fit_lines(rep: DiscrepancyReport) -> list[str]:
     h = rep.heldout
     lines = [f'linear model: held-out error {h.base_error:.4g} '
              f'(noise floor {h.noise_floor:.4g}; errors are RMS / channel std)']
+    search = rep.chosen.search
     for ch, m in rep.baseline.fit.channels.items():
         after = ''
-        if rep.chosen.fit:
-            after = (f' -> {rep.chosen.fit.channels[ch].fit_percent:.2f} % '
-                     f'with {rep.chosen.name}')
+        if search.fit:
+            after = (f' -> {search.fit.channels[ch].fit_percent:.2f} % '
+                     f'with {search.name}')
         lines.append(f'  {ch} fit on all data: {m.fit_percent:.2f} %{after}')
     return lines
 
@@ -374,7 +387,12 @@ def _candidate_lines(rep: DiscrepancyReport) -> list[str]:
 
 
 def _parameter_lines(rep: DiscrepancyReport) -> list[str]:
-    lines = [f'parameters under the chosen model ({rep.chosen.estimator}):']
+    search = rep.chosen.search
+    lines = [f'parameters under the chosen model ({search.estimator}):'
+             if search is rep.chosen else
+             f'parameters under the equation-error model, {search.name} '
+             f'({search.estimator}); the chosen model, {rep.chosen.name}, is the '
+             'simulation stage one (below):']
     for k, v in rep.parameters.items():
         if v.get('value') is None:
             lines.append(f'  {k:<24}{"-":>14}  not determined')
@@ -428,8 +446,9 @@ def _plot_residual(ax: Any, report: DiscrepancyReport, k: int, ch: str) -> None:
     pd = report.plot_data
     t = pd['time']
     ax.plot(t, pd['ys'][k] - pd['base'][k], lw=0.7, label='linear model')
-    if report.chosen.name != 'none':
-        ax.plot(t, pd['ys'][k] - pd['chosen'][k], lw=0.7, label=report.chosen.name)
+    search = report.chosen.search
+    if search.name != 'none':
+        ax.plot(t, pd['ys'][k] - pd['chosen'][k], lw=0.7, label=search.name)
     ylo, yhi = ax.get_ylim()
     ax.fill_between(t, ylo, yhi, where=pd['test'], color='0.9', zorder=0, label='held out')
     ax.set_ylim(ylo, yhi)
@@ -446,7 +465,7 @@ def _plot_map(ax: Any, report: DiscrepancyReport) -> None:
         ax.plot(u, [p.speed_linear for p in pts], 'x', label='linear model')
         if pts[0].speed_chosen is not None:
             ax.plot(u, [p.speed_chosen for p in pts], '+', ms=10,
-                    label=report.chosen.name)
+                    label=report.chosen.search.name)
         ax.legend(loc='best', fontsize=8)
     ax.set_title('steady-state map')
     units = units_of(report.input_kind, report.linear)
@@ -458,7 +477,7 @@ def _plot_gains(ax: Any, report: DiscrepancyReport) -> None:
     items = [e for e in report.effects if e.to_dict()['evidence']['kind'] == 'dynamic']
     items = [e for e in items if '+' not in e.name] + [e for e in items if '+' in e.name]
     gains = [0.0 if e.failed else 100 * e.gain for e in items]
-    colors = ['tab:red' if e.failed else 'tab:blue' if e.name == report.chosen.name else
+    colors = ['tab:red' if e.failed else 'tab:blue' if e.name == report.chosen.search.name else
               'tab:green' if e.significant else 'tab:gray' for e in items]
     ax.barh(range(len(items)), gains, color=colors)
     ax.set_yticks(range(len(items)))
@@ -474,8 +493,8 @@ def _plot_channel(ax: Any, report: DiscrepancyReport) -> None:
     t = pd['time']
     ax.plot(t, pd['ys'][0], lw=0.8, color='k', label='measured')
     ax.plot(t, pd['base'][0], lw=0.8, label='linear model')
-    if report.chosen.name != 'none':
-        ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.chosen.name)
+    if report.chosen.search.name != 'none':
+        ax.plot(t, pd['chosen'][0], lw=0.8, ls='--', label=report.chosen.search.name)
     ax.set_title(f'{pd["channels"][0]}: measured and simulated')
     ax.set_xlabel('time [s]')
     ax.legend(loc='best', fontsize=8)

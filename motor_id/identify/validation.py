@@ -46,7 +46,9 @@ class SavedModel:
         Undetermined parameters enter with their particular value: any point on an
         unseen direction gives the same input-output behaviour. An analyze report with a
         simulation-error model (``simulation.model``) gives that one unless
-        ``use_simulation`` is False.
+        ``use_simulation`` is False: then the equation-error model, the report's
+        ``parameters`` with the effects of the search's chosen model (``chosen``, or
+        ``chosen.equation_error`` where the stage chose the reported model).
 
         Raises
         ------
@@ -88,8 +90,9 @@ def _effects(report: dict[str, Any]) -> dict[str, dict[str, float]]:
     """Named effects of a fit report (``effects``) or of an analyze report (the chosen
     model's effects and the speed reading)."""
     out: dict[str, dict[str, float]] = {}
-    if 'verdict' in report:      # analyze
-        for e, vals in (report.get('chosen') or {}).get('effects', {}).items():
+    if 'verdict' in report:      # analyze: the search's model (the stage's is read whole)
+        chosen = report.get('chosen') or {}
+        for e, vals in (chosen.get('equation_error') or chosen).get('effects', {}).items():
             out[e] = {p: float(v['value'] if isinstance(v, dict) else v)
                       for p, v in vals.items()}
         for key in role_keys(count_reading(), 'counted'):
