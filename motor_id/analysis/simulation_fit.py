@@ -32,8 +32,17 @@ import numpy as np
 
 from motor_id.analysis.frames import held_channels
 from motor_id.analysis.friction import friction_summary
+from motor_id.analysis.simulation_delay import (
+    profile_delay,
+    profile_key,
+    PROFILED,
+    profiled,
+    profiled_problem,
+    samples_param,
+)
 from motor_id.analysis.simulation_guard import reduced_model, stage_scales, unsound
 from motor_id.analysis.simulation_problem import (
+    fraction_keys,
     free_names,
     make_blocks,
     sim_channels,
@@ -53,13 +62,6 @@ from motor_id.identify.validation import SavedModel
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
-
-PROFILE_POINTS = 10
-"""Delays of the coarse profile (:func:`_profile_delay`)."""
-PROFILE_NFEV = 15
-"""Residual evaluations of each brief refit of the delay profile."""
-MAX_DELAY_S = 0.3
-"""Longest input delay the stage tries [s] (and at most a fifth of the shortest block)."""
 
 
 def refinements(model: SavedModel, rec: Recording | None = None) -> list[str]:
@@ -198,8 +200,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     if latency is not None:   # the delay swapped for a start latency: the better kept
         say('simulation error: the input delay swapped for a start latency')
         alt, alt_best = _search(setup, latency, min_gain, jobs, rival=rival)
-        if alt_best is not None and (best is None
-                                     or alt_best[0].heldout_cost < best[0].heldout_cost):
+        if alt_best is not None and (best is None or _beats(alt_best, best,
+                                                            (1.0 - min_gain) ** 2)):
             best = alt_best
         cands += alt
     fallback = ''
@@ -277,8 +279,8 @@ def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int,
                 fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
             if stage == 'singles':
                 single_costs[extra[0]] = cand.heldout_cost
-            if best is None or cand.heldout_cost < gain_needed * best[0].heldout_cost or (
-                    _rivals(extra, best_family) and cand.heldout_cost < best[0].heldout_cost):
+            if best is None or _beats((cand, z, prob), best, gain_needed,
+                                      _rivals(extra, best_family)):
                 best, best_family = (cand, z, prob), extra
         if stage == 'singles':   # judged against the base as polished by them all
             helpful = [e for e, c in single_costs.items()
@@ -313,10 +315,25 @@ def _with_rival(setup: StageSetup, reduced: SavedModel, cands: list[SimCandidate
 
 
 def _rivals(a: tuple[str, ...], b: tuple[str, ...]) -> bool:
-    """Families of as many parameters that differ by one delay for another (an input
-    delay, a start latency): the better wins without the gain a larger model needs."""
+    """Families that differ by one delay for another (an input delay, a start latency):
+    :func:`_beats` counts their free parameters."""
     diff = set(a) ^ set(b)
     return len(a) == len(b) and len(diff) == 2 and diff <= set(PROFILED)
+
+
+def _beats(new: Best, old: Best, gain_needed: float, rivals: bool = True) -> bool:
+    """``new`` replaces ``old``: its held-out cost is below ``gain_needed`` times the
+    other's; for rivals (:func:`_rivals`) the one of fewer free parameters wins unless the
+    other beats it so, and of as many the lower wins (a delay refined between samples has
+    one more parameter than a whole-sample start latency)."""
+    if new[0].heldout_cost < gain_needed * old[0].heldout_cost:
+        return True
+    if not rivals:
+        return False
+    n_new, n_old = len(new[2].free), len(old[2].free)
+    if n_new != n_old:
+        return n_new < n_old and not old[0].heldout_cost < gain_needed * new[0].heldout_cost
+    return new[0].heldout_cost < old[0].heldout_cost
 
 
 def _latency_for_delay(model: SavedModel, rec: Recording) -> SavedModel | None:
@@ -355,9 +372,9 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
 def _values(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
     """A fitted family's values by free name, and the delays its profile found
     (``input_delay.d``, ``start_latency.d``): what a larger family starts from."""
-    out = dict(zip(prob.free, z, strict=True))
-    out.update({_profile_key(e): float(prob.model.effects[e][_samples(e)]) for e in PROFILED
-                if e in prob.model.effects})
+    out = {profile_key(e): float(prob.model.effects[e][samples_param(e)]) for e in PROFILED
+           if e in prob.model.effects}
+    out.update(zip(prob.free, z, strict=True))   # a delay refined between samples
     return out
 
 
@@ -452,15 +469,15 @@ def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple
             # the profiled families (a delay grid each) are the longest fits
             done = list(longest_first(pool, _family_task, list(zip(families, warms,
                                                                     strict=True)),
-                                      [float(bool(_profiled(f))) for f in families]))
+                                      [float(bool(profiled(f))) for f in families]))
     finally:
         _STAGE = None
     out = []
     for f, (cand, z) in zip(families, done, strict=True):
         prob = _family_problem(setup, model, f)
-        lag = _profiled(f)
-        d = cand.effects.get(lag, {}).get(_samples(lag)) if lag else None
-        out.append((cand, z, prob if d is None else _with_delay(prob, d, lag)))
+        lag = profiled(f)
+        d = cand.effects.get(lag, {}).get(samples_param(lag)) if lag else None
+        out.append((cand, z, prob if d is None else profiled_problem(prob, d, lag)))
     return out
 
 
@@ -484,7 +501,9 @@ def _family_problem(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
     for e in extra:   # in order: an added Coulomb friction before its refinements
         effects[e] = _start_values(e, effects, scale)
     m = SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
-    return SimulationProblem(rec, m, setup.init_samples, free_names(m, rec), setup.fresh)
+    # a delay the model brings (not profiled here) is refined between samples at once
+    return SimulationProblem(rec, m, setup.init_samples,
+                             free_names(m, rec) + fraction_keys(model.effects), setup.fresh)
 
 
 def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
@@ -502,10 +521,10 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
                                                           strict=True)])
     try:
         with np.errstate(all='ignore'):
-            lag = _profiled(extra)
+            lag = profiled(extra)
             if lag:
-                prob, z, cand.nfev = _profile_delay(prob, setup.train, z, lag,
-                                                    (warm or {}).get(_profile_key(lag)))
+                prob, z, cand.nfev = profile_delay(prob, setup.train, z, lag,
+                                                    (warm or {}).get(profile_key(lag)))
             else:
                 z, cand.nfev = prob.fit(setup.train, z)
             cand.parameters, cand.effects = prob.to_model(z)
@@ -518,81 +537,3 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
     except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'
     return cand, z, prob
-
-
-def delay_grid(rec: Recording, blocks: Sequence[tuple[int, int]]) -> np.ndarray:
-    """Whole-sample delays the stage tries: every one up to 12, then about 8 % apart, to
-    :data:`MAX_DELAY_S` or a fifth of the shortest block."""
-    dt = float(np.median(np.diff(rec.time)))
-    shortest = min(b - a for a, b in blocks)
-    top = int(max(1, min(MAX_DELAY_S / dt, shortest / 5)))
-    grid = np.unique(np.concatenate([np.arange(0, min(top, 12) + 1),
-                                     np.rint(np.geomspace(12, max(top, 12), 30))]))
-    return grid[grid <= top]
-
-
-PROFILED = tuple(e for e, spec in EFFECTS.items()
-                 if spec.params and all(p.spacing == 'integer' for p in spec.params))
-"""Effects of a whole number of samples, found by :func:`_profile_delay`."""
-
-
-def _samples(effect: str) -> str:
-    """The parameter of a :data:`PROFILED` effect: its number of samples."""
-    return str(EFFECTS[effect].params[0].name)
-
-
-def _profile_key(effect: str) -> str:
-    """``'effect.param'`` of a :data:`PROFILED` effect's number of samples."""
-    return f'{effect}.{_samples(effect)}'
-
-
-def _profiled(family: Sequence[str]) -> str:
-    """The effect of ``family`` that :func:`_profile_delay` finds ('' for none; a family
-    holds at most one, see :func:`pairs`)."""
-    return next((e for e in family if e in PROFILED), '')
-
-
-def _with_delay(prob: SimulationProblem, d: float, effect: str) -> SimulationProblem:
-    """``prob`` with its delay ``effect`` set to ``d`` samples."""
-    effects = {**prob.model.effects, effect: {_samples(effect): float(d)}}
-    m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
-                   prob.model.source)
-    return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
-
-
-def _profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
-                   z0: np.ndarray | None, effect: str,
-                   around: float | None = None) -> tuple[SimulationProblem, np.ndarray, int]:
-    """The delay (of ``effect``: an input delay, a start latency) by profile: the model
-    refitted (briefly) at each delay of a coarse grid, then at the neighbours of the
-    best, then fully at the best. ``around``: the delay a smaller family found, whose
-    neighbours replace the coarse grid.
-
-    A delay cannot be found at the other parameters' start: a slow pole (a large L_m)
-    that mimicked the delay in the equation-error fit makes every delay look worse there.
-    Returns the problem at the chosen delay, its fit and the evaluations used.
-    """
-    grid = delay_grid(prob.rec, blocks)
-    coarse = grid[:: max(1, grid.size // PROFILE_POINTS)]
-    nfev = 0
-    tried: dict[float, tuple[float, np.ndarray]] = {}
-
-    def at(d: float) -> None:
-        nonlocal nfev
-        if d in tried:
-            return
-        p = _with_delay(prob, d, effect)
-        z, n = p.fit(blocks, z0, max_nfev=PROFILE_NFEV)
-        nfev += n
-        tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
-
-    for d in (coarse if around is None else [around]):
-        at(float(d))
-    best = min(tried, key=lambda k: tried[k][0])
-    i = int(np.searchsorted(grid, best))
-    for j in range(max(0, i - 3), min(grid.size, i + 4)):
-        at(float(grid[j]))
-    best = min(tried, key=lambda k: tried[k][0])
-    p = _with_delay(prob, best, effect)
-    z, n = p.fit(blocks, tried[best][1])
-    return p, z, nfev + n

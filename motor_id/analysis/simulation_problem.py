@@ -311,3 +311,10 @@ def free_names(model: SavedModel, rec: Recording) -> list[str]:
             if p.spacing != 'integer' and p.name in vals and f'{e}.{p.name}' not in held:
                 names.append(f'{e}.{p.name}')
     return names
+
+
+def fraction_keys(effects: Mapping[str, object]) -> list[str]:
+    """``effect.param`` of each delay of ``effects`` that is refined between samples
+    (:attr:`motor_id.effects.EffectParam.fraction`)."""
+    return [f'{e}.{p.name}' for e in effects if e in EFFECTS
+            for p in EFFECTS[e].params if p.fraction]

@@ -23,7 +23,8 @@ The error bars here are the largest of three estimates, each in the search coord
    depends on its path.
 
 To that, in quadrature, a model error none of the three can see: a delay of a whole
-number of samples (an input delay, a start latency; the stage finds it on a grid) stands
+number of samples (a start latency, an input delay held at a given value; the stage
+refines its input delay between samples, where its covariance holds its part) stands
 for a real one that lies anywhere between its neighbours on the grid (a robot's latency
 is a few milliseconds that jitter, a fraction of a sample). The model is refitted at the
 neighbouring delays (:func:`_delay_neighbours`); a value that moves by ``D`` per sample
@@ -35,9 +36,12 @@ real error at most. On the simulated arm (100 Hz, 3 ms latency) a one-sample inp
 took kA from 0.083 to 0.070 V s^2/rad (truth 0.080), and its error bar of 0.0017 put the
 truth 4 to 8 of them away in each of 5 live runs that chose the delay.
 
-A model without a delay is not widened: the same rule there (a delay uniform over [0, 1]
-sample) covered a 4 ms latency of a 20 ms loop, but widened kA 75-fold and kS 5-fold on
-records without any latency, which the costs of the two cannot tell apart (open).
+A model without a delay refined between samples is refitted with one added and free
+(:func:`_fraction_refit`), and each value's whole move goes into ``std_delay``: a
+latency under a sample, which the held-out cost hardly sees, biases kA by about kV times
+it (a SysId log of 5 ms samples with 2 ms: kA 3.5 % high, 98 of its Gauss-Newton error
+bars); on a record without a latency the freed delay stays near 0 and so does the move
+(where a delay uniform over [0, 1] sample had widened kA 75-fold).
 
 A parameter is determined when the data see it: its column of the weighted Jacobian is
 not (numerically) a combination of the others. A voltage plant measured by speed (and
@@ -51,11 +55,11 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from motor_id.analysis.friction import folded_load, friction_summary
+from motor_id.analysis.simulation_problem import fraction_keys, SimulationProblem
 from motor_id.analysis.simulation_result import (
     DerivedEstimate,
     ESTIMATES_METHOD,
@@ -70,9 +74,6 @@ from motor_id.identify.uncertainty import (
     feedforward_of,
     robust_covariance,
 )
-
-if TYPE_CHECKING:
-    from motor_id.analysis.simulation_problem import SimulationProblem
 
 RANK_TOL = 1e-7
 """Singular-value ratio of the column-scaled weighted Jacobian below which a direction
@@ -193,16 +194,26 @@ def whole_sample_effects(effects: Mapping[str, object]) -> list[str]:
             and all(p.spacing == 'integer' for p in EFFECTS[e].params)]
 
 
+Neighbour = tuple[SimulationProblem, np.ndarray, float]
+"""A refit of the model at another delay, and the share of its values' move that goes
+into the error bars (:data:`DELAY_SPREAD` for a whole sample, 1 for the fraction)."""
+
+
 def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
                       blocks: Sequence[tuple[int, int]], say: Callable[[str], object]
-                      ) -> list[tuple[SimulationProblem, np.ndarray]]:
+                      ) -> list[Neighbour]:
     """The model refitted (from ``z``, :data:`HALF_NFEV` evaluations) with each of its
-    whole-sample delays one sample shorter (where it is not 0) and one longer."""
+    whole-sample delays one sample shorter (where it is not 0) and one longer (a delay
+    refined between samples is free in the fit: its covariance holds its part), and,
+    where it has no delay that is refined between samples, with one freed
+    (:func:`_fraction_refit`)."""
     from motor_id.identify.validation import SavedModel
 
-    out: list[tuple[SimulationProblem, np.ndarray]] = []
+    out: list[Neighbour] = []
     for e in whole_sample_effects(prob.model.effects):
         p = EFFECTS[e].params[0].name
+        if f'{e}.{p}' in prob.free:
+            continue
         d = float(prob.model.effects[e][p])
         for step in (-1.0, 1.0):
             if d + step < 0:
@@ -214,7 +225,40 @@ def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
             say(f'simulation error: refitting with {e} {d + step:g} samples for the error '
                 'bars')
             zq, _ = q.fit(blocks, z, max_nfev=HALF_NFEV)
-            out.append((q, zq))
+            out.append((q, zq, DELAY_SPREAD))
+    if not fraction_keys(prob.model.effects):
+        out += _fraction_refit(prob, z, blocks, say)
+    return out
+
+
+FRACTION_START = 0.5
+"""The delay [samples] the refit of :func:`_fraction_refit` starts from."""
+
+
+def _fraction_refit(prob: SimulationProblem, z: np.ndarray,
+                    blocks: Sequence[tuple[int, int]], say: Callable[[str], object]
+                    ) -> list[Neighbour]:
+    """The model of no delay refitted (from ``z``, :data:`HALF_NFEV` evaluations) with a
+    delay that is refined between samples added and free: a latency under a sample, which
+    the stage's held-out cost need not see (kA takes ``kV`` times it, and the two act
+    alike at low frequencies), moves the values by what the model without it is off.
+    That whole move goes into the error bars; on a record without a latency the delay
+    comes out near 0 and so does the move."""
+    from motor_id.identify.validation import SavedModel
+
+    out: list[Neighbour] = []
+    for e, spec in EFFECTS.items():
+        keys = fraction_keys({e: None})
+        if not keys or prob.kind not in spec.kinds:
+            continue
+        effects = {**prob.model.effects, e: {**spec.defaults(),
+                                             keys[0].partition('.')[2]: FRACTION_START}}
+        m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
+                       prob.model.source)
+        q = type(prob)(prob.rec, m, prob.n_init, prob.free + keys, prob.fresh)
+        say(f'simulation error: refitting with {e} free between samples for the error bars')
+        zq, _ = q.fit(blocks, np.concatenate([z, [FRACTION_START]]), max_nfev=HALF_NFEV)
+        out.append((q, zq, 1.0))
     return out
 
 
@@ -232,7 +276,7 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
              halves: tuple[np.ndarray, np.ndarray] | None,
              fn: Callable[[dict[str, float], dict[str, dict[str, float]]],
                           Mapping[str, float] | None],
-             neighbours: Sequence[tuple[SimulationProblem, np.ndarray]] = ()
+             neighbours: Sequence[Neighbour] = ()
              ) -> list[DerivedEstimate]:
     """Quantities ``fn(params, effects)`` of the model with delta-method error bars,
     floored by the halves' spread as the parameters are, and the delay's part from the
@@ -248,7 +292,7 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
     ha = hb = None
     if halves is not None:
         ha, hb = values(halves[0]), values(halves[1])
-    moved = [values(zq, q) for q, zq in neighbours]
+    moved = [(values(zq, q), share) for q, zq, share in neighbours]
     out: list[DerivedEstimate] = []
     for key, val in base.items():
         std = std_model[key]
@@ -258,8 +302,8 @@ def _derived(prob: SimulationProblem, z: np.ndarray, cov: np.ndarray,
             std = max(std, abs(ha[key] - hb[key]) / 2, abs(val - (ha[key] + hb[key]) / 2))
         std_delay = None
         if moved:
-            std_delay = DELAY_SPREAD * max(_angle_diff(key, m.get(key, val), val)
-                                           for m in moved)
+            std_delay = max(share * _angle_diff(key, m.get(key, val), val)
+                            for m, share in moved)
             std = math.hypot(std, std_delay)
         entry = DerivedEstimate(name=key, value=float(val), std_model=std_model[key],
                                 determined=True, halves=pair, std=std, std_delay=std_delay)
@@ -318,8 +362,8 @@ def stage_estimates(prob: SimulationProblem, z: np.ndarray,
         np.maximum(np.abs(half[0] - half[1]) / 2, np.abs(z - (half[0] + half[1]) / 2))
     std_final = np.maximum(std_z, floor)
     if nbrs:
-        std_final = np.hypot(std_final, DELAY_SPREAD * np.max(
-            [np.abs(zq - z) for _, zq in nbrs], axis=0))
+        std_final = np.hypot(std_final, np.max(
+            [share * np.abs(zq[:d] - z) for _, zq, share in nbrs], axis=0))
     values = _si(prob, z)
     ha = _si(prob, half[0]) if half is not None else None
     hb = _si(prob, half[1]) if half is not None else None

@@ -95,7 +95,10 @@ class EffectParam:
     ``first`` to ``last``; the parameter is then found by the grid, never refined).
     ``role`` (a key of :data:`ROLES`, or '') says what the parameter is to other code;
     ``refined`` False: a fit with the effect asked for (``--effect``) keeps it at the
-    given value (a whole number of samples, a grid step).
+    given value (a whole number of samples, a grid step). ``fraction`` True: a number of
+    samples found on the ``'integer'`` grid, which the simulation-error stage then refines
+    between samples (its effect's hooks take a fraction of a sample: a latency is rarely
+    a whole number of them).
     """
 
     name: str
@@ -109,6 +112,7 @@ class EffectParam:
     spacing: str = 'log'
     role: str = ''
     refined: bool = True
+    fraction: bool = False
 
     def start_values(self, scales: Mapping[str, float]) -> np.ndarray:
         """The start grid on one recording's scales (``{scale: value}``), an array."""
