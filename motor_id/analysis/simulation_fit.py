@@ -45,6 +45,7 @@ from motor_id.analysis.simulation_problem import (
     fraction_keys,
     free_names,
     make_blocks,
+    open_samples,
     sim_channels,
     SimulationProblem,
 )
@@ -183,7 +184,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
         block with its estimates (values, error bars, determinacy) and RMSE.
     """
     say = progress or (lambda _msg: None)
-    blocks = make_blocks(rec, n_blocks, init_samples)
+    blocks = make_blocks(rec, n_blocks, init_samples, open_samples(rec, model, init_samples))
     held = blocks[2::3] if len(blocks) >= 3 else []
     train = [b for b in blocks if b not in held] if held else blocks
     frames = held_channels(rec, sim_channels(rec))

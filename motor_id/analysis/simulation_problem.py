@@ -78,18 +78,38 @@ def reading_noise(rec: Recording, fresh: Mapping[str, np.ndarray]) -> dict[str, 
     return out
 
 
+def open_samples(rec: Recording, model: SavedModel, init_samples: int) -> int:
+    """Initial samples of a block that opens a run not at rest.
+
+    ``init_samples`` where they span less than the plant's mechanical time constant (a
+    quadratic through their positions then stands for the state at their end: 20 samples
+    of 1 ms on the EMPS axis, whose time constant is 0.47 s); else the scored run's own
+    (:func:`~motor_id.identify.validation.run_init_samples`, as ``motor-id validate`` and
+    the fit % per run take them): a SysId step test that a vendor logger (REV's URCL,
+    CTRE's SignalLogger) logs from its first status frame opens moving, and 20 samples
+    of a 20-40 ms loop (0.4-0.8 s against the drive's 0.05-0.2 s) left out the step's
+    transient, all that shows kA.
+    """
+    p = model.parameters
+    if model.input_kind == 'voltage':
+        tau = p['J'] * p['R_m'] / (p['K_T'] * p['K_b'] + p['R_m'] * p['B'])
+    else:
+        tau = p['J'] / p['B'] if p['B'] > 0 else math.inf
+    if (init_samples - 1) * rec.sample_period < tau:
+        return init_samples
+    return min(init_samples, run_init_samples(model.input_kind, rec.has_current))
+
+
 def make_blocks(rec: Recording, n_blocks: int, init_samples: int,
                 open_samples: int | None = None) -> list[tuple[int, int]]:
     """Contiguous ``[start, stop)`` blocks inside each run, about ``n_blocks`` in all.
 
     A run too short for a block of :data:`MIN_BLOCK` scored samples is one block. A block
     needs samples to score after its initial ones: ``init_samples``, or for a block that
-    opens a run ``open_samples`` (:meth:`SimulationProblem.first`; default: the scored
-    run's, :func:`~motor_id.identify.validation.run_init_samples`), so a short run (a
-    step test stopped early) is a block of its own.
+    opens a run ``open_samples`` (default ``init_samples``; :func:`open_samples`), so a
+    short run (a step test stopped early) can be a block of its own.
     """
-    if open_samples is None:
-        open_samples = run_init_samples(rec.input_kind, rec.has_current)
+    n_open = init_samples if open_samples is None else open_samples
     runs = rec.segment_ranges
     total = sum(b - a for a, b in runs)
     out: list[tuple[int, int]] = []
@@ -98,7 +118,7 @@ def make_blocks(rec: Recording, n_blocks: int, init_samples: int,
         k = max(1, min(k, (b - a) // (MIN_BLOCK + init_samples)))
         edges = np.linspace(a, b, k + 1).round().astype(int)
         out += [(int(x), int(y)) for x, y in itertools.pairwise(edges)
-                if y - x > (open_samples if x == a else init_samples) + 1]
+                if y - x > (n_open if x == a else init_samples) + 1]
     return out
 
 
@@ -121,8 +141,8 @@ class SimulationProblem:
         """Per channel: the samples scored (held readings: the fresh ones)."""
         self._start = self._start_vector()
         self._opens = {a for a, _ in rec.segment_ranges}
-        self.n_open = run_init_samples(self.kind, rec.has_current)
-        """Initial samples of a block that opens a run (as :func:`validate` scores it)."""
+        self.n_open = open_samples(rec, model, init_samples)
+        """Initial samples of a block that opens a run (:func:`open_samples`)."""
         noise = reading_noise(rec, self.fresh)
         self._rest = {a for a in self._opens if _at_rest(rec, a, noise)}
 
@@ -130,12 +150,10 @@ class SimulationProblem:
         """The sample a block from ``a`` is simulated from: after its initial samples;
         for a block that opens a run, its first sample when the run opens at rest (the
         state is known from that one sample, speed and current zero, and what follows, a
-        step's delay included, is the model's to predict), else after the run's own
-        initial samples, :attr:`n_open`, as ``motor-id validate`` and the report's fit %
-        per run simulate it. A run that opens with a step (a SysId test: its logger
-        samples the speed after the step is applied, so the first reading already moves)
-        is fitted on its whole response: after the block's ``n_init`` samples, its
-        transient, all that shows the acceleration (kA), would be left out."""
+        step's delay included, is the model's to predict), else after :attr:`n_open`
+        samples (:func:`open_samples`: as ``motor-id validate`` scores the run where
+        ``n_init`` samples span more than the plant's time constant, so a step test that
+        opens moving is fitted on its transient)."""
         if a in self._rest:
             return a
         return a + (self.n_open if a in self._opens else self.n_init) - 1
