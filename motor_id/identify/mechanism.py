@@ -136,7 +136,10 @@ def with_gravity(fitted: Identifier, rec: Recording, mechanism: str,
     itself for ``'simple'``.
 
     Two starts, the better fit kept: the fitted plant with the gravity of the equation
-    error, and the whole equation-error model (:func:`plant_start`).
+    error, and the whole equation-error model (:func:`plant_start`). Speed alone cannot
+    tell the electrical pole from the mechanical one: where the two fits end within
+    :data:`POLE_TIE` of each other's cost, the one whose electrical time constant is the
+    shorter (:func:`electrical_first`, as in a DC motor) is kept.
     """
     gravity = check_mechanism(rec, mechanism)
     if not gravity:
@@ -150,6 +153,7 @@ def with_gravity(fitted: Identifier, rec: Recording, mechanism: str,
     effects = {**(fitted.settings.effects or {}), gravity: start}
     free = [*(fitted.settings.free_effects or ()), *keys]
     best: Identifier | None = None
+    fits: list[Identifier] = []
     whole = plant_start(rec, gravity, theta, p, effects)
     for begin in ({**p, **keys}, *(() if whole is None else ({**p, **whole},))):
         est = fitted._variant(effects=effects, free_effects=free, start=begin,
@@ -161,8 +165,26 @@ def with_gravity(fitted: Identifier, rec: Recording, mechanism: str,
             if begin is not None and best is None and whole is None:
                 raise
             continue
+        fits.append(est)
         if best is None or est.result_.fit.cost < best.result_.fit.cost:
             best = est
     if best is None:
         raise IdentificationError(f'the fit with the {gravity} diverged from every start')
+    if not rec.has_current and not electrical_first(best):
+        return next((e for e in fits if electrical_first(e)
+                     and e.result_.fit.cost <= (1.0 + POLE_TIE) * best.result_.fit.cost),
+                    best)
     return best
+
+
+POLE_TIE = 0.05
+"""Fits of a speed-only record within this fraction of each other's cost are a tie
+between the two assignments of its poles (:func:`with_gravity`)."""
+
+
+def electrical_first(est: Identifier) -> bool:
+    """The fit's electrical time constant L_m / R_m is shorter than its mechanical one
+    J / B (False for a torque plant, which has none)."""
+    p = est.params_
+    L, R, J, B = (p.get(k) for k in ('L_m', 'R_m', 'J', 'B'))
+    return bool(L and R and J and B and L / R < J / B)
