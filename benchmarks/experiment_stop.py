@@ -19,12 +19,12 @@ import random
 import signal
 import statistics
 import sys
-import tempfile
 import time
 
 from rosbags.highlevel import AnyReader
+from rosproc import run_rounds
 
-from motor_id.testing.procs import domain_id, Process, start_burners
+from motor_id.testing.procs import Process
 from motor_id.testing.ros import ros_env
 from motor_id.testing.sim_joint import READY, sim_robot_args
 
@@ -97,21 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--json', metavar='OUT')
     args = ap.parse_args(argv)
     rng = random.Random(0)
-    burners = start_burners() if args.burn else []
-    rows = []
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            for k in range(args.rounds):
-                for cause in CAUSES:
-                    folder = Path(tmp) / f'{cause.replace(" ", "_")}_{k}'
-                    folder.mkdir()
-                    rows.append(one_round(cause, folder, domain_id(f'stop{k}{cause}', 102,
-                                                                   200), rng))
-                    print(rows[-1], file=sys.stderr, flush=True)
-    finally:
-        for proc in burners:
-            proc.kill()
-    print(f'load average {os.getloadavg()[0]:.1f}, {len(burners)} burners')
+    rows, burners = run_rounds(args.rounds, CAUSES,
+                               lambda c, f, d: one_round(c, f, d, rng), 'stop', args.burn)
+    print(f'load average {os.getloadavg()[0]:.1f}, {burners} burners')
     print(f'{"cause":<12} {"rounds":>6} {"0 sent after [s]":>24} {"0 received after [s]":>24}'
           f' {"only 0 after":>12} {"robot ends at 0":>15}')
     for cause in CAUSES:

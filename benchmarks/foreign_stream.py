@@ -18,14 +18,14 @@ import os
 from pathlib import Path
 import signal
 import sys
-import tempfile
 import time
 
 import numpy as np
 from rosbags.highlevel import AnyReader
+from rosproc import run_rounds
 
 from motor_id.testing.foreign_robot import READY_LINE
-from motor_id.testing.procs import domain_id, Process, start_burners
+from motor_id.testing.procs import Process
 from motor_id.testing.ros import ros_env
 
 TOPIC = '/forward_command_controller/commands'
@@ -83,20 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument('--kind', default='wheel,arm', help='wheel, arm or both (comma)')
     args = ap.parse_args(argv)
     kinds = [k for k in args.kind.split(',') if k]
-    burners = start_burners() if args.burn else []
-    rows = []
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            for k in range(args.rounds):
-                for kind in kinds:
-                    folder = Path(tmp) / f'{kind}{k}'
-                    folder.mkdir()
-                    rows.append(one_round(kind, folder, domain_id(f'fs{k}{kind}', 102, 200)))
-                    print(rows[-1], file=sys.stderr, flush=True)
-    finally:
-        for proc in burners:
-            proc.kill()
-    print(f'load average {os.getloadavg()[0]:.1f}, {len(burners)} burners, '
+    rows, burners = run_rounds(args.rounds, kinds, one_round, 'fs', args.burn)
+    print(f'load average {os.getloadavg()[0]:.1f}, {burners} burners, '
           f'{args.rounds} rounds')
     print(f'{"robot":<6} {"exits":>10} {"largest receive gap [s]":>24} '
           f'{"robot gap [s]":>18} {"robot CPU [%]":>14}')

@@ -3,6 +3,9 @@
 Everything here imports rclpy and psutil lazily, so the other sections run without them.
 """
 
+from pathlib import Path
+import sys
+import tempfile
 import threading
 import time
 
@@ -14,6 +17,30 @@ def ros_env(domain):
     """The environment for node processes: LOCALHOST discovery, ``domain``, the repo."""
     from motor_id.testing.procs import ros_env as env_for
     return env_for(domain, pythonpath=REPO)
+
+
+def run_rounds(rounds, cases, one_round, tag, burn=False):
+    """Each case once per round, beside a busy process per core when ``burn``.
+
+    ``one_round(case, folder, domain)`` runs in a fresh folder of a temporary directory
+    with a ROS domain of its own (102..200, clear of the tests'); each row it returns is
+    printed to stderr as it comes. Returns the rows and the number of burners.
+    """
+    from motor_id.testing.procs import domain_id, start_burners
+    burners = start_burners() if burn else []
+    rows = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for k in range(rounds):
+                for case in cases:
+                    folder = Path(tmp) / f'{case.replace(" ", "_")}_{k}'
+                    folder.mkdir()
+                    rows.append(one_round(case, folder, domain_id(f'{tag}{k}{case}', 102, 200)))
+                    print(rows[-1], file=sys.stderr, flush=True)
+    finally:
+        for proc in burners:
+            proc.kill()
+    return rows, len(burners)
 
 
 def processes(env, logdir):
