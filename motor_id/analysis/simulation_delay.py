@@ -95,7 +95,7 @@ def profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],
         p = with_delay(prob, d, effect)
         z, n = p.fit(blocks, z0, max_nfev=PROFILE_NFEV)
         nfev += n
-        tried[d] = (float(np.mean(p.residuals(z[None, :], blocks) ** 2)), z)
+        tried[d] = (p.cost(z, blocks), z)
 
     for d in (coarse if around is None else [around]):
         at(float(d))

@@ -223,8 +223,7 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
     with np.errstate(all='ignore'):
         try:
             z, _ = best_prob.fit(blocks, best_z)
-            why = unsound(float(np.mean(best_prob.residuals(z[None, :], blocks) ** 2)),
-                          best_prob.to_model(z)[1], setup.scales)
+            why = unsound(best_prob.cost(z, blocks), best_prob.to_model(z)[1], setup.scales)
         except FIT_ERRORS as exc:
             why = str(exc)
         if why:   # keep the training blocks' fit
@@ -415,7 +414,7 @@ def _polish(setup: StageSetup, best: tuple[SimCandidate, np.ndarray, SimulationP
         with np.errstate(all='ignore'):
             z1, nfev = b_prob.fit(setup.train, z0)
             score_on = setup.held or setup.train
-            cost = float(np.mean(b_prob.residuals(z1[None, :], score_on) ** 2))
+            cost = b_prob.cost(z1, score_on)
     except FIT_ERRORS:
         return best
     if not cost < b_cand.heldout_cost:
@@ -444,7 +443,7 @@ def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandida
             cand.parameters, cand.effects = plain.to_model(z)
             score_on = setup.held or setup.train
             cand.heldout_rmse = prob.rmse(z, score_on)
-            cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
+            cand.heldout_cost = prob.cost(z, score_on)
     except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'
     return cand
@@ -533,7 +532,7 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
             score_on = setup.held or setup.train
             if setup.held:
                 cand.heldout_rmse = prob.rmse(z, setup.held)
-            cand.heldout_cost = float(np.mean(prob.residuals(z[None, :], score_on) ** 2))
+            cand.heldout_cost = prob.cost(z, score_on)
         cand.failed = unsound(cand.heldout_cost, cand.effects, setup.scales)
     except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'

@@ -256,6 +256,11 @@ class SimulationProblem:
                 samp.append(k)
         return np.concatenate(blk), np.concatenate(chan), np.concatenate(samp)
 
+    def cost(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> float:
+        """The mean squared scaled residual of ``z`` (one parameter vector) over
+        ``blocks``: the cost the stage compares candidates by (held-out, on the halves)."""
+        return float(np.mean(self.residuals(z[None, :], blocks) ** 2))
+
     def rmse(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> dict[str, float]:
         """Per channel RMSE [SI] over the scored samples of ``blocks``."""
         sims = self.simulate(z, blocks)

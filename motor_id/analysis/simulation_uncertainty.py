@@ -184,7 +184,7 @@ def _half_fit(prob: SimulationProblem, z: np.ndarray, half: Sequence[tuple[int, 
     half's own best fit is the one a repeat recording would give.
     """
     fits = [prob.fit(half, max_nfev=HALF_NFEV)[0], prob.fit(half, z, max_nfev=HALF_NFEV)[0]]
-    costs = [float(np.mean(prob.residuals(zz[None, :], half) ** 2)) for zz in fits]
+    costs = [prob.cost(zz, half) for zz in fits]
     return fits[int(np.argmin(costs))]
 
 
