@@ -73,27 +73,44 @@ def _at_rest(rec: Recording, k: int, noise: Mapping[str, float] | None = None) -
     idle = rec.input[k] == 0 or (k > 0 and rec.input[k - 1] == 0)
     return bool(idle) and still(rec.speed, 'speed') and \
         (rec.current is None or still(rec.current, 'current')) and \
-        _position_still(rec, k, (noise or {}).get('position'))
+        _position_still(rec, k, noise or {})
 
 
 REST_WINDOW = 5
 """Samples up to the one tested whose positions show whether the axis still moves."""
 
 
-def _position_still(rec: Recording, k: int, noise: float | None) -> bool:
+def _position_still(rec: Recording, k: int, noise: Mapping[str, float]) -> bool:
     """The positions of samples ``k - REST_WINDOW + 1 .. k`` have a slope within
-    :data:`REST_SIGMAS` of what the position noise ``noise`` gives it (true without a
-    position, its noise level or enough samples before ``k``)."""
-    if rec.position is None or noise is None or k < REST_WINDOW - 1:
+    :data:`REST_SIGMAS` of what the position noise gives it. True without a position,
+    its noise level or enough samples before ``k``, and where those samples are not one
+    motion with ``k`` (:func:`_joined`: a SysId log's previous test ends moving, then
+    the next opens at rest)."""
+    if rec.position is None or 'position' not in noise or k < REST_WINDOW - 1:
         return True
-    t = rec.time[k - REST_WINDOW + 1:k + 1]
-    x = rec.position[k - REST_WINDOW + 1:k + 1]
+    lo = k - REST_WINDOW + 1
+    if not _joined(rec, lo, k, noise):
+        return True
+    t = rec.time[lo:k + 1]
+    x = rec.position[lo:k + 1]
     tc = t - t.mean()
     ss = float(np.dot(tc, tc))
     if ss <= 0.0:
         return True
     slope = float(np.dot(tc, x - x.mean())) / ss
-    return abs(slope) <= REST_SIGMAS * noise / math.sqrt(ss)
+    return abs(slope) <= REST_SIGMAS * noise['position'] / math.sqrt(ss)
+
+
+def _joined(rec: Recording, lo: int, k: int, noise: Mapping[str, float]) -> bool:
+    """Samples ``lo .. k`` are one motion: every position step agrees with the speed
+    readings either side of it (their mean times the interval) within
+    :data:`REST_SIGMAS` of the two readings' noise."""
+    dt = np.diff(rec.time[lo:k + 1])
+    dx = np.diff(rec.position[lo:k + 1])
+    w = rec.speed[lo:k + 1]
+    moved = 0.5 * (w[1:] + w[:-1]) * dt
+    tol = REST_SIGMAS * (math.sqrt(2.0) * noise['position'] + dt * noise.get('speed', 0.0))
+    return bool(np.all(np.abs(dx - moved) <= tol))
 
 
 def reading_noise(rec: Recording, fresh: Mapping[str, np.ndarray]) -> dict[str, float]:
