@@ -105,6 +105,8 @@ def _joined(rec: Recording, lo: int, k: int, noise: Mapping[str, float]) -> bool
     """Samples ``lo .. k`` are one motion: every position step agrees with the speed
     readings either side of it (their mean times the interval) within
     :data:`REST_SIGMAS` of the two readings' noise."""
+    if rec.position is None:
+        return False
     dt = np.diff(rec.time[lo:k + 1])
     dx = np.diff(rec.position[lo:k + 1])
     w = rec.speed[lo:k + 1]

@@ -291,12 +291,13 @@ def _lag_refit(prob: SimulationProblem, z: np.ndarray,
         e, _, p = keys[0].partition('.')
         effects = {**effects, e: {**effects[e], p: effects[e][p] + lag}}
     else:
-        e, spec = next(((n, sp) for n, sp in EFFECTS.items()
-                        if fraction_keys({n: None}) and prob.kind in sp.kinds), (None, None))
-        if e is None or spec is None:
+        delays = [n for n, sp in EFFECTS.items()
+                  if fraction_keys({n: None}) and prob.kind in sp.kinds]
+        if not delays:
             return []
-        keys = fraction_keys({e: None})
-        effects = {**effects, e: {**spec.defaults(), keys[0].partition('.')[2]: lag}}
+        keys = fraction_keys({delays[0]: None})
+        effects = {**effects, delays[0]: {**EFFECTS[delays[0]].defaults(),
+                                          keys[0].partition('.')[2]: lag}}
     held = {**params, 'L_m': LAG_SHORT * T * params['R_m']}
     free = [n for n in prob.free if n != 'L_m'] + [k for k in keys if k not in prob.free]
     q = type(prob)(prob.rec, SavedModel(prob.model.input_kind, held, effects,
