@@ -5,12 +5,26 @@ only turns them into fixtures.
 """
 
 import os
+import signal
 
 import pytest
 
 from motor_id.blas import limit_threads
 
 limit_threads()  # before a test module loads numpy; xdist workers and node processes inherit it
+
+
+def _ignore_by_handler() -> None:
+    """A run started under ``nohup`` or in the background ignores SIGHUP or SIGINT, and an
+    ignored signal stays ignored in every child: the children's stop tests could not pass.
+    The run goes on ignoring them, by a handler that does nothing, and a handler (unlike an
+    ignore) is reset to the default in a child."""
+    for sig in (signal.SIGHUP, signal.SIGINT):
+        if signal.getsignal(sig) == signal.SIG_IGN:
+            signal.signal(sig, lambda *_: None)
+
+
+_ignore_by_handler()
 
 
 @pytest.fixture(scope='session', autouse=True)

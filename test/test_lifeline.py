@@ -268,3 +268,34 @@ def test_forked_fit_workers_die_with_a_killed_caller():
     finally:
         proc.kill()
         proc.wait()
+
+
+def test_a_ros_domain_leased_by_a_live_process_is_passed_over():
+    """Two test runs on one machine must not share a ROS domain: a process whose first
+    choice is leased by another live process takes the next free id; the same name keeps
+    its id; two names in one process never share one."""
+    from motor_id.testing.procs import domain_id
+    mine = domain_id('lease-check')
+    assert domain_id('lease-check') == mine and domain_id('lease-other') != mine
+    script = textwrap.dedent(f"""
+        import json
+        from motor_id.testing import procs
+        taken = procs.domain_lease({mine}) is None
+        procs.os.getpid = lambda: {os.getpid()}   # the same first choice as the parent
+        print(json.dumps([taken, procs.domain_id('lease-check')]))
+    """)
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=REPO), timeout=120)
+    taken, theirs = json.loads(out.stdout)
+    assert taken and theirs != mine, out.stderr
+
+
+def test_the_run_passes_default_stop_signals_to_its_children():
+    """Started under nohup or in the background, the run itself ignores SIGHUP or SIGINT
+    (conftest), but by a handler, so its children get the default dispositions (their
+    stop tests could not pass otherwise)."""
+    script = 'import signal; print(int(signal.getsignal(signal.SIGHUP)), ' \
+             'signal.getsignal(signal.SIGINT) is signal.default_int_handler)'
+    out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
+                         timeout=120)
+    assert out.stdout.split() == [str(int(signal.SIG_DFL)), 'True'], out.stderr

@@ -12,12 +12,15 @@ process groups started here that still have a member, for a test run's last chec
 
 import atexit
 from collections.abc import Callable, Collection, Mapping, Sequence
+import fcntl
 import os
 import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+from typing import IO
 import zlib
 
 from motor_id.errors import MotorIdError
@@ -28,6 +31,8 @@ _GROUPS: set[int] = set()
 """Every process group started here (the children lead their own)."""
 _BURNERS: set[int] = set()
 """The load processes of :func:`start_burners` (not leftovers)."""
+_DOMAINS: dict[str, tuple[int, IO[bytes] | None]] = {}
+"""The ROS domain ids leased by :func:`domain_id`, by name, with their lease files."""
 
 
 @atexit.register
@@ -116,12 +121,42 @@ def start_burners(count: int | None = None) -> list['subprocess.Popen[bytes]']:
 
 
 def domain_id(name: str, low: int = 1, high: int = 101) -> int:
-    """A ROS_DOMAIN_ID in ``low..high`` for ``name``, varied by process id.
+    """A ROS_DOMAIN_ID in ``low..high`` for ``name``, leased to this process.
 
-    Different names and concurrent runs get different ids (with high probability); the
-    same name in the same process always gets the same id.
+    The first choice is varied by the name and the process id; an id that another live
+    process (another test run on the same machine, a benchmark) holds is passed over. The
+    lease is an exclusive ``flock`` on a file in the temporary directory, held until this
+    process ends (the kernel drops it even on SIGKILL). The same name in the same process
+    always gets the same id; two names never share one while a free id is left (when every
+    id is leased the first choice is returned).
     """
-    return low + (zlib.crc32(name.encode()) + os.getpid() * 7) % (high - low + 1)
+    if name in _DOMAINS:
+        return _DOMAINS[name][0]
+    span = high - low + 1
+    first = (zlib.crc32(name.encode()) + os.getpid() * 7) % span
+    for k in range(span):
+        domain = low + (first + k) % span
+        lease = domain_lease(domain)
+        if lease is not None:
+            _DOMAINS[name] = (domain, lease)
+            return domain
+    _DOMAINS[name] = (low + first, None)
+    return low + first
+
+
+def domain_lease(domain: int) -> IO[bytes] | None:
+    """The open, exclusively locked lease file of ``domain``, or None if it is taken."""
+    path = os.path.join(tempfile.gettempdir(), f'motor_id-ros-domain-{domain}.lease')
+    try:
+        handle = open(path, 'ab')
+    except OSError:
+        return None
+    try:
+        fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.close()
+        return None
+    return handle
 
 
 def ros_env(domain: int, pythonpath: str | None = None, **extra: object) -> dict[str, str]:
