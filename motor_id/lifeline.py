@@ -41,6 +41,7 @@ This module imports nothing but the standard library: it runs as a script before
 child's own interpreter exists.
 """
 
+import atexit
 from collections.abc import Callable, Iterator, Sequence
 import contextlib
 import ctypes
@@ -186,7 +187,8 @@ def stop_signals_as_interrupt(signals: Sequence[int] = (signal.SIGTERM, signal.S
     cut short (the parent-death signal comes once per thread of a dying parent). Only in
     the main thread (elsewhere Python cannot set handlers: the block runs unchanged). A
     signal ignored on entry (``nohup`` ignores SIGHUP) stays ignored. The previous
-    handlers come back at the end.
+    handlers come back at the end; if one of the signals came, they are ignored from the
+    interpreter's exit on (:func:`ignore_at_exit`).
     """
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -201,6 +203,23 @@ def stop_signals_as_interrupt(signals: Sequence[int] = (signal.SIGTERM, signal.S
     finally:
         for sig, before in previous.items():
             signal.signal(sig, before)
+        if handler.fired:
+            ignore_at_exit(list(previous))
+
+
+def ignore_at_exit(signals: Sequence[int]) -> None:
+    """Ignore ``signals`` from the interpreter's exit on (an ``atexit`` hook; main thread).
+
+    Finalisation puts the default action back on every signal that has a Python handler;
+    a SIGTERM or SIGHUP repeated then (the test's second one, a dying parent's
+    parent-death signal per thread) ended a stopping node by the signal (exit -1) instead
+    of 0, with every core busy, where the end of a node takes long. An ignored signal
+    keeps being ignored through finalisation."""
+    def hook() -> None:
+        if threading.current_thread() is threading.main_thread():
+            for sig in signals:
+                signal.signal(sig, signal.SIG_IGN)
+    atexit.register(hook)
 
 
 def _no_op(signum: int, frame: FrameType | None) -> None:
@@ -276,6 +295,7 @@ class SignalThread:
             if sig == signal.SIGHUP and signal.getsignal(sig) is signal.SIG_IGN:
                 continue
             self._previous[sig] = signal.signal(sig, _no_op)
+        ignore_at_exit([sig for sig in self._previous if sig != signal.SIGINT])
         threading.Thread(target=self._watch, name='signals', daemon=True).start()
         return self
 

@@ -299,3 +299,34 @@ def test_the_run_passes_default_stop_signals_to_its_children():
     out = subprocess.run([sys.executable, '-c', script], capture_output=True, text=True,
                          timeout=120)
     assert out.stdout.split() == [str(int(signal.SIG_DFL)), 'True'], out.stderr
+
+
+EXIT_CHECK = """
+import atexit, os, signal
+def late():   # registered first, so it runs after the exit hooks of what follows
+    print(*(signal.getsignal(s) is signal.SIG_IGN for s in (signal.SIGHUP, signal.SIGTERM)),
+          flush=True)
+    for s in (signal.SIGHUP, signal.SIGTERM):
+        os.kill(os.getpid(), s)
+atexit.register(late)
+"""
+
+
+@pytest.mark.parametrize('setup', [
+    'from motor_id.lifeline import SignalThread\nSignalThread(deadline=None).install()',
+    'from motor_id.lifeline import stop_signals_as_interrupt\n'
+    'with stop_signals_as_interrupt():\n'
+    '    try:\n'
+    '        os.kill(os.getpid(), signal.SIGTERM)\n'
+    '        signal.sigtimedwait([], 0.0)\n'
+    '    except KeyboardInterrupt:\n'
+    '        pass'])
+def test_a_stop_signal_repeated_at_the_interpreters_exit_is_ignored(setup):
+    """The interpreter's finalisation puts the default action back on a signal with a Python
+    handler: a SIGHUP or SIGTERM repeated while a stopped node exits (a test's second one,
+    a dying parent's parent-death signal per thread) ended it by the signal, exit -1, with
+    every core busy. From the exit on both are ignored: a node's signal thread, and a CLI
+    whose block got one of them."""
+    out = subprocess.run([sys.executable, '-c', EXIT_CHECK + setup], capture_output=True,
+                         text=True, env=dict(os.environ, PYTHONPATH=REPO), timeout=120)
+    assert (out.returncode, out.stdout.split()) == (0, ['True', 'True']), out.stderr
