@@ -235,6 +235,13 @@ FRACTION_START = 0.5
 """The delay [samples] the refit of :func:`_fraction_refit` starts from."""
 
 
+def _fraction_delays(kind: str) -> list[tuple[str, list[str]]]:
+    """The catalogue's delays refined between samples for a ``kind`` plant: each
+    effect with its :func:`fraction_keys`, in catalogue order."""
+    return [(e, fraction_keys({e: None})) for e, spec in EFFECTS.items()
+            if fraction_keys({e: None}) and kind in spec.kinds]
+
+
 def _fraction_refit(prob: SimulationProblem, z: np.ndarray,
                     blocks: Sequence[tuple[int, int]], say: Callable[[str], object]
                     ) -> list[Neighbour]:
@@ -247,11 +254,8 @@ def _fraction_refit(prob: SimulationProblem, z: np.ndarray,
     from motor_id.identify.validation import SavedModel
 
     out: list[Neighbour] = []
-    for e, spec in EFFECTS.items():
-        keys = fraction_keys({e: None})
-        if not keys or prob.kind not in spec.kinds:
-            continue
-        effects = {**prob.model.effects, e: {**spec.defaults(),
+    for e, keys in _fraction_delays(prob.kind):
+        effects = {**prob.model.effects, e: {**EFFECTS[e].defaults(),
                                              keys[0].partition('.')[2]: FRACTION_START}}
         m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
                        prob.model.source)
@@ -291,13 +295,11 @@ def _lag_refit(prob: SimulationProblem, z: np.ndarray,
         e, _, p = keys[0].partition('.')
         effects = {**effects, e: {**effects[e], p: effects[e][p] + lag}}
     else:
-        delays = [n for n, sp in EFFECTS.items()
-                  if fraction_keys({n: None}) and prob.kind in sp.kinds]
+        delays = _fraction_delays(prob.kind)
         if not delays:
             return []
-        keys = fraction_keys({delays[0]: None})
-        effects = {**effects, delays[0]: {**EFFECTS[delays[0]].defaults(),
-                                          keys[0].partition('.')[2]: lag}}
+        e, keys = delays[0]
+        effects = {**effects, e: {**EFFECTS[e].defaults(), keys[0].partition('.')[2]: lag}}
     held = {**params, 'L_m': LAG_SHORT * T * params['R_m']}
     free = [n for n in prob.free if n != 'L_m'] + [k for k in keys if k not in prob.free]
     q = type(prob)(prob.rec, SavedModel(prob.model.input_kind, held, effects,
