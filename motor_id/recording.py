@@ -116,6 +116,26 @@ class Recording:
         """``[(start, stop), ...]``: the runs of this recording (one unless joined)."""
         return list(self.segments) if self.segments else [(0, len(self))]
 
+    @property
+    def input_streams(self) -> list[tuple[int, int]]:
+        """``[(start, stop), ...]``: the ranges whose input is one stream, which an input
+        map that reaches back in time (a delay) takes whole. They are the runs, but runs
+        the source marks as following the previous one with no sample left out between
+        are joined to it (``meta['runs_follow']``, a flag per run: ``motor-id
+        experiment`` records its tests back to back). Runs joined from separate records
+        (:meth:`concatenate`, a SysId JSON log's tests) stay apart."""
+        runs = self.segment_ranges
+        follow = self.meta.get('runs_follow')
+        if not isinstance(follow, list) or len(follow) != len(runs):
+            return runs
+        out = [runs[0]]
+        for (a, b), joined in zip(runs[1:], follow[1:], strict=True):
+            if joined is True and a == out[-1][1]:
+                out[-1] = (out[-1][0], b)
+            else:
+                out.append((a, b))
+        return out
+
     def segment_index(self) -> np.ndarray:
         """The run each sample belongs to (0, 1, ...)."""
         out = np.zeros(len(self), dtype=int)
@@ -171,6 +191,7 @@ class Recording:
             else None
         meta = dict(first.meta)
         meta.pop('segment_names', None)
+        meta.pop('runs_follow', None)
         meta['sources'] = [r.meta.get('source') for r in recordings]
         meta['segment_offsets'] = offsets
         return cls(np.concatenate(times), np.concatenate([r.input for r in recordings]),

@@ -154,9 +154,11 @@ def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]
                      segments: Sequence[tuple[int, int]] | None = None) -> np.ndarray:
     """Static input maps and delay, per member: returns ``u_eff`` of shape (P, N).
 
-    ``segments``: the ranges ``[start, stop)`` of separate runs (a SysId log's tests),
-    each mapped on its own: a delay at a run's start reaches back to the run's first
-    input, not to the previous run's last (a test that starts from the idle drive)."""
+    ``segments``: the ranges ``[start, stop)`` of separate input streams
+    (:attr:`Recording.input_streams`: a SysId log's tests), each mapped on its own: a
+    delay at a stream's start reaches back to the stream's first input, not to the
+    previous one's last (a test that starts from the idle drive). Tests recorded back to
+    back are one stream: there a delayed step starts from the rest before it."""
     u = np.broadcast_to(np.asarray(u, dtype=float), (P, np.shape(u)[-1])).copy()
     for a, b in segments or [(0, u.shape[1])]:
         for name in INPUT_MAPS:

@@ -468,17 +468,17 @@ def test_topics_given_to_open_are_declared_before_their_first_message(tmp_path):
                         '/ctrl/commands': 'std_msgs/msg/Float64'}
 
 
-def test_the_input_is_the_command_sent_before_the_next_sample(tmp_path):
+def test_the_input_is_the_mean_of_the_commands_over_each_interval_as_they_left(tmp_path):
     from motor_id.experiment.session import Row
     sess = ExperimentSession(settings(tmp_path))
     t = 100.0 + 0.01 * np.arange(30)
     sess.rows = [Row(tk, 9.0, 0.0, 0.0, math.nan, 0) for tk in t]   # decided: 9 everywhere
-    # sent 14 ms after each sample (later than the next one), value = sample number
+    # sent 14 ms after each sample (4 ms into the interval after the next sample), value =
+    # sample number: over [t_k, t_k+1) sample k-2's for 0.4 of it, then sample k-1's
     sess.sent = [(tk + 0.014, float(k)) for k, tk in enumerate(t)]
     rec = sess.recording()
-    # over [t_k, t_k+1) the command in force is the one sent before t_k+1: sample k-1's
-    np.testing.assert_array_equal(rec.input[1:], np.arange(29.0))
-    assert rec.input[0] == 0.0   # nothing sent before: 0
+    np.testing.assert_allclose(rec.input[2:], np.arange(2.0, 30.0) - 1.4, atol=1e-9)
+    assert rec.input[0] == rec.input[1] == 0.0   # nothing sent before, then sample 0's 0
     sess.sent = []
     np.testing.assert_array_equal(sess.recording().input, 9.0)
 

@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from motor_id.data.align import held_command_index, StreamAligner
+from motor_id.data.align import held_command_index, interval_mean_command, StreamAligner
 from motor_id.errors import ConfigError
 
 MOTOR = {'J': 0.052, 'K_T': 0.66, 'K_b': 0.66, 'B': 0.002, 'L_m': 0.0345, 'R_m': 2.3}
@@ -28,6 +28,19 @@ def test_hold_takes_the_command_in_force_and_next_the_one_before_the_next_sample
     assert held_command_index(t_meas, t_cmd, 'next').tolist() == [0, 1, 2, -1]
     with pytest.raises(ConfigError, match='align'):
         held_command_index(t_meas, t_cmd, 'nearest')
+
+
+def test_interval_mean_weighs_each_command_by_the_time_it_held():
+    t_meas = np.array([0.0, 0.01, 0.02, 0.03])
+    # 1 from 2.5 ms, 2 from 10 ms, 4 from 22.5 ms (a quarter into the third interval)
+    out = interval_mean_command(t_meas, [0.0025, 0.01, 0.0225], [1.0, 2.0, 4.0])
+    np.testing.assert_allclose(out, [0.75, 2.0, 0.25 * 2.0 + 0.75 * 4.0, 4.0], atol=1e-12)
+    # commands on the sample times: the 'next' rule's values
+    t_cmd = t_meas[:-1]
+    np.testing.assert_allclose(interval_mean_command(t_meas, t_cmd, [3.0, -1.0, 2.0]),
+                               [3.0, -1.0, 2.0, 2.0], atol=1e-12)
+    np.testing.assert_array_equal(interval_mean_command(t_meas, [], []), 0.0)
+    np.testing.assert_array_equal(interval_mean_command(t_meas, [5.0], [1.0]), 0.0)
 
 
 @pytest.mark.parametrize('align', ['hold', 'next'])

@@ -6,6 +6,7 @@ from scipy.signal import dlsim, StateSpace
 
 from motor_id.excitation import paper_steps
 from motor_id.model import continuous_matrices, PAPER_MOTOR
+from motor_id.recording import Recording
 from motor_id.simulate import apply_input_maps, simulate_batch
 
 T = np.arange(2000) * 0.01
@@ -109,6 +110,26 @@ def test_start_latency_holds_the_input_at_zero_after_each_start_only():
     # a run that starts with the drive on shows no start
     np.testing.assert_array_equal(apply_input_maps(u[2:6], {'start_latency': {'d': 2}}, 1)[0],
                                   u[2:6])
+
+
+def test_a_delay_reaches_back_into_the_run_before_only_where_the_runs_follow():
+    # two tests back to back: a rest, then a step at the second run's first sample
+    u = np.array([0.0, 0.0, 0.0, 0.0, 5.0, 5.0, 5.0, 5.0])
+    t = 0.01 * np.arange(u.size)
+    rec = Recording(t, u, np.zeros(u.size), segments=[(0, 4), (4, 8)])
+    assert rec.input_streams == [(0, 4), (4, 8)]   # separate tests: each from its first
+    np.testing.assert_array_equal(
+        apply_input_maps(u, {'input_delay': {'d': 1.5}}, 1, rec.input_streams)[0], u)
+    rec.meta['runs_follow'] = [False, True]   # as motor-id experiment records its tests
+    assert rec.input_streams == [(0, 8)]
+    np.testing.assert_allclose(
+        apply_input_maps(u, {'input_delay': {'d': 1.5}}, 1, rec.input_streams)[0],
+        [0, 0, 0, 0, 0, 2.5, 5, 5])
+    # a flag list that does not fit the runs (a slice, a joined record) is ignored
+    rec.meta['runs_follow'] = [False, True, True]
+    assert rec.input_streams == [(0, 4), (4, 8)]
+    joined = Recording.concatenate([rec.slice(0, 8), rec.slice(0, 8)])
+    assert 'runs_follow' not in joined.meta
 
 
 @pytest.mark.parametrize('t', [T, np.cumsum(np.random.default_rng(3).uniform(0.005, 0.015,

@@ -261,7 +261,7 @@ class SimulationProblem:
         for e, vals in (extra or {}).items():
             effects[e] = {**effects.get(e, {}), **vals}
         maps, rest = split_input_maps(effects)
-        ueff = apply_input_maps(self.rec.input, maps, P, self.rec.segment_ranges)
+        ueff = apply_input_maps(self.rec.input, maps, P, self.rec.input_streams)
         out = []
         pos = self.rec.has_position
         disc = discretise_batch(theta, self.rec.time, self.kind, 'zoh', rest, pos)

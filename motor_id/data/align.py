@@ -48,6 +48,39 @@ def held_command_index(t_meas: ArrayLike, t_cmd: ArrayLike,
     return idx
 
 
+def interval_mean_command(t_meas: ArrayLike, t_cmd: ArrayLike, values: ArrayLike
+                          ) -> NDArray[np.float64]:
+    """The mean of the held command over each measurement's interval.
+
+    The commands hold from their times (0 before the first); sample ``k`` gets their
+    time average over ``[t_meas[k], t_meas[k+1])``, the last sample over an interval as
+    long as the one before it. A command that changed a third of the way into an interval
+    counts two thirds there: the input a zero-order-hold model needs where commands
+    leave at any time between samples (a robot's states and a host's commands on their
+    own clocks), which the rules of :data:`ALIGN_RULES` round to a whole sample.
+
+    Parameters
+    ----------
+    t_meas : array_like, shape (n,)
+        Measurement times [s], increasing, ``n >= 2``.
+    t_cmd : array_like, shape (m,)
+        Command times [s], non-decreasing.
+    values : array_like, shape (m,)
+    """
+    t = np.asarray(t_meas, dtype=float)
+    tc = np.asarray(t_cmd, dtype=float)
+    v = np.asarray(values, dtype=float)
+    edges = np.append(t, t[-1] + (t[-1] - t[-2]))
+    if tc.size == 0:
+        return np.zeros(t.size)
+    # the integral of the held command from the first command's time to each edge
+    area = np.concatenate([[0.0], np.cumsum(v[:-1] * np.diff(tc))])
+    j = np.searchsorted(tc, edges, side='right') - 1
+    integral = np.where(j >= 0, area[np.maximum(j, 0)]
+                        + v[np.maximum(j, 0)] * (edges - tc[np.maximum(j, 0)]), 0.0)
+    return np.asarray(np.diff(integral) / np.diff(edges), dtype=float)
+
+
 class StreamAligner:
     """Builds sample rows from a measurement stream and a command stream, as they arrive.
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from motor_id.bag.writer import BagWriter, write_recording_into
 from motor_id.contracts import channel_units
-from motor_id.data.align import held_command_index
+from motor_id.data.align import interval_mean_command
 from motor_id.errors import BagError, ConfigError
 from motor_id.experiment.guard import Guard, StateSample
 from motor_id.experiment.plan import build_plan, Plan
@@ -166,6 +166,9 @@ class ExperimentSession:
             'segment_names': [names[runs[a]] for a, _ in pieces]}
         if self.speed_derived:
             meta['speed_estimate'] = SPEED_ESTIMATE
+        if len(pieces) > 1:   # tests back to back: one input stream, a delay reaches back
+            meta['runs_follow'] = [k > 0 and pieces[k][0] == pieces[k - 1][1]
+                                   for k in range(len(pieces))]
         if not np.all(keep):
             meta['pinned_samples'] = int(np.sum(~keep))
         index = np.cumsum(keep) - 1   # row -> kept sample
@@ -191,9 +194,13 @@ class ExperimentSession:
                           (np.abs(speed) <= tol_w), bool)
 
     def _inputs(self, t: np.ndarray) -> np.ndarray:
-        """The input over each sample's interval: the last command sent before the next
-        sample was measured (as it left, so that a late decision counts as late), or,
-        without send times, the command decided on the sample."""
+        """The input over each sample's interval: the mean of the commands over it, each
+        from when it left (:func:`interval_mean_command`: a late decision counts as late,
+        and a command sent a third of the way into an interval counts two thirds there),
+        or, without send times, the command decided on the sample. Rounded to a whole
+        interval instead, the commands of a robot whose states come 20 ms late at 50 Hz
+        acted 1.03 to 1.9 samples after the sample, as the send times fell; an input
+        delay of a whole sample then matches the interval means to 0.6 % of the steps."""
         decided = np.array([r.command for r in self.rows])
         if not self.sent:
             return decided
@@ -201,9 +208,7 @@ class ExperimentSession:
         lag = self.guard.stats.min_lag if self.guard.stats.other_clock else 0.0
         t_sent = np.array([ts for ts, _ in self.sent]) - lag
         values = np.array([v for _, v in self.sent])
-        idx = held_command_index(t, t_sent, 'next')
-        idx[-1] = np.searchsorted(t_sent, t[-1] + (t[-1] - t[-2]), side='left') - 1
-        return np.where(idx >= 0, values[np.maximum(idx, 0)], 0.0)
+        return interval_mean_command(t, t_sent, values)
 
     def _run_names(self, n: int) -> list[str]:
         names = [t.name for t in self.guard.log.tests][:n]

@@ -11,7 +11,7 @@ starts anew. The score is per channel, over the samples after the initial ones.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 from typing import Any
 
@@ -259,11 +259,17 @@ def validate(model: SavedModel, rec: Recording, init_samples: int | None = None,
     sims = {ch: np.empty(len(rec)) for ch in channels}
     states = []
     score_mask = np.ones(len(rec), dtype=bool)
+    maps, rest = split_input_maps(model.effects)
+    src = rec
+    if maps:   # on each input stream: a delay at a run's start reaches back where it can
+        src = replace(rec, input=apply_input_maps(rec.input, maps, 1, rec.input_streams)[0])
+        model = SavedModel(model.input_kind, model.parameters,
+                           {e: model.effects[e] for e in rest}, model.source)
     for a, b in rec.segment_ranges:
         if b - a <= n_init:
             raise DataError(f'a run of {b - a} samples leaves nothing to score after '
                             f'{n_init} initial sample(s)')
-        seg = rec.slice(a, b)
+        seg = src.slice(a, b)
         if rec.has_position:
             out, x0 = _simulate_from(model, seg, n_init)
         else:
