@@ -52,12 +52,12 @@ def results(tmp_path):
     return truth, {k: v['value'] for k, v in ff.items()}
 
 
-@pytest.mark.slow   # until it has passed 10 of 10 with a burner per core: 2026-11-28 (load
-# average 16-34) 3 of 3 passed once the experiment kept 10 states queued, not 1000 (kV
-# -0.7..+0.3 %, kA +15..+19 %, kS 0.243-0.257); before, 2 runs stopped on a 0.6-0.85 s
-# backlog of states ('stale state'), and 3 were not identified while the robot still sent
-# a stall's states in a burst (unset stamps: their source times bunched, the speeds
-# derived from them wrong)
+@pytest.mark.slow   # a minute or more of a live robot. 2026-11-28 (load average 16-34):
+# 3 of 3 passed once the experiment kept 10 states queued, not 1000 (kV -0.7..+0.3 %, kA
+# +15..+19 %, kS 0.243-0.257); before, 2 runs stopped on a 0.6-0.85 s backlog of states
+# ('stale state'), and 3 were not identified while the robot still sent a stall's states
+# in a burst. With the commands' interval means (7e1ab8f): kS 0.2504, kV 0.0350, kA
+# 0.0060 (exact; +12 % at 3.5 error bars before), input delay 5.02 samples (its 20 ms)
 def test_wheel_on_a_foreign_robot_meets_the_targets(launch, tmp_path):
     # the experiment first, the robot after it; no velocity, no stamps, shuffled joints,
     # 250 Hz with 20 ms latency, a controller of three joints read from its parameter
@@ -79,16 +79,13 @@ def test_wheel_on_a_foreign_robot_meets_the_targets(launch, tmp_path):
     assert all(c['values'][1] == c['values'][2] == 0.0 for c in received)
 
 
-@pytest.mark.slow   # kA is the open gap: -45 % with every core busy (2026-11-28), the same
-# to the bit when the recording is analysed alone. The 20 ms latency hidden in stamps of
-# another clock puts the commands one sample early; the analysis takes an input delay of
-# 2 samples and a faster joint. ROS-clock stamps: kA +15 %; no latency: +0.7 %. Another run
-# (load average 17): kA +39 % (0.0695 +- 0.012 for 0.05; kS, kV, kG, offset within the
-# targets), no delay chosen; the same recording analysed with the input delay free between
-# samples (bde728a): the delay comes out 0 and kA the same: the bias is not a transport
-# delay of the recorded commands to the simulation error (open). 2026-11-28 (e7b1bb1):
-# passed, kA 0.0628 +- 0.019 (+26 %); four older recordings re-analysed: +29 to +39 %,
-# 0.9 to 3.0 error bars (docs/uncertainty.md)
+@pytest.mark.slow   # a minute or more of a live robot. kA was the open gap until the
+# recording took each interval's input as the mean of the commands over it and its tests
+# as one input stream (7e1ab8f): the robot's 20 ms latency, hidden in stamps of its own
+# clock, had gone into kA (+20 to +45 % on seven recordings); the analysis now finds it as
+# an input delay. 2026-11-28: passed, kA 0.0452 +- 0.008 (-9.5 %), input delay 1.31
+# samples; kS 0.199, kV 0.904, kG 1.001, offset -0.300; the seven older recordings
+# re-analysed: kA -15 to +29 %, within 1.7 error bars (docs/experiment.md)
 @pytest.mark.parametrize('quirks', [
     dict(command_type='float64', stamp='boot', rate_hz=50.0, latency=0.02, start=0.4),
 ])
