@@ -393,3 +393,21 @@ def test_a_delay_under_a_sample_shares_its_error_bar_with_the_winding_lag(tmp_pa
     assert kA.std < 0.15 * true, kA   # not widened past use
     without = math.sqrt(kA.std ** 2 - kA.std_delay ** 2)
     assert abs(kA.value - true) > 2.5 * without, (kA, true)   # what the refit covers
+
+
+def test_a_lag_the_data_see_is_not_given_to_a_delay_in_the_error_bars(tmp_path):
+    """A motor whose winding's lag is as long as its mechanical one (10 samples of 5 ms
+    each), SysId log seed 0: the fit keeps the lag, and the refit that gives it to a delay
+    instead explains the speed far worse (over twice the error): the data reject it, and
+    kA keeps an error bar of the noise, with the truth inside two of it."""
+    from dataclasses import replace
+    motor = replace(MOTOR, L=0.025)
+    log = make_sysid_log(0, motor=motor, sample_period=0.005, kS=0.4, noise=0.004)
+    rec = load_sysid(log.write(tmp_path / 'lag.json'))
+    ff = log.truth.feedforward
+    start = SavedModel('voltage', {'J': 1.2 * motor.J, 'K_T': motor.K / 1.2, 'K_b': motor.K,
+                                   'B': 1.2 * motor.B, 'L_m': motor.L, 'R_m': motor.R},
+                       {'coulomb_friction': {'T_c': 1.2 * ff.kS * motor.K / motor.R}}, 'test')
+    kA = _fitted_estimates(rec, start)['kA']
+    assert kA.determined and abs(kA.value - ff.kA) <= 2 * kA.std, (kA, ff.kA)
+    assert kA.std < 0.05 * ff.kA, kA
