@@ -168,18 +168,24 @@ def apply_input_maps(u: ArrayLike, effects: Mapping[str, Mapping[str, ArrayLike]
     return u
 
 
-def _initial_batch(x0: ArrayLike | None, P: int, n: int, resonance_states: int
-                   ) -> np.ndarray:
+def _initial_batch(x0: ArrayLike | None, P: int, n: int, resonance_states: int,
+                   position: bool = False) -> np.ndarray:
     """``x0`` as (P, n): missing states 0; with a two-mass shaft (``resonance_states`` =
-    the dynamic states) the load starts at the motor's speed."""
+    the dynamic states) the load starts at the motor's speed; with ``position`` too, the
+    last entry of an ``x0`` that stops short of the load's states is the position, as the
+    last state is (before, it fell on the load's speed and the simulated position started
+    from 0)."""
     x0b = np.zeros((P, n))
     if x0 is None:
         return x0b
     x0 = np.asarray(x0, dtype=float)
-    if x0.ndim == 1:
-        x0b[:, :x0.size] = x0[:n]
+    x0 = np.broadcast_to(x0, (P, x0.size)) if x0.ndim == 1 else x0
+    m = min(x0.shape[1], n)
+    if resonance_states and position and 1 < m <= resonance_states - 2 + 1:
+        x0b[:, :m - 1] = x0[:, :m - 1]
+        x0b[:, n - 1] = x0[:, m - 1]
     else:
-        x0b[:, :x0.shape[1]] = x0[:, :n]
+        x0b[:, :m] = x0[:, :m]
     if resonance_states:   # load starts at the motor's speed, shaft untwisted
         x0b[:, resonance_states - 2] = x0b[:, 0]
     return x0b
@@ -284,7 +290,7 @@ class DiscretisedBatch:
             mp = np.asarray(measured_position, dtype=float)
             theta_m = np.ascontiguousarray(mp if rows is None else mp[rows[0]:rows[1]])
         n = A.shape[3]
-        x0b = _initial_batch(x0, P, n, self.n_dyn if self.resonance else 0)
+        x0b = _initial_batch(x0, P, n, self.n_dyn if self.resonance else 0, self.position)
         ueff = apply_input_maps(u, effects, P)
         # one array layout per argument, so that each kernel has one compiled signature
         A = np.ascontiguousarray(A)

@@ -31,6 +31,8 @@ SPEC = EffectSpec(
      EffectParam('f_r', 'Hz', 4.0, 0.01, 1e3, 'per_sample', ((3.0, 'per_record'), 0.2, 10),
                  ((3.0, 'per_record'), 0.5)),
      EffectParam('zeta', '-', 0.05, 0.0, 5.0, 'one', (0.03, 0.15, 2))),
-    description='a compliant shaft between motor and load',
+    description='a compliant shaft between motor and load (or any damped coupling of two '
+    'masses: a drivetrain whose wheels slip on the floor, the robot behind them)',
     plant_term=True,
-    check=aliased)
+    check=aliased,
+    stage_rule='always')

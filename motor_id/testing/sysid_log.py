@@ -169,7 +169,8 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
                    step_voltage: float = 6.0, step_duration: float = 1.5,
                    test: str = 'Simple', units: str = 'Radians',
                    units_per_rotation: float | None = None, sub: int = 10,
-                   track_width: float = 0.6) -> SysIdLog:
+                   track_width: float = 0.6,
+                   effects: Mapping[str, Mapping[str, float]] | None = None) -> SysIdLog:
     """Simulate the four SysId tests of a known motor and write them as SysId rows.
 
     Parameters
@@ -209,6 +210,9 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
         Integration grid steps per nominal sample (latency and jitter are whole steps).
     track_width : float
         Drivetrain: wheel separation for the gyro angle [the SI unit of ``units``].
+    effects : mapping, optional
+        Further effects of the physics (:func:`measure`), e.g. a two-mass ``resonance``:
+        a wheel with the robot's mass behind a damped coupling.
 
     Returns
     -------
@@ -240,7 +244,7 @@ def make_sysid_log(seed: int = 0, *, motor: Motor | None = None,
         phase = int(rng.integers(timing.hold))
         cols = []
         for k, (m, ks) in enumerate(sides):
-            pos, vel = measure(m, ks, command, timing, w_scale, phase, rng)
+            pos, vel = measure(m, ks, command, timing, w_scale, phase, rng, effects)
             cols.append((command[1], (pos + offsets[k]) / si_per_raw, vel / si_per_raw))
             offsets[k] += float(pos[-1])
         data[name] = _rows(t_start + t, cols, test, track_width / si_per_raw)
