@@ -141,11 +141,15 @@ class CandidateSearch:
                    s.heldout_error <= (1 + self.ambiguity) * chosen.heldout_error]
             if alt:
                 chosen = alt[0]
-        if self.ctx.steady and self.ctx.offsets_alike and chosen.name in first:
-            # the record cannot tell them apart (it never drives against the motion):
-            # their held-out errors differ by how each fits the noise at rest, so the
-            # more common is named (both sides of a drivetrain get the same verdict)
-            chosen = min((s for s in singles if s.significant and s.name in first),
+        alike = [n for n, spec in EFFECTS.items() if spec.shows_offset]
+        if self.ctx.steady and self.ctx.offsets_alike and chosen.name in alike:
+            # the record cannot tell them apart (it never drives against the motion, and
+            # without a current a brush drop follows the motion's sign as friction
+            # does): their held-out errors differ by how each fits the noise at rest, so
+            # the more common is named (both sides of a drivetrain get the same verdict;
+            # the 2023 Miami log's right side had been named brush_drop, its left
+            # coulomb_friction)
+            chosen = min((s for s in singles if s.significant and s.name in alike),
                          key=lambda s: self.catalogue.index(s.name))
         while (chosen is not base and len(chosen.name.split('+')) < self.max_effects
                and self.structure(chosen)):
