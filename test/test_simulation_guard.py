@@ -6,7 +6,9 @@ competes with the model without its extra effects.
 run on a busy machine (16 states late, up to 0.13 s): its equation-error verdict was
 Coulomb friction and a 1.1 Hz overdamped resonance, whose simulation explained nothing
 (held-out cost 1.09), so every feedforward constant was reported not determined. The
-linear model under it had kept the slow electrical pole (the last test here).
+linear model under it had kept the slow electrical pole (the last test here). Part of
+that was the simulator's: a two-mass model's simulated position started from 0 (fixed
+in 0745bc2); the resonance is now sound there, and no better than the model without it.
 """
 
 from pathlib import Path
@@ -65,25 +67,25 @@ def test_a_stage_without_a_sound_model_makes_the_report_inadequate():
     assert report.adequate and report.warnings == ['simulation error: fell back']
 
 
-def test_stage_leaves_a_model_that_diverges_for_the_simpler_one():
-    """The busy-machine arm recording: the analysis' model diverges, the stage searches
-    from gravity and Coulomb friction, and the feedforward constants meet the issue's
-    targets (kG, kV within 10 %, kA within 30 %, kS within 0.1 V, offset within 0.1
-    rad; on this recording they are within 6 %, 0.01 V and 0.01 rad)."""
+def test_stage_leaves_the_analysis_model_for_a_simpler_one_as_good():
+    """The busy-machine arm recording: the analysis' model (with a resonance) does no
+    better than without it, the stage searches from gravity and Coulomb friction, and
+    the feedforward constants meet the issue's targets (kG, kV within 10 %, kA within
+    30 %, kS within 0.1 V, offset within 0.1 rad; on this recording they are within 6 %,
+    0.01 V and 0.01 rad)."""
     rec = load_recording(RECORDING)
     sim = simulation_stage(rec, ANALYSIS_MODEL, init_samples=20, halves=False)
     assert sim.model is not None and 'resonance' not in sim.model.effects
     assert {'arm_gravity', 'coulomb_friction'} <= set(sim.model.effects)
     first = sim.candidates[0]
     assert first.name == 'arm_gravity+coulomb_friction+resonance'
-    # unsound: it diverges, or (with each run fitted from its first samples, as
-    # validate scores it) explains next to nothing with a resonance that is an alias
-    # (held-out cost 0.97 of the channels' spread, 97.8 Hz against a 50 Hz Nyquist)
-    assert first.failed.startswith(('diverged', 'implausible')), first.failed
-    assert first.heldout_cost >= 0.5 * DIVERGED
-    # a diverged model is no start for refinements: the next candidate is the rival
-    assert sim.candidates[1].name == 'arm_gravity+coulomb_friction'
-    assert sim.candidates[1].heldout_cost < 0.002
+    # the resonance does not help. It had diverged (held-out cost 0.97 of the channels'
+    # spread) while a two-mass model's simulated position started from 0, which was the
+    # simulator's fault (fixed 0745bc2); now it is sound and no better than the rival
+    # without it (held-out 7.6e-5 against 6.9e-5), and the stage falls back to the rival
+    rival = next(c for c in sim.candidates if c.name == 'arm_gravity+coulomb_friction')
+    assert rival.heldout_cost < 0.002
+    assert first.failed or first.heldout_cost >= rival.heldout_cost, (first, rival)
     assert 'arm_gravity+coulomb_friction+resonance' in sim.fallback
     assert sim.estimates is not None and sim.estimates.combinations is not None
     found = {c.name: c for c in sim.estimates.combinations}
