@@ -181,7 +181,7 @@ def _initial_batch(x0: ArrayLike | None, P: int, n: int, resonance_states: int,
     x0 = np.asarray(x0, dtype=float)
     x0 = np.broadcast_to(x0, (P, x0.size)) if x0.ndim == 1 else x0
     m = min(x0.shape[1], n)
-    if resonance_states and position and 1 < m <= resonance_states - 2 + 1:
+    if resonance_states and position and 1 < m <= resonance_states - 1:
         x0b[:, :m - 1] = x0[:, :m - 1]
         x0b[:, n - 1] = x0[:, m - 1]
     else:

@@ -10,7 +10,6 @@ import numpy as np
 
 from motor_id.analysis.simulation_problem import fraction_keys, SimulationProblem
 from motor_id.effects import EFFECTS
-from motor_id.identify.validation import SavedModel
 
 if TYPE_CHECKING:
     from motor_id.recording import Recording
@@ -57,10 +56,8 @@ def profiled(family: Sequence[str]) -> str:
 
 def with_delay(prob: SimulationProblem, d: float, effect: str) -> SimulationProblem:
     """``prob`` with its delay ``effect`` set to ``d`` samples."""
-    effects = {**prob.model.effects, effect: {samples_param(effect): float(d)}}
-    m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
-                   prob.model.source)
-    return SimulationProblem(prob.rec, m, prob.n_init, prob.free, prob.fresh)
+    return prob.variant(effects={**prob.model.effects,
+                                 effect: {samples_param(effect): float(d)}})
 
 
 def profiled_problem(prob: SimulationProblem, d: float, effect: str) -> SimulationProblem:
@@ -68,7 +65,7 @@ def profiled_problem(prob: SimulationProblem, d: float, effect: str) -> Simulati
     between samples."""
     p = with_delay(prob, d, effect)
     keys = [k for k in fraction_keys({effect: None}) if k not in p.free]
-    return SimulationProblem(p.rec, p.model, p.n_init, p.free + keys, p.fresh) if keys else p
+    return p.variant(free=p.free + keys) if keys else p
 
 
 def profile_delay(prob: SimulationProblem, blocks: Sequence[tuple[int, int]],

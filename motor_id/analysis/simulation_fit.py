@@ -55,7 +55,7 @@ from motor_id.analysis.simulation_result import (
     StageEstimates,
     StageModel,
 )
-from motor_id.analysis.simulation_uncertainty import stage_estimates
+from motor_id.analysis.simulation_uncertainty import LAG_SHORT, stage_estimates
 from motor_id.analysis.workers import _worker_start, longest_first
 from motor_id.effects import EFFECTS, role_value
 from motor_id.errors import FIT_ERRORS
@@ -102,19 +102,18 @@ def _leaves_zero(rec: Recording | None) -> bool:
 
 LONG_LAG = 5.0
 """A winding's time constant ``L_m / R_m`` [sample periods] over which a speed-only
-model's second pole is taken for something else (:func:`_long_lag`)."""
-SHORT_LAG = 0.05
-"""The winding's time constant [sample periods] a family starts from where an effect
-takes the second pole from it (:func:`_family_problem`)."""
+model's second pole is taken for something else (:func:`_takes_second_pole`)."""
 
 
-def _long_lag(rec: Recording | None, model: SavedModel | None = None) -> bool:
-    """A voltage plant measured by speed (and position) alone whose winding's time
-    constant came out over :data:`LONG_LAG` samples: speed alone sees two poles, and a
-    slow second one is a coupling of two masses rather than a winding (the 2023 Miami
-    drivetrain: 51 samples, 0.26 s, where its wheels slip on the floor while the robot
-    catches up); a family with the coupling starts from a short lag there."""
-    if rec is None or model is None or model.input_kind != 'voltage' or rec.has_current:
+def _takes_second_pole(extra: Sequence[str], rec: Recording, model: SavedModel) -> bool:
+    """``extra`` adds a coupling of two masses (a plant term) to a voltage plant measured
+    by speed (and position) alone whose winding's time constant came out over
+    :data:`LONG_LAG` samples: speed alone sees two poles, and a slow second one is the
+    coupling's rather than a winding's (the 2023 Miami drivetrain: 51 samples, 0.26 s,
+    where its wheels slip on the floor while the robot catches up). The family then
+    starts from a short winding lag (:data:`~.simulation_uncertainty.LAG_SHORT`)."""
+    if not any(EFFECTS[e].plant_term for e in extra) or model.input_kind != 'voltage' \
+            or rec.has_current:
         return False
     p = model.parameters
     return bool(p.get('L_m', 0.0) / p.get('R_m', 1.0) > LONG_LAG * rec.sample_period)
@@ -523,11 +522,11 @@ def _family_problem(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
     for e in extra:   # in order: an added Coulomb friction before its refinements
         effects[e] = _start_values(e, effects, scale)
     params = dict(model.parameters)
-    if any(EFFECTS[e].plant_term for e in extra) and _long_lag(rec, model):
+    if _takes_second_pole(extra, rec, model):
         # the coupling takes the second pole: from the winding's lag it stays put (the
         # 2023 Miami drivetrain: from the long lag the fit kept it, 58.7 / 62.8 % on the
         # steps; from a short one it found the coupling, 77.7 / 72.9 %, held out -47 %)
-        params['L_m'] = SHORT_LAG * rec.sample_period * params['R_m']
+        params['L_m'] = LAG_SHORT * rec.sample_period * params['R_m']
     m = SavedModel(model.input_kind, params, effects, model.source)
     # a delay the model brings (not profiled here) is refined between samples at once
     return SimulationProblem(rec, m, setup.init_samples,
@@ -541,7 +540,7 @@ def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
     values ``warm`` by free name where given, else the model's and the refinements'
     no-change starts), scored on the held-out ones."""
     prob = _family_problem(setup, model, extra)
-    if prob.model.parameters.get('L_m') != model.parameters.get('L_m'):
+    if _takes_second_pole(extra, setup.rec, model):
         # a coupling that takes the second pole starts from the equation-error plant
         # with a short winding lag, not from the plant the smaller families fitted
         # around the long one (the Miami drivetrain's: J and K_b near 0, held out no

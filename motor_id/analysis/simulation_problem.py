@@ -195,6 +195,19 @@ class SimulationProblem:
         noise = reading_noise(rec, self.fresh)
         self._rest = {a for a in self._opens if _at_rest(rec, a, noise)}
 
+    def variant(self, parameters: Mapping[str, float] | None = None,
+                effects: Mapping[str, Mapping[str, float]] | None = None,
+                free: Sequence[str] | None = None) -> SimulationProblem:
+        """This problem with the model's parameters, its effects or the free names
+        replaced (the record, the initial samples and the scored samples kept)."""
+        m = self.model
+        model = SavedModel(m.input_kind, dict(m.parameters if parameters is None
+                                              else parameters),
+                           {e: dict(v) for e, v in (m.effects if effects is None
+                                                    else effects).items()}, m.source)
+        return SimulationProblem(self.rec, model, self.n_init,
+                                 self.free if free is None else free, self.fresh)
+
     def first(self, a: int) -> int:
         """The sample a block from ``a`` is simulated from: after its initial samples;
         for a block that opens a run, its first sample when the run opens at rest (the

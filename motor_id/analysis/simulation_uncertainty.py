@@ -207,8 +207,6 @@ def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
     refined between samples is free in the fit: its covariance holds its part), and,
     where it has no delay that is refined between samples, with one freed
     (:func:`_fraction_refit`)."""
-    from motor_id.identify.validation import SavedModel
-
     out: list[Neighbour] = []
     for e in whole_sample_effects(prob.model.effects):
         p = EFFECTS[e].params[0].name
@@ -218,10 +216,8 @@ def _delay_neighbours(prob: SimulationProblem, z: np.ndarray,
         for step in (-1.0, 1.0):
             if d + step < 0:
                 continue
-            effects = {**prob.model.effects, e: {**prob.model.effects[e], p: d + step}}
-            m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
-                           prob.model.source)
-            q = type(prob)(prob.rec, m, prob.n_init, prob.free, prob.fresh)
+            q = prob.variant(effects={**prob.model.effects,
+                                      e: {**prob.model.effects[e], p: d + step}})
             say(f'simulation error: refitting with {e} {d + step:g} samples for the error '
                 'bars')
             zq, _ = q.fit(blocks, z, max_nfev=HALF_NFEV)
@@ -251,15 +247,11 @@ def _fraction_refit(prob: SimulationProblem, z: np.ndarray,
     alike at low frequencies), moves the values by what the model without it is off.
     That whole move goes into the error bars; on a record without a latency the delay
     comes out near 0 and so does the move."""
-    from motor_id.identify.validation import SavedModel
-
     out: list[Neighbour] = []
     for e, keys in _fraction_delays(prob.kind):
         effects = {**prob.model.effects, e: {**EFFECTS[e].defaults(),
                                              keys[0].partition('.')[2]: FRACTION_START}}
-        m = SavedModel(prob.model.input_kind, dict(prob.model.parameters), effects,
-                       prob.model.source)
-        q = type(prob)(prob.rec, m, prob.n_init, prob.free + keys, prob.fresh)
+        q = prob.variant(effects=effects, free=prob.free + keys)
         say(f'simulation error: refitting with {e} free between samples for the error bars')
         zq, _ = q.fit(blocks, np.concatenate([z, [FRACTION_START]]), max_nfev=HALF_NFEV)
         out.append((q, zq, 1.0))
@@ -288,8 +280,6 @@ def _lag_refit(prob: SimulationProblem, z: np.ndarray,
     the fit put a 9.5 ms electrical time constant (truth 1 ms) in place of the latency,
     and kA came out +6 % high against error bars of 0.8 %; given to a delay, kA was
     +2.8 %. The whole move goes into ``std_delay``."""
-    from motor_id.identify.validation import SavedModel
-
     if prob.kind != 'voltage' or prob.rec.has_current or 'L_m' not in prob.free:
         return []
     params, effects = prob.to_model(z)
@@ -309,8 +299,7 @@ def _lag_refit(prob: SimulationProblem, z: np.ndarray,
         effects = {**effects, e: {**EFFECTS[e].defaults(), keys[0].partition('.')[2]: lag}}
     held = {**params, 'L_m': LAG_SHORT * T * params['R_m']}
     free = [n for n in prob.free if n != 'L_m'] + [k for k in keys if k not in prob.free]
-    q = type(prob)(prob.rec, SavedModel(prob.model.input_kind, held, effects,
-                                        prob.model.source), prob.n_init, free, prob.fresh)
+    q = prob.variant(held, effects, free)
     say('simulation error: refitting with the lag of the winding given to a delay for the '
         'error bars')
     zq, _ = q.fit(blocks, q.start(), max_nfev=HALF_NFEV)
@@ -342,8 +331,6 @@ def _delay_as_lag_refit(prob: SimulationProblem, z: np.ndarray,
     kA 4.5 % low against error bars of 1.2 %. The real split lies anywhere between the two
     fits: the move's root mean square over that, ``move / sqrt(3)``
     (:data:`DELAY_SPREAD`), goes into ``std_delay`` (kA +- 6 % there)."""
-    from motor_id.identify.validation import SavedModel
-
     if prob.kind != 'voltage' or prob.rec.has_current or 'L_m' not in prob.free:
         return []
     params, effects = prob.to_model(z)
@@ -365,13 +352,9 @@ def _delay_as_lag_refit(prob: SimulationProblem, z: np.ndarray,
         # the plant first, the effects held: with a break-away level free too, the fit
         # from the delay's values moved that level instead of J and stopped at 2.5 times
         # the cost
-        plant = type(prob)(prob.rec, SavedModel(prob.model.input_kind, held, effs,
-                                                prob.model.source), prob.n_init,
-                           [n for n in free if '.' not in n], prob.fresh)
+        plant = prob.variant(held, effs, [n for n in free if '.' not in n])
         zp, _ = plant.fit(blocks, plant.start(), max_nfev=HALF_NFEV)
-        held, _ = plant.to_model(zp)
-        q = type(prob)(prob.rec, SavedModel(prob.model.input_kind, held, effs,
-                                            prob.model.source), prob.n_init, free, prob.fresh)
+        q = prob.variant(plant.to_model(zp)[0], effs, free)
         zq, _ = q.fit(blocks, q.start(), max_nfev=HALF_NFEV)
         if _plausible(prob, z, q, zq, blocks, say):
             out.append((q, zq, DELAY_SPREAD))
