@@ -63,8 +63,38 @@ def test_a_stage_without_a_sound_model_makes_the_report_inadequate():
     assert not report.adequate
     assert report.warnings[0] == 'the simulation-error stage found no model: no sound model'
     report = SimpleNamespace(adequate=True, warnings=[])
-    _stage_warnings(report, SimpleNamespace(failed='', fallback='fell back'))
+    _stage_warnings(report, SimpleNamespace(failed='', fallback='fell back', heldout_fit={}))
     assert report.adequate and report.warnings == ['simulation error: fell back']
+
+
+def test_the_report_is_as_adequate_as_the_stage_model_it_presents():
+    # the stage's model explains 40 % of the held-out speed: inadequate, whatever the
+    # equation-error stage said; 93.8 % (the Miami drivetrain's two masses) makes an
+    # equation-error inadequacy a warning, its parameters still not determined
+    stage = SimpleNamespace(failed='', fallback='', chosen='coulomb_friction+resonance',
+                            heldout_fit={'position': 99.0, 'speed': 40.0})
+    report = SimpleNamespace(adequate=True, warnings=['the speed kept one sign'])
+    _stage_warnings(report, stage)
+    assert not report.adequate and len(report.warnings) == 2
+    assert report.warnings[0].startswith('the simulation-error model (coulomb_friction+'
+                                         'resonance) explains 40.0 % of the speed')
+    stage.heldout_fit['speed'] = 93.8
+    lost = ('the chosen model explains (held out) 25.5 % of the speed (an adequate model '
+            'explains at least 50 %): its parameters are not presented as determined; no '
+            'named effect explains this record (a load that changes along it, a second '
+            'input?)')
+    report = SimpleNamespace(adequate=False, warnings=[lost])
+    _stage_warnings(report, stage)
+    assert report.adequate and report.warnings == [
+        'the equation-error model explains (held out) 25.5 % of the speed (an adequate '
+        'model explains at least 50 %): its parameters are not presented as determined; '
+        'the simulation-error model (coulomb_friction+resonance) explains 93.8 % of the '
+        'speed on the held-out blocks, simulated from the start of each, and is the model '
+        'reported']
+    # an inadequacy for another reason stands
+    report = SimpleNamespace(adequate=False, warnings=['the model explains 10 % of x'])
+    _stage_warnings(report, stage)
+    assert not report.adequate
 
 
 def test_stage_leaves_the_analysis_model_for_a_simpler_one_as_good():

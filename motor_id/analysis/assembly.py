@@ -156,6 +156,13 @@ def _diagnostics(ctx: RecordContext, full_base: Identifier, full: Identifier | N
                    steady_state=replace(map_summary(points), points=tuple(points))), points
 
 
+NO_EFFECT = 'no named effect explains this record (a load that changes along it, a second ' \
+    'input?)'
+"""Why an analysis whose models all explain too little of the speed is inadequate."""
+EXPLAINS = 'the chosen model explains (held out)'
+"""How the inadequacy warning of the equation-error stage's chosen model begins."""
+
+
 def _adequacy(ctx: RecordContext, chosen: ModelScore, verdict: str, params: dict[str, Any]
               ) -> tuple[bool, list[str]]:
     """``(adequate, warnings)``: the chosen model's held-out fit of the speed, the
@@ -165,12 +172,9 @@ def _adequacy(ctx: RecordContext, chosen: ModelScore, verdict: str, params: dict
     y = split.ys[k][split.test]
     yh = np.asarray(chosen.prediction['preds'][k])[split.test]
     fit = normalised_fit(y, yh)
-    adequate, warnings = determinacy.adequacy(
-        {'speed': fit}, hint='no named effect explains this record (a load that '
-        'changes along it, a second input?)')
+    adequate, warnings = determinacy.adequacy({'speed': fit}, hint=NO_EFFECT)
     if warnings:
-        warnings[0] = warnings[0].replace('the model explains',
-                                          'the chosen model explains (held out)')
+        warnings[0] = warnings[0].replace('the model explains', EXPLAINS)
     if not adequate:
         for p in params.values():
             if isinstance(p, dict) and p.get('determined') and not p.get('grid'):

@@ -238,6 +238,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
             'no sound model could be fitted by simulation error (every candidate failed, '
             'diverged or was implausible)'))
     chosen, best_z, best_prob = best
+    with np.errstate(all='ignore'):
+        heldout_fit = best_prob.fit_percent(best_z, held) if held else {}
     if fresh:
         cands.append(_every_sample(setup, best_prob, chosen))
     say(f'simulation error: refitting {chosen.name} on all {len(blocks)} blocks')
@@ -260,7 +262,8 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                    gains=_gains(cands, chosen),
                    model=StageModel(input_kind=model.input_kind, parameters=params,
                                     effects=effects), estimates=estimates,
-                   friction=friction_summary(params, effects, model.input_kind), rmse=rmse)
+                   friction=friction_summary(params, effects, model.input_kind), rmse=rmse,
+                   heldout_fit=heldout_fit)
 
 
 Best = tuple[SimCandidate, np.ndarray, SimulationProblem]

@@ -21,7 +21,7 @@ from motor_id.analysis.friction import folded_load
 from motor_id.effects import EFFECTS, role_keys
 from motor_id.identify.space import VOLTAGE_FREE
 from motor_id.identify.validation import initial_state_at, run_init_samples, SavedModel
-from motor_id.metrics import noise_floor
+from motor_id.metrics import noise_floor, normalised_fit
 from motor_id.model import MECHANICAL_PARAMS
 from motor_id.simulate import apply_input_maps, discretise_batch, split_input_maps
 
@@ -331,6 +331,22 @@ class SimulationProblem:
             err = np.concatenate([sim[ch][0] - getattr(self.rec, ch)[self.first(a) + 1:b]
                                   for (a, b), sim in zip(blocks, sims, strict=True)])
             out[ch] = float(np.sqrt(np.mean(err ** 2)))
+        return out
+
+    def fit_percent(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]
+                    ) -> dict[str, float]:
+        """Per channel: the normalised fit % (:func:`motor_id.metrics.normalised_fit`) of
+        ``z`` simulated on ``blocks`` from each block's own start, over the scored
+        samples (the fresh readings) of them all."""
+        sims = self.simulate(z, blocks)
+        out = {}
+        for ch in self.channels:
+            y, yh = [], []
+            for (a, b), sim in zip(blocks, sims, strict=True):
+                keep = self.fresh[ch][self.first(a) + 1:b]
+                y.append(getattr(self.rec, ch)[self.first(a) + 1:b][keep])
+                yh.append(sim[ch][0][keep])
+            out[ch] = normalised_fit(np.concatenate(y), np.concatenate(yh))
         return out
 
     def fit(self, blocks: Sequence[tuple[int, int]], z0: np.ndarray | None = None,

@@ -125,6 +125,9 @@ class SimulationStage(Record):
     estimates: StageEstimates | None = optional(None, when=omit_if_failed)
     friction: dict[str, float] | None = optional(None, when=omit_if_failed)
     rmse: dict[str, float] = optional({}, when=omit_if_failed)
+    heldout_fit: dict[str, float] = optional({}, when='empty')
+    """The chosen model as fitted on the training blocks, simulated on the held-out ones:
+    its normalised fit % per channel (what the report's adequacy is judged on)."""
     failed: str = optional('', when='empty')
     fallback: str = optional('', when='empty')
     """Why the stage searched from the model without the analysis' extra effects
