@@ -61,3 +61,28 @@ def test_no_latency_no_delay(tmp_path, capsys):
     rep, effects = _analyze(tmp_path, capsys)
     assert not {'start_latency', 'input_delay'} & set(effects), effects
     assert not {'start_latency', 'input_delay'} & set(rep['verdict'].split('+'))
+
+
+def test_a_transport_delay_and_an_enable_latency_together(tmp_path, capsys):
+    """Both at once, as a CAN motor controller has them: every command applied one 20 ms
+    loop late, and nothing for 40 ms after it leaves zero (seed 13, kS 0.3 V). One
+    profile finds one of them; alone, the delay took their total at every step (2.96
+    samples) and kS came out 0.250 +- 0.005 (10 error bars off), kV +0.7 % (200). The
+    stage now adds the other to the chosen model and splits their total again."""
+    log = write_sysid_wpilog(tmp_path / 'fw.wpilog', 13, log_name='fw', latency=0.02,
+                             start_latency=0.04, motors=(RoutineMotor('fw', kS=0.3),))
+    out = tmp_path / 'analyze.json'
+    assert main(['analyze', log.path, '-q', '--json', str(out)]) == 0
+    capsys.readouterr()
+    rep = json.loads(out.read_text())
+    effects = rep['simulation']['model']['effects']
+    assert {'input_delay', 'start_latency'} <= set(effects), effects
+    total = effects['input_delay']['d'] + effects['start_latency']['d']
+    assert 2.5 <= total <= 4.5, effects   # 3 loops: one of delay, two of latency
+    ff = rep['controller']['feedforward']
+    truth = log.truth.motors['fw']
+    for key, tol in (('kS', 0.03 / 0.3), ('kV', 0.01), ('kA', 0.05)):
+        v, s = ff[key]['value'], ff[key]['std']
+        t = getattr(truth, key)
+        assert abs(v - t) <= tol * t, (key, v, t)
+        assert abs(v - t) <= 3 * s, (key, v, s, t)

@@ -254,7 +254,10 @@ def test_joint_states_stopping_mid_test_commands_0_and_exits_non_zero(client, la
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_signal_mid_test_commands_0_and_leaves_nothing_running(client, launch, tmp_path,
                                                                    sig):
-    watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify')
+    # (the watchdog at 1 s: with both cores busy in CI the robot's process stalled over
+    # its own 0.25 s, which the test above checks, before the signal came)
+    watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify',
+                                     '--watchdog', '1.0')
     proc = psutil.Process(exp.pid)
     family = [proc] + proc.children(recursive=True)
     t_sig, t_wall = time.monotonic(), time.time()
@@ -283,7 +286,8 @@ def test_repeated_sigterms_do_not_cut_the_outputs_short(client, launch, tmp_path
     until the experiment exits. It stops as on the first (0 sent), and the repeats,
     landing while it writes its outputs too, cut nothing short (before: a repeat raised
     KeyboardInterrupt while they were written)."""
-    watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify')
+    watch, robot, exp = start_moving(client, launch, tmp_path, '--no-identify',
+                                     '--watchdog', '1.0')
     t_sig = time.monotonic()
     while exp.proc.poll() is None:
         assert time.monotonic() - t_sig < 120.0, exp.output()   # a failure bound

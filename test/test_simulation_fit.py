@@ -471,18 +471,18 @@ def test_stage_adds_coulomb_friction_the_equation_error_stage_took_for_a_load():
 
 
 def test_a_larger_family_starts_from_the_best_fitted_family_it_contains():
-    from motor_id.analysis.simulation_fit import _warm_start
+    from motor_id.analysis.simulation_family import warm_start
     fitted = {(): (4.0, {'J': 1.0, 'coulomb_friction.T_c': 0.5}),
               ('stiction',): (3.0, {'J': 2.0, 'coulomb_friction.T_c': 0.6,
                                     'stiction.T_s': 0.9}),
               ('asymmetric_friction',): (1.0, {'J': 3.0, 'coulomb_friction.T_c': 0.7,
                                                'asymmetric_friction.dB': 0.1})}
-    assert _warm_start(fitted, ('stiction',)) == fitted[()][1]
-    pair = _warm_start(fitted, ('asymmetric_friction', 'stiction'))
+    assert warm_start(fitted, ('stiction',)) == fitted[()][1]
+    pair = warm_start(fitted, ('asymmetric_friction', 'stiction'))
     # the best contained family's values win; each effect keeps its own single's values
     assert pair == {'J': 3.0, 'coulomb_friction.T_c': 0.7, 'stiction.T_s': 0.9,
                     'asymmetric_friction.dB': 0.1}
-    assert _warm_start({}, ('stiction',)) == {}
+    assert warm_start({}, ('stiction',)) == {}
 
 
 def test_stage_on_two_processes_gives_what_it_gives_on_one():

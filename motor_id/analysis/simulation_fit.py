@@ -22,10 +22,10 @@ dynamics estimate) and this one; ``motor-id validate`` simulates with this one.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 import itertools
-import multiprocessing
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -33,12 +33,15 @@ import numpy as np
 from motor_id.analysis.frames import held_channels
 from motor_id.analysis.friction import friction_summary
 from motor_id.analysis.simulation_delay import (
-    profile_delay,
-    profile_key,
+    PROFILE_NFEV,
     PROFILED,
-    profiled,
-    profiled_problem,
     samples_param,
+)
+from motor_id.analysis.simulation_family import (
+    fit_families,
+    fit_family,
+    fitted_values,
+    StageSetup,
 )
 from motor_id.analysis.simulation_guard import reduced_model, stage_scales, unsound
 from motor_id.analysis.simulation_problem import (
@@ -55,9 +58,8 @@ from motor_id.analysis.simulation_result import (
     StageEstimates,
     StageModel,
 )
-from motor_id.analysis.simulation_uncertainty import LAG_SHORT, stage_estimates
-from motor_id.analysis.workers import _worker_start, longest_first
-from motor_id.effects import EFFECTS, role_value
+from motor_id.analysis.simulation_uncertainty import stage_estimates
+from motor_id.effects import EFFECTS
 from motor_id.errors import FIT_ERRORS
 from motor_id.identify.validation import SavedModel
 
@@ -100,25 +102,6 @@ def _leaves_zero(rec: Recording | None) -> bool:
         for a, b in rec.segment_ranges)
 
 
-LONG_LAG = 5.0
-"""A winding's time constant ``L_m / R_m`` [sample periods] over which a speed-only
-model's second pole is taken for something else (:func:`_takes_second_pole`)."""
-
-
-def _takes_second_pole(extra: Sequence[str], rec: Recording, model: SavedModel) -> bool:
-    """``extra`` adds a coupling of two masses (a plant term) to a voltage plant measured
-    by speed (and position) alone whose winding's time constant came out over
-    :data:`LONG_LAG` samples: speed alone sees two poles, and a slow second one is the
-    coupling's rather than a winding's (the 2023 Miami drivetrain: 51 samples, 0.26 s,
-    where its wheels slip on the floor while the robot catches up). The family then
-    starts from a short winding lag (:data:`~.simulation_uncertainty.LAG_SHORT`)."""
-    if not any(EFFECTS[e].plant_term for e in extra) or model.input_kind != 'voltage' \
-            or rec.has_current:
-        return False
-    p = model.parameters
-    return bool(p.get('L_m', 0.0) / p.get('R_m', 1.0) > LONG_LAG * rec.sample_period)
-
-
 STAGE_RULES: dict[str, Callable[[Recording | None], bool]] = {
     'always': lambda rec: True,
     'input_leaves_zero': _leaves_zero,
@@ -140,36 +123,6 @@ def pairs(helpful: Sequence[str]) -> list[tuple[str, ...]]:
     for base in helpful:
         out += [(base, e) for e, spec in EFFECTS.items() if spec.extends == base]
     return out
-
-
-def _start_values(effect: str, effects: Mapping[str, Mapping[str, float]],
-                  drive_scale: float) -> dict[str, float]:
-    """A refinement's start (its entry's
-    :attr:`~motor_id.effects.EffectSpec.stage_start`): no change from the model it
-    refines (static friction at the Coulomb level plus a little); an added Coulomb
-    friction at 2 % of the largest drive torque ``drive_scale``; a delay of none (its
-    grid search follows)."""
-    spec = EFFECTS[effect]
-    vals = spec.defaults()
-    if spec.stage_start:
-        vals.update(spec.stage_start(drive_scale, role_value(effects, 'kS', scale='torque')))
-    elif effect in PROFILED:
-        vals = {p.name: 0.0 for p in spec.params}
-    return vals
-
-
-@dataclass
-class StageSetup:
-    """What every candidate of one stage shares."""
-
-    rec: Recording
-    init_samples: int
-    train: list[tuple[int, int]]
-    held: list[tuple[int, int]]
-    fresh: dict[str, np.ndarray] | None
-    say: Callable[[str], object]
-    scales: dict[str, float]
-    """The record's data scales (the effects' plausibility checks read them)."""
 
 
 def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
@@ -226,6 +179,9 @@ def simulation_stage(rec: Recording, model: SavedModel, init_samples: int = 20,
                                                             (1.0 - min_gain) ** 2)):
             best = alt_best
         cands += alt
+    if best is not None:
+        more, best = _both_delays(setup, best, (1.0 - min_gain) ** 2)
+        cands += more
     fallback = ''
     if reduced is not None:
         cands, best, fallback = _with_rival(setup, reduced, cands, best, min_gain, jobs)
@@ -292,15 +248,15 @@ def _search(setup: StageSetup, model: SavedModel, min_gain: float, jobs: int,
         families: list[tuple[str, ...]] = ([()] if stage == 'base' else
                                            singles if stage == 'singles' else pairs(helpful))
         fits = [base] if stage == 'base' and base is not None else \
-            _fit_families(setup, model, families, fitted, jobs)
+            fit_families(setup, model, families, fitted, jobs)
         for extra, (cand, z, prob) in zip(families, fits, strict=True):
             cands.append(cand)
             if not cand.scored:
                 continue
-            fitted[extra] = (cand.heldout_cost, _values(prob, z))
+            fitted[extra] = (cand.heldout_cost, fitted_values(prob, z))
             if best is not None and cand.heldout_cost < gain_needed * best[0].heldout_cost:
                 best = _polish(setup, best, cand, z, prob)
-                fitted[best_family] = (best[0].heldout_cost, _values(best[2], best[1]))
+                fitted[best_family] = (best[0].heldout_cost, fitted_values(best[2], best[1]))
             if stage == 'singles':
                 single_costs[extra[0]] = cand.heldout_cost
             if best is None or _beats((cand, z, prob), best, gain_needed,
@@ -322,7 +278,7 @@ def _with_rival(setup: StageSetup, reduced: SavedModel, cands: list[SimCandidate
     beats the rival on the held-out blocks; otherwise the stage searches from the
     rival (its refinements and delays included). Returns the candidates, the best and
     why the stage fell back ('' where it did not)."""
-    rival = _fit_families(setup, reduced, [()], {}, 1)[0]
+    rival = fit_families(setup, reduced, [()], {}, 1)[0]
     r_cand = rival[0]
     if best is not None and (not r_cand.scored
                              or best[0].heldout_cost < r_cand.heldout_cost):
@@ -378,6 +334,77 @@ def _latency_for_delay(model: SavedModel, rec: Recording) -> SavedModel | None:
     return SavedModel(model.input_kind, dict(model.parameters), effects, model.source)
 
 
+def _both_delays(setup: StageSetup, best: Best, gain_needed: float
+                 ) -> tuple[list[SimCandidate], Best]:
+    """The chosen family with the other kind of delay added, where it has one and the
+    other applies (a start latency where the input leaves zero): a drive that applies
+    every command late (a CAN frame) and nothing for a while after it is enabled. One
+    profile finds one of them (:func:`.simulation_fit.pairs` never pairs them), and
+    alone it takes their total at every step, which a ramp's start and every step down
+    then contradict (kS 17 % low on a routine of a 1-loop delay and a 2-loop enable
+    latency). The other is profiled with the first held, then their total is split
+    again: each whole split refitted briefly on the training blocks, the best fully.
+    Returns the candidates tried and the best (replaced where the two beat it by
+    ``gain_needed`` held out)."""
+    cand, _, prob = best
+    rec = setup.rec
+    have = [e for e in PROFILED if e in cand.effects]
+    other = [e for e in PROFILED if e not in cand.effects
+             and STAGE_RULES.get(EFFECTS[e].stage_rule, lambda _r: True)(rec)]
+    if len(have) != 1 or not other:
+        return [], best
+    model = SavedModel(prob.model.input_kind, dict(cand.parameters),
+                       {e: dict(v) for e, v in cand.effects.items()}, prob.model.source)
+    added = fit_family(setup, model, (other[0],))
+    tried = [added[0]]
+    if not added[0].scored or added[0].effects[other[0]][samples_param(other[0])] < 0.5:
+        return tried, best   # none of the other: the model the search had
+    split = _resplit(setup, added[0])
+    if split is not None:
+        tried.append(split[0])
+        if split[0].scored and split[0].heldout_cost < added[0].heldout_cost:
+            added = split
+    return tried, added if added[0].heldout_cost < gain_needed * cand.heldout_cost else best
+
+
+def _whole(cand: SimCandidate, effect: str) -> int:
+    """Whole samples of the :data:`.simulation_delay.PROFILED` ``effect`` of ``cand``."""
+    return int(np.floor(cand.effects[effect][samples_param(effect)] + 1e-9))
+
+
+def _resplit(setup: StageSetup, cand: SimCandidate) -> Best | None:
+    """``cand`` (with both delays) at the whole split of their total that fits the
+    training blocks best after a brief refit (:data:`.simulation_delay.PROFILE_NFEV`
+    evaluations each), fitted fully and scored; None where that is its own split."""
+    delay, latency = PROFILED
+    total = int(round(sum(cand.effects[e][samples_param(e)] for e in PROFILED)))
+    own = _whole(cand, delay)
+    best_cost, best_split = math.inf, own
+    # each at least one sample (one alone is the search's), and its own split (which
+    # may have less) refitted as briefly
+    for d in sorted({*range(1, total), own}):
+        effects = dict(cand.effects) if d == own else {
+            **cand.effects, delay: {samples_param(delay): float(d)},
+            latency: {samples_param(latency): float(total - d)}}
+        m = SavedModel(setup.rec.input_kind, dict(cand.parameters), effects, '')
+        prob = SimulationProblem(setup.rec, m, setup.init_samples,
+                                 free_names(m, setup.rec) + fraction_keys(effects), setup.fresh)
+        try:
+            with np.errstate(all='ignore'):
+                z, _ = prob.fit(setup.train, prob.start(), max_nfev=PROFILE_NFEV)
+                cost = prob.cost(z, setup.train)
+        except FIT_ERRORS:
+            continue
+        if cost < best_cost:
+            best_cost, best_split = cost, d
+    if best_split == own:
+        return None
+    effects = {**cand.effects, delay: {samples_param(delay): float(best_split)},
+               latency: {samples_param(latency): float(total - best_split)}}
+    m = SavedModel(setup.rec.input_kind, dict(cand.parameters), effects, '')
+    return fit_family(setup, m, ())
+
+
 def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, float]:
     """Per effect of the chosen model: the share of the held-out simulation error it
     removes, ``1 - cost with / cost without`` (from the candidate without it). Held
@@ -390,29 +417,6 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
         without = '+'.join(p for p in parts if p != e) or 'linear'
         if without in by_name and e in EFFECTS:
             out[e] = 1.0 - chosen.heldout_cost / by_name[without].heldout_cost
-    return out
-
-
-def _values(prob: SimulationProblem, z: np.ndarray) -> dict[str, float]:
-    """A fitted family's values by free name, and the delays its profile found
-    (``input_delay.d``, ``start_latency.d``): what a larger family starts from."""
-    out = {profile_key(e): float(prob.model.effects[e][samples_param(e)]) for e in PROFILED
-           if e in prob.model.effects}
-    out.update(zip(prob.free, z, strict=True))   # a delay refined between samples
-    return out
-
-
-def _warm_start(fitted: Mapping[tuple[str, ...], tuple[float, dict[str, float]]],
-                extra: tuple[str, ...]) -> dict[str, float]:
-    """Start values for the family ``extra`` from the fitted families it contains (the
-    base, and for a pair each of its effects alone), the best fitted last so its values
-    win: a larger model starts no worse than the best smaller one found, where every
-    family started from the equation-error values and a refinement could end above the
-    model it refines."""
-    nested = [f for f in fitted if set(f) < set(extra)]
-    out: dict[str, float] = {}
-    for f in sorted(nested, key=lambda f: -fitted[f][0]):
-        out.update(fitted[f][1])
     return out
 
 
@@ -471,105 +475,3 @@ def _every_sample(setup: StageSetup, prob: SimulationProblem, chosen: SimCandida
     except FIT_ERRORS as exc:
         cand.failed = f'{type(exc).__name__}: {exc}'
     return cand
-
-
-_STAGE: tuple[StageSetup, SavedModel] | None = None
-"""The stage a forked worker of :func:`_fit_families` inherited."""
-
-
-def _fit_families(setup: StageSetup, model: SavedModel, families: Sequence[tuple[str, ...]],
-                  fitted: Mapping[tuple[str, ...], tuple[float, dict[str, float]]],
-                  jobs: int = 1) -> list[tuple[SimCandidate, np.ndarray, SimulationProblem]]:
-    """:func:`_fit_family` of each family, warm-started from ``fitted`` as it is now (so
-    the results do not depend on ``jobs``), on up to ``jobs`` forked processes."""
-    warms = [_warm_start(fitted, f) for f in families]
-    if jobs <= 1 or len(families) < 2 or 'fork' not in multiprocessing.get_all_start_methods():
-        return [_fit_family(setup, model, f, w) for f, w in zip(families, warms, strict=True)]
-    global _STAGE
-    _STAGE = (setup, model)   # inherited by the workers forked below
-    try:
-        with multiprocessing.get_context('fork').Pool(min(jobs, len(families)),
-                                                      initializer=_worker_start) as pool:
-            # the profiled families (a delay grid each) are the longest fits
-            done = list(longest_first(pool, _family_task, list(zip(families, warms,
-                                                                    strict=True)),
-                                      [float(bool(profiled(f))) for f in families]))
-    finally:
-        _STAGE = None
-    out = []
-    for f, (cand, z) in zip(families, done, strict=True):
-        prob = _family_problem(setup, model, f)
-        lag = profiled(f)
-        d = cand.effects.get(lag, {}).get(samples_param(lag)) if lag else None
-        out.append((cand, z, prob if d is None else profiled_problem(prob, d, lag)))
-    return out
-
-
-def _family_task(job: tuple[tuple[str, ...], dict[str, float]]
-                 ) -> tuple[SimCandidate, np.ndarray]:
-    """A worker's task: one family of the inherited stage, fitted."""
-    if _STAGE is None:   # pragma: no cover - only reached in a forked worker
-        raise RuntimeError('a stage worker without its stage (not started by fork)')
-    cand, z, _ = _fit_family(*_STAGE, *job)
-    return cand, z
-
-
-def _family_problem(setup: StageSetup, model: SavedModel, extra: tuple[str, ...]
-                    ) -> SimulationProblem:
-    """The problem of ``model`` plus the refinements ``extra`` at their start values."""
-    rec = setup.rec
-    u_max = float(np.max(np.abs(rec.input)))
-    scale = u_max if model.input_kind == 'torque' else \
-        model.parameters['K_T'] * u_max / model.parameters['R_m']
-    effects = dict(model.effects)
-    for e in extra:   # in order: an added Coulomb friction before its refinements
-        effects[e] = _start_values(e, effects, scale)
-    params = dict(model.parameters)
-    if _takes_second_pole(extra, rec, model):
-        # the coupling takes the second pole: from the winding's lag it stays put (the
-        # 2023 Miami drivetrain: from the long lag the fit kept it, 58.7 / 62.8 % on the
-        # steps; from a short one it found the coupling, 77.7 / 72.9 %, held out -47 %)
-        params['L_m'] = LAG_SHORT * rec.sample_period * params['R_m']
-    m = SavedModel(model.input_kind, params, effects, model.source)
-    # a delay the model brings (not profiled here) is refined between samples at once
-    return SimulationProblem(rec, m, setup.init_samples,
-                             free_names(m, rec) + fraction_keys(model.effects), setup.fresh)
-
-
-def _fit_family(setup: StageSetup, model: SavedModel, extra: tuple[str, ...],
-                warm: Mapping[str, float] | None = None
-                ) -> tuple[SimCandidate, np.ndarray, SimulationProblem]:
-    """``model`` plus the refinements ``extra`` fitted on the training blocks (from the
-    values ``warm`` by free name where given, else the model's and the refinements'
-    no-change starts), scored on the held-out ones."""
-    prob = _family_problem(setup, model, extra)
-    if _takes_second_pole(extra, setup.rec, model):
-        # a coupling that takes the second pole starts from the equation-error plant
-        # with a short winding lag, not from the plant the smaller families fitted
-        # around the long one (the Miami drivetrain's: J and K_b near 0, held out no
-        # better with the coupling)
-        warm = {k: v for k, v in (warm or {}).items() if '.' in k}
-    name = '+'.join(e for e in prob.model.effects if EFFECTS[e].category == 'dynamic'
-                    or e in PROFILED) or 'linear'
-    setup.say(f'simulation error: fitting {name} on {len(setup.train)} blocks')
-    cand = SimCandidate(name=name)
-    z = np.array([(warm or {}).get(n, v) for n, v in zip(prob.free, prob.start(),
-                                                          strict=True)])
-    try:
-        with np.errstate(all='ignore'):
-            lag = profiled(extra)
-            if lag:
-                prob, z, cand.nfev = profile_delay(prob, setup.train, z, lag,
-                                                    (warm or {}).get(profile_key(lag)))
-            else:
-                z, cand.nfev = prob.fit(setup.train, z)
-            cand.parameters, cand.effects = prob.to_model(z)
-            cand.train_rmse = prob.rmse(z, setup.train)
-            score_on = setup.held or setup.train
-            if setup.held:
-                cand.heldout_rmse = prob.rmse(z, setup.held)
-            cand.heldout_cost = prob.cost(z, score_on)
-        cand.failed = unsound(cand.heldout_cost, cand.effects, setup.scales)
-    except FIT_ERRORS as exc:
-        cand.failed = f'{type(exc).__name__}: {exc}'
-    return cand, z, prob
