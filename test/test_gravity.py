@@ -59,6 +59,26 @@ def test_arm_gravity_from_the_measured_position_follows_the_independent_physics(
     np.testing.assert_allclose(free['speed'][0], states['speed'], atol=5e-3 * span, rtol=0)
 
 
+def test_arm_gravity_over_a_20_ms_interval_is_held_at_its_midpoint():
+    """The swing at a robot's 20 ms loop: the gravity held over each interval at the
+    interval's start lagged the motion by half an interval (speed off by 1.3 % of its
+    range with the measured position, 1.1 % and 7.4 mrad integrated; a heavy arm's kV came
+    out 1.6 % high at 7.5 error bars); at its midpoint 0.05 %, 0.06 % and 0.1 mrad."""
+    T, n = 0.02, 150
+    t = np.arange(n) * T
+    u = np.where(t > 1.5, 1.5, 0.0)
+    effects = {'arm_gravity': {'T_g': 3.0, 'offset': 0.3}}
+    states = integrate(JOINT, u, T, effects, theta0=-math.pi / 2 - 0.3 + 0.6)
+    span = np.ptp(states['speed'])
+    out = simulate_batch(P, t, u, 'voltage', 'zoh', effects, x0=[0.0, 0.0],
+                         measured_position=states['angle'])
+    np.testing.assert_allclose(out['speed'][0], states['speed'], atol=2e-3 * span, rtol=0)
+    free = simulate_batch(P, t, u, 'voltage', 'zoh', effects,
+                          x0=[0.0, 0.0, states['angle'][0]])
+    np.testing.assert_allclose(free['speed'][0], states['speed'], atol=2e-3 * span, rtol=0)
+    np.testing.assert_allclose(free['position'][0], states['angle'], atol=1e-3, rtol=0)
+
+
 def test_elevator_gravity_is_a_constant_load():
     t = np.arange(500) * 0.01
     u = np.where(t > 1.0, 4.0, 0.5)
