@@ -109,10 +109,16 @@ def test_analyze_of_an_arm_routine(arm, tmp_path, capsys):
     assert main(['analyze', arm.path, '--mechanism', 'arm', '-q', '--json', str(out)]) == 0
     text = capsys.readouterr().out
     report = json.loads(out.read_text())
-    check_arm(feedforward(report), arm.truth.motors['arm'])
+    ff, truth = feedforward(report), arm.truth.motors['arm']
+    check_arm(ff, truth)
     assert [r['name'] for r in report['runs']] == list(ROUTINE)
-    assert all(r['channels']['speed']['fit_percent'] > 90 for r in report['runs'])
+    assert all(r['channels']['speed']['fit_percent'] > 97 for r in report['runs'])
     assert 'kG' in text and 'offset' in text
+    # the gravity at each interval's midpoint (at its start: kV +1.3 %, kG -1 %), from the
+    # winding the faster pole (the equation-error stage had them exchanged: kA not
+    # determined, kV +3.7 %, kG -3.1 %): kV 0.6012, kA 0.0417, kG 0.9992
+    for key, tol in (('kV', 0.005), ('kA', 0.03), ('kG', 0.005)):
+        assert ff[key]['value'] == pytest.approx(getattr(truth, key), rel=tol), key
 
 
 def json_log(rec, test):

@@ -256,7 +256,8 @@ def _simulation_lines(sim: SimulationStage | None,
                          'samples only')
     for c in sim.candidates:
         err = '; '.join(x for x in (', '.join(f'{ch} {v:.4g}' for ch, v in
-                                             c.heldout_rmse.items()), c.failed) if x)
+                                             c.heldout_rmse.items()), c.failed,
+                                    c.start and f'from {c.start}') if x)
         mark = '*' if c.name == sim.chosen else ' '
         lines.append(f'  {mark} {c.name:<58} {err}')
     if sim.fallback:

@@ -37,6 +37,9 @@ class SimCandidate(Record):
     failed: str = optional('', when='empty')
     polished_from: str = optional('', when='empty')
     """A larger candidate this one was refitted from (:func:`._polish`), if any."""
+    start: str = optional('', when='empty')
+    """Where its fit started when not from the analysis' model (its winding and its
+    mechanics exchanged: :func:`.simulation_fit._poles_swapped`)."""
 
     @property
     def scored(self) -> bool:
