@@ -128,9 +128,14 @@ def test_joint_states_come_at_the_rate_with_jitter_and_measurement_stamps(
     stamps = np.array([_stamp(m) for _, m in got])
     periods = np.diff(stamps)
     assert np.all(periods > 0.0)
-    # the stamps are the sample instants, exact whatever the load
-    assert np.mean(periods) == pytest.approx(0.01, rel=0.02)
-    assert np.std(periods) == pytest.approx(0.1 * 0.01, rel=0.2)
+    # the stamps are the sample instants, exact whatever the load. A message lost on the
+    # way leaves a gap of two periods or more, left out here: the subscriber keeps 10
+    # (ros2_control's depth), and a starved test process lost 16 % of them in one CI run
+    # beside two more busy processes (mean period 11.6 ms with the gaps)
+    kept = periods[periods < 1.5 * 0.01]
+    assert kept.size >= 0.5 * periods.size
+    assert np.mean(kept) == pytest.approx(0.01, rel=0.02)
+    assert np.std(kept) == pytest.approx(0.1 * 0.01, rel=0.2)
     # messages leave after their measurement: latency >= half the mean, never negative
     lag = received - stamps
     assert np.all(lag > 0.0) and np.median(lag) > 0.002
