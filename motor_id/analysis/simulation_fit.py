@@ -459,7 +459,8 @@ def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, flo
     removes, ``1 - cost with / cost without`` (from the candidate without it). Held
     readings are a fact of the values (:mod:`.frames`), not a gain; the candidate
     ``... (every sample)`` shows the chosen model fitted on every sample as logged."""
-    by_name = {c.name: c for c in cands if c.scored}
+    # (from the same start: a search from the poles exchanged repeats the names)
+    by_name = {c.name: c for c in cands if c.scored and c.start == chosen.start}
     parts = chosen.name.split('+')
     out: dict[str, float] = {}
     for e in parts:
