@@ -22,7 +22,7 @@ dynamics estimate) and this one; ``motor-id validate`` simulates with this one.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 import itertools
 import math
@@ -38,6 +38,7 @@ from motor_id.analysis.simulation_delay import (
     samples_param,
 )
 from motor_id.analysis.simulation_family import (
+    family_problem,
     fit_families,
     fit_family,
     fitted_values,
@@ -45,8 +46,6 @@ from motor_id.analysis.simulation_family import (
 )
 from motor_id.analysis.simulation_guard import reduced_model, stage_scales, unsound
 from motor_id.analysis.simulation_problem import (
-    fraction_keys,
-    free_names,
     make_blocks,
     open_samples,
     sim_channels,
@@ -402,9 +401,8 @@ def _both_delays(setup: StageSetup, best: Best, gain_needed: float
              and STAGE_RULES.get(EFFECTS[e].stage_rule, lambda _r: True)(rec)]
     if len(have) != 1 or not other:
         return [], best
-    model = SavedModel(prob.model.input_kind, dict(cand.parameters),
-                       {e: dict(v) for e, v in cand.effects.items()}, prob.model.source)
-    added = fit_family(setup, model, (other[0],))
+    added = fit_family(setup, _as_model(cand, cand.effects, prob.model.input_kind),
+                       (other[0],))
     tried = [added[0]]
     if not added[0].scored or added[0].effects[other[0]][samples_param(other[0])] < 0.5:
         return tried, best   # none of the other: the model the search had
@@ -416,9 +414,11 @@ def _both_delays(setup: StageSetup, best: Best, gain_needed: float
     return tried, added if added[0].heldout_cost < gain_needed * cand.heldout_cost else best
 
 
-def _whole(cand: SimCandidate, effect: str) -> int:
-    """Whole samples of the :data:`.simulation_delay.PROFILED` ``effect`` of ``cand``."""
-    return int(np.floor(cand.effects[effect][samples_param(effect)] + 1e-9))
+def _as_model(cand: SimCandidate, effects: Mapping[str, Mapping[str, float]],
+              input_kind: str) -> SavedModel:
+    """A fitted candidate's parameters with ``effects``, as a model to fit from."""
+    return SavedModel(input_kind, dict(cand.parameters),
+                      {e: dict(v) for e, v in effects.items()})
 
 
 def _resplit(setup: StageSetup, cand: SimCandidate) -> Best | None:
@@ -427,17 +427,18 @@ def _resplit(setup: StageSetup, cand: SimCandidate) -> Best | None:
     evaluations each), fitted fully and scored; None where that is its own split."""
     delay, latency = PROFILED
     total = int(round(sum(cand.effects[e][samples_param(e)] for e in PROFILED)))
-    own = _whole(cand, delay)
+    own = int(np.floor(cand.effects[delay][samples_param(delay)] + 1e-9))
+
+    def split(d: int) -> SavedModel:   # its own split as it is, with its fraction
+        return _as_model(cand, cand.effects if d == own else {
+            **cand.effects, delay: {samples_param(delay): float(d)},
+            latency: {samples_param(latency): float(total - d)}}, setup.rec.input_kind)
+
     best_cost, best_split = math.inf, own
     # each at least one sample (one alone is the search's), and its own split (which
     # may have less) refitted as briefly
     for d in sorted({*range(1, total), own}):
-        effects = dict(cand.effects) if d == own else {
-            **cand.effects, delay: {samples_param(delay): float(d)},
-            latency: {samples_param(latency): float(total - d)}}
-        m = SavedModel(setup.rec.input_kind, dict(cand.parameters), effects, '')
-        prob = SimulationProblem(setup.rec, m, setup.init_samples,
-                                 free_names(m, setup.rec) + fraction_keys(effects), setup.fresh)
+        prob = family_problem(setup, split(d), ())
         try:
             with np.errstate(all='ignore'):
                 z, _ = prob.fit(setup.train, prob.start(), max_nfev=PROFILE_NFEV)
@@ -446,12 +447,7 @@ def _resplit(setup: StageSetup, cand: SimCandidate) -> Best | None:
             continue
         if cost < best_cost:
             best_cost, best_split = cost, d
-    if best_split == own:
-        return None
-    effects = {**cand.effects, delay: {samples_param(delay): float(best_split)},
-               latency: {samples_param(latency): float(total - best_split)}}
-    m = SavedModel(setup.rec.input_kind, dict(cand.parameters), effects, '')
-    return fit_family(setup, m, ())
+    return None if best_split == own else fit_family(setup, split(best_split), ())
 
 
 def _gains(cands: Sequence[SimCandidate], chosen: SimCandidate) -> dict[str, float]:

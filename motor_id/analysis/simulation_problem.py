@@ -323,31 +323,35 @@ class SimulationProblem:
         ``blocks``: the cost the stage compares candidates by (held-out, on the halves)."""
         return float(np.mean(self.residuals(z[None, :], blocks) ** 2))
 
-    def rmse(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> dict[str, float]:
-        """Per channel RMSE [SI] over the scored samples of ``blocks``."""
+    def _compared(self, z: np.ndarray, blocks: Sequence[tuple[int, int]], fresh: bool
+                  ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Per channel: the recorded and the simulated values of ``z`` over ``blocks``
+        (each block from its own start), every sample after the first or (``fresh``)
+        the fresh readings only."""
         sims = self.simulate(z, blocks)
         out = {}
         for ch in self.channels:
-            err = np.concatenate([sim[ch][0] - getattr(self.rec, ch)[self.first(a) + 1:b]
-                                  for (a, b), sim in zip(blocks, sims, strict=True)])
-            out[ch] = float(np.sqrt(np.mean(err ** 2)))
+            y, yh = [], []
+            for (a, b), sim in zip(blocks, sims, strict=True):
+                k0 = self.first(a)
+                keep = self.fresh[ch][k0 + 1:b] if fresh else slice(None)
+                y.append(getattr(self.rec, ch)[k0 + 1:b][keep])
+                yh.append(sim[ch][0][keep])
+            out[ch] = (np.concatenate(y), np.concatenate(yh))
         return out
+
+    def rmse(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]) -> dict[str, float]:
+        """Per channel RMSE [SI] over the samples of ``blocks`` after their first."""
+        return {ch: float(np.sqrt(np.mean((yh - y) ** 2)))
+                for ch, (y, yh) in self._compared(z, blocks, False).items()}
 
     def fit_percent(self, z: np.ndarray, blocks: Sequence[tuple[int, int]]
                     ) -> dict[str, float]:
         """Per channel: the normalised fit % (:func:`motor_id.metrics.normalised_fit`) of
         ``z`` simulated on ``blocks`` from each block's own start, over the scored
         samples (the fresh readings) of them all."""
-        sims = self.simulate(z, blocks)
-        out = {}
-        for ch in self.channels:
-            y, yh = [], []
-            for (a, b), sim in zip(blocks, sims, strict=True):
-                keep = self.fresh[ch][self.first(a) + 1:b]
-                y.append(getattr(self.rec, ch)[self.first(a) + 1:b][keep])
-                yh.append(sim[ch][0][keep])
-            out[ch] = normalised_fit(np.concatenate(y), np.concatenate(yh))
-        return out
+        return {ch: normalised_fit(y, yh)
+                for ch, (y, yh) in self._compared(z, blocks, True).items()}
 
     def fit(self, blocks: Sequence[tuple[int, int]], z0: np.ndarray | None = None,
             max_nfev: int = MAX_NFEV) -> tuple[np.ndarray, int]:
